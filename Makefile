@@ -1,0 +1,26 @@
+# Everything a fresh machine needs: `make demo` and `make test` create .venv themselves.
+PYTHON ?= python3
+VENV ?= .venv
+# The CPU build is enough for the demo and the tests; override for CUDA, e.g. TORCH=torch.
+TORCH ?= torch==2.13.0
+PY := $(VENV)/bin/python
+
+.PHONY: demo test venv clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q "$(TORCH)"
+	$(PY) -m pip install -q -e ".[dev]"
+	touch $@
+
+venv: $(VENV)/.installed
+
+demo: $(VENV)/.installed
+	$(PY) -m mocapfix demo
+
+test: $(VENV)/.installed
+	$(PY) -m pytest -q -ra
+
+clean:
+	rm -rf $(VENV) .cache
