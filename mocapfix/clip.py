@@ -64,3 +64,53 @@ class Clip:
 
     def replace(self, **changes) -> "Clip":
         return replace(self, **changes)
+
+    def select_joints(self, keep: list[int]) -> "Clip":
+        """The clip restricted to joints `keep`, each re-hung under its nearest kept ancestor.
+
+        Rotations are re-expressed for the new tree from global rotations (FK of the local ones)
+        and the clip's positions: local'(c) = G(p)^T G(c), offset'(c) = time-mean of
+        G(p)^T (pos(c) - pos(p)), and the new root takes G(root) and pos(root). This is exact
+        when the dropped joints only add constant offsets (a leaf, a fixed joint such as Bandai
+        Namco's joint_Root); otherwise no constant offset exists and the clip comes back without
+        rotations rather than with wrong ones.
+        """
+        keep = sorted(set(int(k) for k in keep))
+        skeleton = self.skeleton.subset(keep)
+        out = self.replace(positions=self.positions[:, keep], skeleton=skeleton,
+                           rotations=None, root_translation=None, offsets=None)
+        if not self.has_rotations or not np.isfinite(self.rotations).all():
+            return out
+        from scipy.spatial.transform import Rotation
+
+        def fk(local, root, offsets, parents):  # numpy FK (this module stays torch-free) -> positions, globals
+            pos, glob = np.empty(local.shape[:-1]), np.empty_like(local)
+            pos[:, 0], glob[:, 0] = root, local[:, 0]
+            for j in range(1, len(parents)):
+                pos[:, j] = pos[:, parents[j]] + glob[:, parents[j]] @ offsets[j]
+                glob[:, j] = glob[:, parents[j]] @ local[:, j]
+            return pos, glob
+
+        T, J = self.rotations.shape[:2]
+        local = Rotation.from_rotvec(self.rotations.reshape(-1, 3).astype(np.float64)).as_matrix().reshape(T, J, 3, 3)
+        fk_pos, glob = fk(local, self.root_translation.astype(np.float64), self.offsets.astype(np.float64),
+                          self.skeleton.parents)
+        # The positions are the data; FK only fills joints the data lacks.
+        data = self.positions.astype(np.float64)
+        pos = np.where(np.isfinite(data), data, fk_pos)[:, keep]             # (T, K, 3)
+        G = glob[:, keep]                                                    # (T, K, 3, 3)
+        par = np.array(skeleton.parents[1:], dtype=np.int64)                 # (K-1,)
+        Gp_T = np.swapaxes(G[:, par], -1, -2)                                # (T, K-1, 3, 3)
+        new_local = np.concatenate([G[:, :1], Gp_T @ G[:, 1:]], axis=1)      # (T, K, 3, 3)
+        rel = (Gp_T @ (pos[:, 1:] - pos[:, par])[..., None])[..., 0]         # (T, K-1, 3)
+        offsets = np.concatenate([np.zeros((1, 3)), rel.mean(axis=0)])       # (K, 3)
+        root = pos[:, 0]
+        rotations = Rotation.from_matrix(new_local.reshape(-1, 3, 3)).as_rotvec().reshape(T, len(keep), 3)
+
+        check = fk(new_local, root, offsets, skeleton.parents)[0]
+        seen = np.isfinite(data[:, keep]).all(-1)                            # (T, K)
+        err = np.linalg.norm(check - data[:, keep], axis=-1)[seen]
+        if not np.all(err < 1e-4):  # NaN fails too
+            return out
+        return out.replace(rotations=rotations.astype(np.float32), root_translation=root.astype(np.float32),
+                           offsets=offsets.astype(np.float32))

@@ -1,0 +1,89 @@
+"""Motion file readers: every format comes in as a list of Clips (metres, z up, NaN = missing).
+
+read_motion(path, source) is the one entry point; list_motion_files finds the files of a folder.
+Readers are imported inside the functions: AMASS pulls in torch and smplx, which reading a BVH
+file should not pay for.
+"""
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+
+from mocapfix.clip import Clip, MotionFileError
+
+SOURCES = ("auto", "bvh", "positions", "h36m", "amass")
+_EXTENSIONS = {"bvh": (".bvh",), "positions": (".npz", ".csv"), "h36m": (".npz",), "amass": (".npz",),
+               "auto": (".bvh", ".csv", ".npz")}
+# AMASS folders keep each subject's betas in shape.npz beside the motions: not a motion.
+_NOT_MOTION = {"shape.npz"}
+
+
+def _reader(source: str):
+    if source == "bvh":
+        from mocapfix.io.bvh import read_bvh
+        return read_bvh
+    if source == "positions":
+        from mocapfix.io.positions import read_positions
+        return read_positions
+    if source == "h36m":
+        from mocapfix.io.h36m import read_h36m
+        return read_h36m
+    from mocapfix.io.amass import read_amass
+    return read_amass
+
+
+def detect_source(path) -> str:
+    """Format of a file from its extension and, for .npz, its keys (without loading the arrays)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".bvh":
+        return "bvh"
+    if suffix == ".csv":
+        return "positions"
+    if suffix == ".npz":
+        from mocapfix.io.positions import load_npz
+        with load_npz(path) as data:
+            keys = set(data.files)
+        if "positions_3d" in keys:
+            return "h36m"
+        if {"poses", "trans"} <= keys:
+            return "amass"
+        if "positions" in keys:
+            return "positions"
+        raise MotionFileError(path, f"npz with unknown keys ({', '.join(sorted(keys)) or 'none'}); expected "
+                                    "positions (positions file), positions_3d (Human3.6M) or poses+trans (AMASS)")
+    raise MotionFileError(path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz")
+
+
+def read_motion(path, source: str = "auto", **options) -> list[Clip]:
+    """One motion file -> its clips (one per person, or per sequence for Human3.6M).
+
+    source: "auto" (by extension and npz keys), "bvh", "positions", "h36m" or "amass".
+    options go to the reader when it takes them (unit, up_axis, fps, groups, body_model_path,
+    gender); the others are dropped, so one set of options serves a folder of mixed files."""
+    path = Path(path)
+    if source not in SOURCES:
+        raise MotionFileError(path, f"unknown source type {source!r}; known: {', '.join(SOURCES)}")
+    if not path.exists():
+        raise MotionFileError(path, "no such file")
+    if path.is_dir():
+        raise MotionFileError(path, "is a folder, not a motion file")
+    if source == "auto":
+        source = detect_source(path)
+    reader = _reader(source)
+    accepted = inspect.signature(reader).parameters
+    return reader(path, **{k: v for k, v in options.items() if k in accepted})
+
+
+def list_motion_files(path, source: str = "auto") -> list[Path]:
+    """A file -> [it]; a folder -> its motion files for `source` (recursive, sorted, by extension)."""
+    path = Path(path)
+    if source not in SOURCES:
+        raise MotionFileError(path, f"unknown source type {source!r}; known: {', '.join(SOURCES)}")
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise MotionFileError(path, "no such file or folder")
+    exts = _EXTENSIONS[source]
+    return sorted(p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in exts
+                  and p.name.lower() not in _NOT_MOTION and not p.name.startswith("."))

@@ -1,0 +1,99 @@
+"""`python -m mocapfix` / `mocapfix`.
+
+fit | validate | test | predict: LightningCLI (configs/*.yaml, --print_config, --key.path value).
+inspect: what a motion file holds. demo: a short CPU training run on the embedded data.
+"""
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
+
+
+def _lightning_cli(args: list[str]):
+    import torch
+    from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+    from lightning.pytorch.cli import LightningCLI
+    from lightning.pytorch.loggers import TensorBoardLogger
+
+    from mocapfix.data.datamodule import MotionDataModule
+
+    class MocapCLI(LightningCLI):
+        def add_arguments_to_parser(self, parser):
+            parser.add_argument("--experiment", type=str, default="default",
+                                help="run name: logs/<experiment>/version_N and checkpoints/<experiment>/")
+            parser.add_argument("--checkpoint_every_n_steps", type=int | None, default=None,
+                                help="also write last.ckpt every N optimiser steps")
+            parser.add_argument("--monitor", type=str, default="val/mpjpe_mm",
+                                help="metric for the best checkpoint (lower is better)")
+
+        def instantiate_trainer(self, **kwargs):
+            cfg = self.config[self.subcommand]
+            name = cfg.experiment
+            trainer_cfg = cfg.trainer
+            extra = []
+            # Default tracking and checkpoints, unless the config brings its own.
+            if trainer_cfg.get("logger") in (None, True):
+                kwargs["logger"] = TensorBoardLogger(save_dir="logs", name=name)
+            if trainer_cfg.get("enable_checkpointing", True) is not False:
+                dirpath = Path("checkpoints") / name
+                extra.append(ModelCheckpoint(dirpath=dirpath, filename="best-{epoch}-{step}", monitor=cfg.monitor,
+                                             mode="min", save_top_k=1, save_last=True))
+                if cfg.checkpoint_every_n_steps:
+                    extra.append(ModelCheckpoint(dirpath=dirpath, every_n_train_steps=cfg.checkpoint_every_n_steps,
+                                                 save_top_k=0, save_last=True))
+            if kwargs.get("logger", trainer_cfg.get("logger")) not in (None, False):
+                extra.append(LearningRateMonitor(logging_interval="step"))
+            configured = self.config_init[self.subcommand].trainer.get("callbacks") or []
+            kwargs["callbacks"] = list(configured if isinstance(configured, list) else [configured]) + extra
+            return super().instantiate_trainer(**kwargs)
+
+        def after_fit(self):
+            t = self.trainer
+            ckpt = next((cb for cb in t.checkpoint_callbacks if cb.monitor), None)
+            if t.is_global_zero and t.logger is not None and t.logger.log_dir:
+                print(f"TensorBoard logs: {t.logger.log_dir}   (view: tensorboard --logdir {Path(t.logger.log_dir).parent})")
+                if ckpt is not None:
+                    print(f"checkpoints: best {ckpt.best_model_path or '-'}, last {ckpt.last_model_path or '-'}")
+
+        def after_test(self):
+            path = getattr(self.model, "eval_json_path", None)
+            if path is not None and self.trainer.is_global_zero:
+                print(f"eval.json: {path}")
+
+    torch.set_float32_matmul_precision("high")
+    return MocapCLI(
+        datamodule_class=MotionDataModule,
+        subclass_mode_model=True,
+        args=args,
+        parser_kwargs={"parser_mode": "omegaconf"},
+        save_config_kwargs={"overwrite": True},
+        auto_configure_optimizers=False,
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    command = argv[0] if argv else "--help"
+    if command == "inspect":
+        from mocapfix.inspect import main as inspect_main
+        return inspect_main(argv[1:])
+    if command == "demo":
+        from mocapfix.demo import main as demo_main
+        return demo_main(argv[1:])
+    if command in LIGHTNING_COMMANDS or command in ("-h", "--help", "--version"):
+        if command in ("-h", "--help"):
+            print("usage: mocapfix {fit,validate,test,predict} --config FILE [--key.path value ...]\n"
+                  "       mocapfix inspect FILE... [--json]\n"
+                  "       mocapfix demo\n")
+        _lightning_cli(argv)
+        return 0
+    print(f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect or demo", file=sys.stderr)
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

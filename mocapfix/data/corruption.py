@@ -1,0 +1,260 @@
+"""Corruption of batched motion: training masks/displacement, the paper's evaluation tasks,
+per-window normalisation and z-rotation augmentation (XMAE sections 3.1 and 4.1).
+
+Everything works on torch tensors on whatever device the batch lives on. Tokens are the
+T*J joint positions of a window, flattened t-major with the joint index fastest
+(flat = t * J + j), the order of the paper's eq. (1).
+
+Conventions shared by every function here:
+- NaN in the input positions means "joint missing in the data". Such tokens are never
+  observed, never displaced, and never handed back as model input.
+- Corrupted.positions holds 0 at every unobserved token (never NaN): the model must read the
+  observed mask, not the values, to know what is missing.
+- Random draws come from `generator` when given (else torch's global RNG). A generator may live
+  on another device than the batch: the numbers are drawn on the generator's device and moved,
+  so a seeded CPU generator gives the same corruption on CPU and GPU.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+
+from mocapfix.kinematics import fk_axis_angle
+
+
+class Corrupted(NamedTuple):
+    positions: torch.Tensor  # (B, T, J, 3) corrupted input; 0 where not observed, never NaN
+    observed: torch.Tensor   # (B, T, J) bool: token is given to the model
+    displaced: torch.Tensor  # (B, T, J) bool: observed token whose position was moved (subset of observed)
+
+
+# --- random numbers on the generator's device, moved to the batch's ---
+
+# Drawn in float32 whatever the batch dtype: bf16 scores would tie and bias the token choice,
+# and the same seed then gives the same corruption in every precision.
+
+def _rand(shape, generator: torch.Generator | None, like: torch.Tensor) -> torch.Tensor:
+    device = generator.device if generator is not None else like.device
+    return torch.rand(shape, generator=generator, device=device).to(like.device)
+
+
+def _randn(shape, generator: torch.Generator | None, like: torch.Tensor) -> torch.Tensor:
+    device = generator.device if generator is not None else like.device
+    return torch.randn(shape, generator=generator, device=device).to(like.device)
+
+
+def _index_mask(n: int, index: list[int] | None, device) -> torch.Tensor:
+    """(n,) bool, True at `index` (None: everywhere)."""
+    if index is None:
+        return torch.ones(n, dtype=torch.bool, device=device)
+    mask = torch.zeros(n, dtype=torch.bool, device=device)
+    mask[torch.as_tensor(list(index), dtype=torch.long, device=device)] = True
+    return mask
+
+
+def available(positions: torch.Tensor) -> torch.Tensor:
+    """positions: (..., 3) -> (...) bool, True where the token holds data (no NaN coordinate)."""
+    return ~torch.isnan(positions).any(dim=-1)
+
+
+def _pack(positions: torch.Tensor, observed: torch.Tensor, displaced: torch.Tensor) -> Corrupted:
+    # torch.where, not multiplication: 0 * NaN would leak NaN into the model input
+    return Corrupted(torch.where(observed[..., None], positions, torch.zeros((), dtype=positions.dtype,
+                                                                             device=positions.device)),
+                     observed, displaced)
+
+
+def _pick_random(candidates: torch.Tensor, counts: torch.Tensor, generator, like: torch.Tensor) -> torch.Tensor:
+    """candidates: (B, N) bool, counts: (B,) long -> (B, N) bool with min(counts[b], #candidates[b])
+    entries per row, drawn uniformly among the candidates."""
+    B, N = candidates.shape
+    # Random scores, non-candidates pushed past every candidate; a token's rank in the sorted
+    # scores decides whether it is among the first counts[b].
+    scores = torch.where(candidates, _rand((B, N), generator, like), 2.0)
+    order = scores.argsort(dim=1)
+    rank = torch.empty_like(order).scatter_(1, order, torch.arange(N, device=order.device).expand(B, N))
+    return candidates & (rank < counts[:, None])
+
+
+def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displace_ratio: float = 0.05,
+                      max_displacement_m: float = 1.0, fixed_kept_count: bool = True,
+                      generator: torch.Generator | None = None) -> Corrupted:
+    """Training corruption of XMAE: mask most tokens, displace a few of the kept ones.
+
+    positions: (B, T, J, 3) metres, NaN = missing (never kept).
+    Both ratios are fractions of all N = T*J tokens, as in the paper (85% masked, 5% displaced:
+    the displaced tokens are 5/15 of the kept ones).
+
+    fixed_kept_count=True: each sample keeps exactly K = round((1 - mask_ratio) * N) tokens drawn
+    uniformly among its non-NaN tokens and displaces D = round(displace_ratio * N) of them. A sample
+    with fewer than K non-NaN tokens keeps all of them (its kept count is then smaller) and
+    displaces round(kept * D / K) of them, so the displaced share of the kept tokens stays the same.
+    fixed_kept_count=False: independent Bernoulli draws, keep with p = 1 - mask_ratio, and displace a
+    kept token with p = displace_ratio / (1 - mask_ratio) (same expected counts as above).
+
+    Displacement offsets are uniform inside a ball of radius max_displacement_m.
+    """
+    if not (0.0 <= mask_ratio <= 1.0 and 0.0 <= displace_ratio <= 1.0 - mask_ratio + 1e-9):
+        raise ValueError(f"need 0 <= mask_ratio <= 1 and 0 <= displace_ratio <= 1 - mask_ratio, "
+                         f"got mask_ratio={mask_ratio}, displace_ratio={displace_ratio}")
+    B, T, J, _ = positions.shape
+    N = T * J
+    avail = available(positions).reshape(B, N)
+    keep_frac = 1.0 - mask_ratio
+    disp_frac_of_kept = displace_ratio / keep_frac if keep_frac > 0 else 0.0
+
+    if fixed_kept_count:
+        K, D = round(keep_frac * N), round(displace_ratio * N)
+        observed = _pick_random(avail, torch.full((B,), K, device=avail.device), generator, positions)
+        n_kept = observed.sum(dim=1)
+        # == D when the sample could keep K tokens; scaled down only for samples short of data
+        n_disp = torch.where(n_kept >= K, D, torch.round(n_kept * (D / max(K, 1))).long())
+        displaced = _pick_random(observed, n_disp, generator, positions)
+    else:
+        observed = avail & (_rand((B, N), generator, positions) < keep_frac)
+        displaced = observed & (_rand((B, N), generator, positions) < disp_frac_of_kept)
+
+    observed, displaced = observed.reshape(B, T, J), displaced.reshape(B, T, J)
+    # Uniform in a ball: isotropic direction, radius R * u^(1/3) (volume grows as r^3).
+    # Drawn for every token to keep shapes static; only displaced tokens use them.
+    direction = _randn((B, T, J, 3), generator, positions)
+    direction = direction / direction.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    radius = max_displacement_m * _rand((B, T, J, 1), generator, positions).pow(1.0 / 3.0)
+    moved = torch.where(displaced[..., None], positions + (direction * radius).to(positions.dtype), positions)
+    return _pack(moved, observed, displaced)
+
+
+def kept_index(observed: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Index form of the observed tokens, for an encoder that should not see masked tokens.
+
+    observed: (B, T, J) bool -> idx (B, K) long, pad (B, K) bool, K = max observed count in the batch.
+    idx[b] lists the flat indices (t * J + j) of sample b's observed tokens in increasing order,
+    then padding: padded entries have pad=True and idx=0 (a valid index, so gathers stay safe).
+    K is 0 when nothing in the batch is observed.
+    """
+    B = observed.shape[0]
+    flat = observed.reshape(B, -1)
+    counts = flat.sum(dim=1)
+    K = int(counts.max()) if flat.numel() else 0
+    # stable sort of (not observed) puts observed tokens first, each group in index order
+    order = torch.sort((~flat).to(torch.uint8), dim=1, stable=True).indices[:, :K]
+    pad = torch.arange(K, device=observed.device)[None, :] >= counts[:, None]
+    return order.masked_fill(pad, 0), pad
+
+
+# --- evaluation tasks (XMAE section 4.1) ---
+
+def gap_frames(T: int, fps: float, gap_s: float) -> tuple[int, int]:
+    """[start, stop) frames of a gap of round(gap_s * fps) frames centred in a window of T frames:
+    start = T//2 - n//2."""
+    n = round(gap_s * fps)
+    if not 0 <= n <= T:
+        raise ValueError(f"a gap of {gap_s} s at {fps} fps is {n} frames, which does not fit a window of {T} frames")
+    start = T // 2 - n // 2
+    return start, start + n
+
+
+def _gap_mask(positions: torch.Tensor, fps: float, gap_s: float, joints: list[int] | None) -> torch.Tensor:
+    """(B, T, J) bool, True on the given joints (None: all) in the centred gap."""
+    B, T, J, _ = positions.shape
+    start, stop = gap_frames(T, fps, gap_s)
+    in_gap = torch.zeros(T, dtype=torch.bool, device=positions.device)
+    in_gap[start:stop] = True
+    in_joints = _index_mask(J, joints, positions.device)
+    return (in_gap[:, None] & in_joints[None, :]).expand(B, T, J)
+
+
+def infill_gap(positions: torch.Tensor, fps: float, gap_s: float, joints: list[int] | None = None) -> Corrupted:
+    """Infilling task: remove `joints` (None: the full skeleton) for a gap centred in the window.
+    positions: (B, T, J, 3). No randomness. Nothing is displaced."""
+    removed = _gap_mask(positions, fps, gap_s, joints)
+    observed = available(positions) & ~removed
+    return _pack(positions, observed, torch.zeros_like(observed))
+
+
+def constant_displacement(positions: torch.Tensor, fps: float, gap_s: float, joints: list[int] | None,
+                          generator: torch.Generator | None = None, min_m: float = 0.5,
+                          max_m: float = 1.0) -> Corrupted:
+    """Constant displacement task: per sample, one random direction and a length uniform in
+    [min_m, max_m]; the same offset moves `joints` (None: all) over the centred gap.
+    Every non-NaN token stays observed; `displaced` marks the moved ones."""
+    B = positions.shape[0]
+    direction = _randn((B, 3), generator, positions)
+    direction = direction / direction.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    length = min_m + (max_m - min_m) * _rand((B, 1), generator, positions)
+    offset = (direction * length).to(positions.dtype)[:, None, None, :]  # (B, 1, 1, 3)
+    observed = available(positions)
+    displaced = observed & _gap_mask(positions, fps, gap_s, joints)
+    return _pack(torch.where(displaced[..., None], positions + offset, positions), observed, displaced)
+
+
+def gaussian_noise(positions: torch.Tensor, sigma_m: float, generator: torch.Generator | None = None) -> Corrupted:
+    """Gaussian noise task on positions: N(0, sigma_m^2) on each coordinate of every non-NaN token."""
+    observed = available(positions)
+    noisy = positions + (sigma_m * _randn(positions.shape, generator, positions)).to(positions.dtype)
+    return _pack(noisy, observed, observed.clone())
+
+
+def rotation_noise(rotations: torch.Tensor, root_translation: torch.Tensor, offsets: torch.Tensor, parents,
+                   sigma_rad: float, generator: torch.Generator | None = None,
+                   joints: list[int] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Gaussian noise task on rotations (Pose-NDF / Motion-DVAE protocol): N(0, sigma_rad^2) on each
+    axis-angle coordinate of `joints` (default: every joint but the root 0, the root orientation
+    stays clean), then forward kinematics.
+
+    rotations: (B, T, J, 3) local axis-angle, root_translation: (B, T, 3), offsets: (B, J, 3) or (J, 3)
+    -> noisy_rotations (B, T, J, 3), noisy_positions (B, T, J, 3).
+    NaN rotations stay NaN and FK spreads them to the joint's descendants: wrap the positions
+    with `observed = available(noisy_positions)` before feeding a model.
+    """
+    J = rotations.shape[-2]
+    noisy_joint = _index_mask(J, list(range(1, J)) if joints is None else joints, rotations.device)
+    noise = (sigma_rad * _randn(rotations.shape, generator, rotations)).to(rotations.dtype)
+    noisy_rot = torch.where(noisy_joint[:, None], rotations + noise, rotations)
+    return noisy_rot, fk_axis_angle(noisy_rot, root_translation, offsets, parents)
+
+
+# --- normalisation and augmentation (XMAE section 4.1, implementation details) ---
+
+def normalize(positions: torch.Tensor, observed: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Subtract each window's mean x and y over its observed tokens (displaced ones included);
+    z (up) is untouched.
+
+    positions: (B, T, J, 3), observed: (B, T, J) bool
+    -> normalized (B, T, J, 3) = positions - offset at EVERY token (unobserved ones too, so the
+    same offset applies to targets: `target - offset`), offset (B, 1, 1, 3) with offset z = 0.
+    A window with no observed token gets offset 0. NaN at unobserved tokens never reaches the mean.
+    """
+    zero = torch.zeros((), dtype=positions.dtype, device=positions.device)
+    obs = observed[..., None]
+    total = torch.where(obs, positions, zero).sum(dim=(1, 2), keepdim=True)   # (B, 1, 1, 3)
+    count = obs.sum(dim=(1, 2), keepdim=True).clamp_min(1).to(positions.dtype)  # (B, 1, 1, 1)
+    offset = total / count
+    offset = torch.cat([offset[..., :2], torch.zeros_like(offset[..., 2:])], dim=-1)
+    return positions - offset, offset
+
+
+def denormalize(positions: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+    """Inverse of normalize: positions (B, T, J, 3) + offset (B, 1, 1, 3)."""
+    return positions + offset
+
+
+def rotate_z(positions: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """Rotate each sample about the z axis through the origin by angle (B,) radians
+    (counter-clockwise seen from +z). rotate_z(rotate_z(x, a), -a) == x.
+    positions: (B, ...,  3). Zeros (masked tokens) stay zero, NaN stays NaN."""
+    shape = (-1,) + (1,) * (positions.dim() - 2)
+    c, s = torch.cos(angle).reshape(shape).to(positions.dtype), torch.sin(angle).reshape(shape).to(positions.dtype)
+    x, y, z = positions.unbind(dim=-1)
+    return torch.stack([c * x - s * y, s * x + c * y, z], dim=-1)
+
+
+def random_z_rotation(positions: torch.Tensor, generator: torch.Generator | None = None
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Augmentation: each sample rotated about z by an angle uniform in [0, 2 pi).
+    Apply after normalize so that the rotation axis passes through the window's centre.
+    positions: (B, T, J, 3) -> rotated (B, T, J, 3), angle (B,); rotate targets with rotate_z(x, angle)."""
+    angle = 2.0 * math.pi * _rand((positions.shape[0],), generator, positions)
+    return rotate_z(positions, angle), angle

@@ -1,0 +1,267 @@
+"""MotionDataModule: any motion source -> clean fixed-length windows, split by file.
+
+file -> io reader -> Clip -> joint selection -> resample -> (cache) -> windows (B, T, J, 3).
+Corruption is not done here: it runs on the device, inside the LightningModule, where the
+batch already is.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from mocapfix.clip import Clip, MotionFileError
+from mocapfix.data.windows import cache_key, load_clips, resample, save_clips, split_of, window_starts
+from mocapfix.skeleton import Skeleton
+
+log = logging.getLogger(__name__)
+
+SOURCES = ("synthetic", "bvh", "positions", "h36m", "amass")
+SPLITS = ("train", "val", "test")
+
+
+class WindowDataset(Dataset):
+    """Windows cut from clips. Items are dicts of tensors; a whole batch is gathered in one
+    indexing op (__getitems__), which keeps the loader cheap at large batch sizes."""
+
+    def __init__(self, clips: list[Clip], window: int, stride: int, with_rotations: bool = False):
+        self.window = window
+        self.positions = torch.from_numpy(np.concatenate([c.positions for c in clips])) if clips else \
+            torch.zeros(0, 0, 3)
+        self.with_rotations = with_rotations and bool(clips) and all(c.has_rotations for c in clips)
+        if self.with_rotations:
+            self.rotations = torch.from_numpy(np.concatenate([c.rotations for c in clips]))
+            self.root_translation = torch.from_numpy(np.concatenate([c.root_translation for c in clips]))
+            self.offsets = torch.from_numpy(np.stack([c.offsets for c in clips]))
+        starts, clip_index, first = [], [], 0
+        for i, c in enumerate(clips):
+            s = window_starts(c.num_frames, window, stride)
+            starts.append(s + first)
+            clip_index.append(np.full(len(s), i))
+            first += c.num_frames
+        self.starts = torch.from_numpy(np.concatenate(starts)) if starts else torch.zeros(0, dtype=torch.long)
+        self.clip_index = torch.from_numpy(np.concatenate(clip_index)) if clip_index else torch.zeros(0, dtype=torch.long)
+        self.clip_names = [c.name for c in clips]
+
+    def __len__(self) -> int:
+        return len(self.starts)
+
+    def __getitems__(self, indices: list[int]) -> dict[str, torch.Tensor]:
+        frames = self.starts[indices][:, None] + torch.arange(self.window)  # (B, T)
+        batch = {"positions": self.positions[frames],  # (B, T, J, 3)
+                 "clip_index": self.clip_index[indices]}
+        if self.with_rotations:
+            batch["rotations"] = self.rotations[frames]                    # (B, T, J, 3)
+            batch["root_translation"] = self.root_translation[frames]      # (B, T, 3)
+            batch["offsets"] = self.offsets[self.clip_index[indices]]      # (B, J, 3)
+        return batch
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        return {k: v[0] for k, v in self.__getitems__([index]).items()}
+
+
+def _keep_batch(batch):
+    """collate_fn for __getitems__ batches: they are already stacked."""
+    return batch
+
+
+class MotionDataModule(L.LightningDataModule):
+    def __init__(
+        self,
+        source: str = "synthetic",
+        path: str | None = None,
+        fps: float = 30.0,
+        window_s: float = 1.0,
+        stride_s: float = 0.5,
+        eval_stride_s: float | None = None,
+        drop_joints: list[str] | None = None,
+        keep_joints: list[str] | None = None,
+        groups: dict[str, list[str]] | None = None,
+        unit: str = "auto",
+        up_axis: str = "auto",
+        body_model_path: str | None = None,
+        val_fraction: float = 0.1,
+        test_fraction: float = 0.1,
+        split_seed: int = 0,
+        train_patterns: list[str] | None = None,
+        val_patterns: list[str] | None = None,
+        test_patterns: list[str] | None = None,
+        synthetic_clips: int = 96,
+        synthetic_seconds: float = 10.0,
+        synthetic_seed: int = 0,
+        with_rotations: bool = False,
+        max_missing_fraction: float = 0.5,
+        batch_size: int = 128,
+        eval_batch_size: int | None = None,
+        num_workers: int = 0,
+        pin_memory: bool = False,
+        persistent_workers: bool = False,
+        cache_dir: str | None = ".cache/mocapfix",
+    ):
+        """
+        Args:
+            source: one of synthetic, bvh, positions, h36m, amass.
+            path: a file or a folder of files (not used by synthetic).
+            fps: every clip is resampled to this rate.
+            window_s: window length in seconds; stride_s: step between training windows.
+            eval_stride_s: step between val/test windows (default: window_s, no overlap).
+            drop_joints / keep_joints: joint names to remove / to keep (e.g. Bandai's joint_Root).
+            groups: named joint groups {left_arm: [names], ...} overriding the name-matching guess.
+            unit, up_axis: for BVH / positions files ("auto" guesses).
+            val_fraction, test_fraction, split_seed: the hash split by file name.
+            *_patterns: fnmatch patterns on file names that force a file into a split.
+            with_rotations: also deliver rotations / root translation / offsets (rotation data only).
+            max_missing_fraction: windows with more missing tokens are skipped in training.
+            cache_dir: where parsed clips are cached (None: no cache).
+        """
+        super().__init__()
+        if source not in SOURCES:
+            raise ValueError(f"data.source: unknown source type {source!r}; known: {', '.join(SOURCES)}")
+        if source != "synthetic" and not path:
+            raise ValueError(f"data.path: source {source!r} needs a file or folder path")
+        self.save_hyperparameters()
+        self.skeleton: Skeleton | None = None
+        self.clips: dict[str, list[Clip]] = {}
+        self.datasets: dict[str, WindowDataset] = {}
+
+    @property
+    def window_frames(self) -> int:
+        return int(round(self.hparams.window_s * self.hparams.fps))
+
+    # --- loading ---
+
+    def _files(self) -> list[Path]:
+        from mocapfix.io import list_motion_files
+        return list_motion_files(self.hparams.path, self.hparams.source)
+
+    def _read_all(self) -> list[Clip]:
+        hp = self.hparams
+        if hp.source == "synthetic":
+            from mocapfix.io.synthetic import generate_clips
+            return generate_clips(hp.synthetic_clips, hp.synthetic_seconds, hp.fps, hp.synthetic_seed)
+        from mocapfix.io import read_motion
+        clips = []
+        for f in self._files():
+            # Joint selection happens in the reader where it can (BVH: exact re-rooted rotations),
+            # and again in _prepare for readers that don't take it (a no-op after the reader).
+            clips.extend(read_motion(f, hp.source, unit=hp.unit, up_axis=hp.up_axis, groups=hp.groups,
+                                     body_model_path=hp.body_model_path, keep_joints=hp.keep_joints,
+                                     drop_joints=hp.drop_joints))
+        return clips
+
+    def _prepare(self, clips: list[Clip]) -> list[Clip]:
+        """Joint selection and resampling; every clip must end on the same skeleton."""
+        hp = self.hparams
+        out = []
+        for c in clips:
+            names = c.skeleton.joint_names
+            keep = list(range(len(names)))
+            if hp.keep_joints:
+                missing = [n for n in hp.keep_joints if n not in names]
+                if missing:
+                    raise MotionFileError(c.source, f"keep_joints not in this file's skeleton: {missing}")
+                keep = [names.index(n) for n in hp.keep_joints]
+            if hp.drop_joints:
+                keep = [j for j in keep if names[j] not in set(hp.drop_joints)]
+            if len(keep) != len(names):
+                c = c.select_joints(keep)
+            if hp.groups:
+                c = c.replace(skeleton=c.skeleton.with_groups(hp.groups))
+            out.append(resample(c, hp.fps))
+        if out:
+            ref = out[0].skeleton
+            for c in out[1:]:
+                if c.skeleton.joint_names != ref.joint_names or c.skeleton.parents != ref.parents:
+                    raise MotionFileError(c.source, f"skeleton differs from {out[0].source}'s "
+                                          f"({c.skeleton.num_joints} vs {ref.num_joints} joints); "
+                                          "use keep_joints / drop_joints to bring them to one skeleton")
+        return out
+
+    def load_clips(self) -> list[Clip]:
+        """Parsed, prepared clips: from the cache when files and options are unchanged."""
+        hp = self.hparams
+        options = {k: hp[k] for k in ("source", "fps", "drop_joints", "keep_joints", "groups", "unit", "up_axis",
+                                      "body_model_path", "synthetic_clips", "synthetic_seconds", "synthetic_seed")}
+        cache = None
+        if hp.cache_dir:
+            files = [] if hp.source == "synthetic" else self._files()
+            cache = Path(hp.cache_dir) / f"{hp.source}-{cache_key(files, options)}.npz"
+            if cache.exists():
+                t0 = time.perf_counter()
+                clips = load_clips(cache)
+                log.info("loaded %d clips from cache %s in %.2f s", len(clips), cache, time.perf_counter() - t0)
+                return clips
+        t0 = time.perf_counter()
+        clips = self._prepare(self._read_all())
+        if not clips:
+            raise MotionFileError(hp.path, f"no {hp.source} clips found")
+        log.info("parsed %d clips in %.2f s", len(clips), time.perf_counter() - t0)
+        if cache is not None:
+            save_clips(cache, clips)
+        return clips
+
+    def prepare_data(self) -> None:
+        # Runs once per node before setup: fills the cache so that DDP ranks don't all parse.
+        self.load_clips()
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.datasets:
+            return
+        hp = self.hparams
+        clips = self.load_clips()
+        self.skeleton = clips[0].skeleton
+        patterns = {"train": hp.train_patterns, "val": hp.val_patterns, "test": hp.test_patterns}
+        self.clips = {s: [] for s in SPLITS}
+        for c in clips:
+            if c.meta.get("split") in SPLITS:  # datasets with an official split (Human3.6M subjects)
+                self.clips[c.meta["split"]].append(c)
+            else:
+                self.clips[split_of(c.source, hp.val_fraction, hp.test_fraction, hp.split_seed, patterns)].append(c)
+        eval_stride = hp.eval_stride_s or hp.window_s
+        for s in SPLITS:
+            stride = hp.stride_s if s == "train" else eval_stride
+            ds = WindowDataset(self.clips[s], self.window_frames, max(1, int(round(stride * hp.fps))),
+                               hp.with_rotations)
+            if s == "train" and len(ds):
+                self._drop_mostly_missing(ds)
+            self.datasets[s] = ds
+        log.info("windows: %s", {s: len(d) for s, d in self.datasets.items()})
+
+    def _drop_mostly_missing(self, ds: WindowDataset) -> None:
+        keep = []
+        for i in range(0, len(ds), 4096):
+            idx = list(range(i, min(i + 4096, len(ds))))
+            frac = torch.isnan(ds.__getitems__(idx)["positions"]).any(-1).float().mean((1, 2))
+            keep.append(torch.tensor(idx)[frac <= self.hparams.max_missing_fraction])
+        keep = torch.cat(keep)
+        ds.starts, ds.clip_index = ds.starts[keep], ds.clip_index[keep]
+
+    # --- loaders ---
+
+    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        hp = self.hparams
+        ds = self.datasets[split]
+        if len(ds) == 0:
+            raise MotionFileError(hp.path or hp.source, f"the {split} split has no {hp.window_s} s windows; "
+                                  "adjust val_fraction / test_fraction / patterns or window_s")
+        bs = hp.batch_size if split == "train" else (hp.eval_batch_size or hp.batch_size)
+        return DataLoader(ds, batch_size=bs, shuffle=shuffle, drop_last=shuffle and len(ds) >= bs,
+                          num_workers=hp.num_workers, pin_memory=hp.pin_memory,
+                          persistent_workers=hp.persistent_workers and hp.num_workers > 0, collate_fn=_keep_batch)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)
+
+    def predict_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)

@@ -1,0 +1,142 @@
+"""Clips -> fixed-length windows: resampling, joint selection, splitting by file, caching.
+
+Everything here is numpy: it runs once per dataset (then comes from the cache), not per batch.
+"""
+from __future__ import annotations
+
+import fnmatch
+import hashlib
+import json
+import zlib
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mocapfix.clip import Clip
+from mocapfix.kinematics import fk_axis_angle
+from mocapfix.skeleton import Skeleton
+
+
+def resample(clip: Clip, fps: float) -> Clip:
+    """The clip at `fps`, frame times 0, 1/fps, ... within its duration.
+
+    Positions interpolate linearly (a token next to a missing one stays missing: no invented
+    data). Rotation clips are resampled in rotation space (slerp) and their positions recomputed
+    by forward kinematics, so bone lengths stay exact.
+    """
+    if abs(clip.fps - fps) < 1e-6:
+        return clip
+    t_new = np.arange(0.0, (clip.num_frames - 1) / clip.fps + 1e-9, 1.0 / fps)  # seconds
+    f = t_new * clip.fps
+    i0 = np.minimum(np.floor(f).astype(np.int64), clip.num_frames - 1)
+    i1 = np.minimum(i0 + 1, clip.num_frames - 1)
+    w = (f - i0).astype(np.float32)
+
+    def lerp(a: np.ndarray) -> np.ndarray:
+        ww = w.reshape(-1, *([1] * (a.ndim - 1)))
+        out = a[i0] * (1 - ww) + a[i1] * ww
+        exact = w == 0  # keep exact samples exact (and a NaN neighbour out of them)
+        out[exact] = a[i0[exact]]
+        return out
+
+    if not clip.has_rotations:
+        return clip.replace(positions=lerp(clip.positions), fps=float(fps))
+    from scipy.spatial.transform import Rotation
+    T, J, _ = clip.rotations.shape
+    q = Rotation.from_rotvec(clip.rotations.reshape(-1, 3)).as_quat().reshape(T, J, 4)
+    q0, q1 = q[i0], q[i1]
+    dot = (q0 * q1).sum(-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)  # shortest arc
+    theta = np.arccos(np.clip(np.abs(dot), -1.0, 1.0))
+    ww = w[:, None, None].astype(np.float64)
+    sin_t = np.sin(theta)
+    small = sin_t < 1e-6
+    a = np.where(small, 1 - ww, np.sin((1 - ww) * theta) / np.where(small, 1, sin_t))
+    b = np.where(small, ww, np.sin(ww * theta) / np.where(small, 1, sin_t))
+    qn = a * q0 + b * q1
+    qn /= np.linalg.norm(qn, axis=-1, keepdims=True)
+    rotations = Rotation.from_quat(qn.reshape(-1, 4)).as_rotvec().reshape(len(t_new), J, 3).astype(np.float32)
+    root = lerp(clip.root_translation)
+    positions = fk_axis_angle(torch.from_numpy(rotations), torch.from_numpy(root), torch.from_numpy(clip.offsets),
+                              clip.skeleton.parents).numpy()
+    return clip.replace(positions=positions, rotations=rotations, root_translation=root, fps=float(fps))
+
+
+def window_starts(num_frames: int, window: int, stride: int) -> np.ndarray:
+    """Start frames of every full window; none for a clip shorter than one window."""
+    if num_frames < window:
+        return np.zeros(0, dtype=np.int64)
+    return np.arange(0, num_frames - window + 1, stride, dtype=np.int64)
+
+
+def split_of(source: str, val_fraction: float, test_fraction: float, seed: int,
+             patterns: dict[str, list[str]] | None = None) -> str:
+    """'train' | 'val' | 'test' for a file. Whole files go to one split, so no clip leaks.
+
+    Patterns (fnmatch on the file name, then on the full path) win; otherwise a seeded hash of
+    the file name decides, stable across machines and runs (crc32, not python's hash()).
+    """
+    name = Path(source).name
+    for split in ("test", "val", "train"):
+        for pat in (patterns or {}).get(split, []) or []:
+            if fnmatch.fnmatch(name, pat) or fnmatch.fnmatch(source, pat):
+                return split
+    u = zlib.crc32(f"{seed}:{name}".encode()) / 2**32
+    if u < test_fraction:
+        return "test"
+    if u < test_fraction + val_fraction:
+        return "val"
+    return "train"
+
+
+# --- cache: parsed, joint-selected, resampled clips as one npz ---
+
+def cache_key(files: list[Path], options: dict) -> str:
+    h = hashlib.sha1(json.dumps(options, sort_keys=True, default=str).encode())
+    for f in files:
+        st = f.stat()
+        h.update(f"{f.resolve()}|{st.st_size}|{st.st_mtime_ns}".encode())
+    return h.hexdigest()[:16]
+
+
+def save_clips(path: Path, clips: list[Clip]) -> None:
+    """All clips of one dataset in one npz (same skeleton); written atomically."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lengths = np.array([c.num_frames for c in clips], dtype=np.int64)
+    arrays = {
+        "positions": np.concatenate([c.positions for c in clips]),
+        "lengths": lengths,
+        "fps": np.array([c.fps for c in clips], dtype=np.float64),
+        "header": np.array(json.dumps({
+            "skeleton": clips[0].skeleton.to_dict(),
+            "names": [c.name for c in clips], "sources": [c.source for c in clips],
+            "meta": [c.meta for c in clips],
+        }, default=str)),
+    }
+    if all(c.has_rotations for c in clips):
+        arrays["rotations"] = np.concatenate([c.rotations for c in clips])
+        arrays["root_translation"] = np.concatenate([c.root_translation for c in clips])
+        arrays["offsets"] = np.stack([c.offsets for c in clips])
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(path)
+
+
+def load_clips(path: Path) -> list[Clip]:
+    with np.load(path) as z:
+        header = json.loads(str(z["header"]))
+        skeleton = Skeleton.from_dict(header["skeleton"])
+        bounds = np.concatenate([[0], np.cumsum(z["lengths"])])
+        has_rot = "rotations" in z
+        positions = z["positions"]
+        rot = z["rotations"] if has_rot else None
+        root = z["root_translation"] if has_rot else None
+        offsets = z["offsets"] if has_rot else None
+        clips = []
+        for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+            clips.append(Clip(positions[a:b], float(z["fps"][i]), skeleton, header["names"][i], header["sources"][i],
+                              rotations=rot[a:b] if has_rot else None,
+                              root_translation=root[a:b] if has_rot else None,
+                              offsets=offsets[i] if has_rot else None, meta=header["meta"][i]))
+    return clips

@@ -1,0 +1,175 @@
+"""`mocapfix inspect FILE...`: what is in motion files, before training on them or cleaning them.
+
+Per file: format, people, frames, fps, joints, unit and up axis the reader used, missing
+tokens, hip height, mean limb length and limb sigma (std over time of each limb's length, the
+paper's jitter measure). A human table by default; --json gives one JSON object per file per line.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+import numpy as np
+
+from mocapfix.clip import Clip
+from mocapfix.io import SOURCES, list_motion_files, read_motion
+
+_HIP_NAMES = ("hips", "hip", "pelvis")
+
+
+def limb_lengths(positions: np.ndarray, parents) -> np.ndarray:
+    """positions: (T, J, 3) -> (T, L) length of each limb (parent, child), NaN where an end is missing."""
+    p = np.asarray(parents)
+    child = np.nonzero(p >= 0)[0]
+    return np.linalg.norm(positions[:, child] - positions[:, p[child]], axis=-1)
+
+
+def body_limbs(positions: np.ndarray, parents) -> np.ndarray:
+    """(L,) bool: the limbs that are bones. A root that never moves (Bandai Namco's joint_Root at
+    the origin) is a placeholder, and its link to the moving hips is a translation, not a bone."""
+    p = np.asarray(parents)
+    child = np.nonzero(p >= 0)[0]
+    root = positions[:, 0]
+    seen = root[np.isfinite(root).all(axis=-1)]
+    fixed_root = len(seen) > 1 and np.abs(seen - seen[0]).max() < 1e-9
+    return ~(fixed_root & (p[child] == 0))
+
+
+def _nanmean(x) -> float:
+    x = np.asarray(x, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    return float(x.mean()) if x.size else math.nan
+
+
+def motion_stats(clips: list[Clip]) -> dict:
+    """Numbers of one file's clips (its people, or its sequences for Human3.6M)."""
+    c0 = clips[0]
+    skel = c0.skeleton
+    people = int(c0.meta.get("people", 1))
+    frames = sum(c.num_frames for c in clips) // max(people, 1)  # people share frames; sequences add up
+    missing = sum(int(c.missing_mask().sum()) for c in clips)
+    tokens = sum(c.missing_mask().size for c in clips)
+    lower = [n.lower() for n in skel.joint_names]
+    hip = next((lower.index(n) for n in _HIP_NAMES if n in lower), 0)
+    lengths, sigmas = [], []
+    for c in clips:
+        L = limb_lengths(c.positions, skel.parents)[:, body_limbs(c.positions, skel.parents)]  # (T, L)
+        valid = np.isfinite(L)
+        n = valid.sum(axis=0)
+        mean = np.where(valid, L, 0.0).sum(axis=0) / np.maximum(n, 1)
+        var = (np.where(valid, L - mean, 0.0) ** 2).sum(axis=0) / np.maximum(n, 1)
+        # a limb never seen has no length; a std needs two frames (not zero jitter)
+        lengths.append(np.where(n > 0, mean, np.nan))
+        sigmas.append(np.where(n > 1, np.sqrt(var), np.nan))
+    fps = float(c0.fps)
+    return {
+        "format": c0.meta.get("format", "?"),
+        "clips": len(clips),
+        "people": people,
+        "frames": int(frames),
+        "fps": fps,
+        "duration_s": frames / fps,
+        "joints": skel.num_joints,
+        "joint_names": list(skel.joint_names),
+        "skeleton": skel.name,
+        "unit": c0.meta.get("unit", "?"),
+        "up_axis": c0.meta.get("up_axis", "?"),
+        "missing_tokens": missing,
+        "missing_pct": 100.0 * missing / tokens if tokens else 0.0,
+        "hip_joint": skel.joint_names[hip],
+        "hip_height_m": _nanmean(np.concatenate([c.positions[:, hip, 2] for c in clips])),
+        "limb_length_mm": 1000.0 * _nanmean(np.concatenate(lengths)),
+        "limb_sigma_mm": 1000.0 * _nanmean(np.concatenate(sigmas)),
+    }
+
+
+def _json_value(v):
+    return None if isinstance(v, float) and not math.isfinite(v) else v
+
+
+def _num(v: float, fmt: str) -> str:
+    return "-" if not math.isfinite(v) else format(v, fmt)
+
+
+def _table(rows: list[dict]) -> str:
+    cols = [("file", "file", "s"), ("format", "format", "s"), ("people", "people", "d"), ("frames", "frames", "d"),
+            ("fps", "fps", ".4g"), ("dur s", "duration_s", ".1f"), ("joints", "joints", "d"), ("unit", "unit", "s"),
+            ("up", "up_axis", "s"), ("missing %", "missing_pct", ".2f"), ("hip m", "hip_height_m", ".3f"),
+            ("limb mm", "limb_length_mm", ".1f"), ("sigma mm", "limb_sigma_mm", ".2f")]
+    cells = [[h for h, _, _ in cols]]
+    for r in rows:
+        cells.append([_num(r[k], f) if isinstance(r[k], float) else format(r[k], f) for _, k, f in cols])
+    widths = [max(len(row[i]) for row in cells) for i in range(len(cols))]
+    lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths)))
+             for row in cells]
+    # joint names once per distinct skeleton: too long for a column
+    seen: dict[tuple, list[str]] = {}
+    for r in rows:
+        seen.setdefault(tuple(r["joint_names"]), []).append(r["file"])
+    for names, files in seen.items():
+        which = files[0] if len(files) == 1 else f"{len(files)} files"
+        lines.append(f"joints ({which}, {len(names)}): {', '.join(names)}")
+    return "\n".join(lines)
+
+
+def inspect_files(paths, as_json: bool = False, source: str = "auto", out=None, err=None,
+                  **read_options) -> int:
+    """Print what each motion file holds (folders: their motion files). -> exit code: 1 if any file failed.
+
+    read_options go to mocapfix.io.read_motion (unit, up_axis, fps, groups, body_model_path, ...)."""
+    out = out or sys.stdout
+    err = err or sys.stderr
+    failed = False
+    rows = []
+    for p in paths:
+        try:
+            files = list_motion_files(p, source)
+        except Exception as e:  # one bad argument must not stop the others
+            print(f"error: {_one_line(p, e)}", file=err)
+            failed = True
+            continue
+        for f in files:
+            try:
+                clips = read_motion(f, source, **read_options)
+                if not clips:
+                    raise ValueError(f"{f}: no motion in the file")
+                row = {"file": str(f), **motion_stats(clips)}
+            except Exception as e:
+                print(f"error: {_one_line(f, e)}", file=err)
+                failed = True
+                continue
+            if as_json:
+                print(json.dumps({k: _json_value(v) for k, v in row.items()}), file=out, flush=True)
+            else:
+                rows.append(row)
+    if rows:
+        print(_table(rows), file=out)
+    return 1 if failed else 0
+
+
+def _one_line(path, e: Exception) -> str:
+    """MotionFileError already reads "path: problem"; anything else gets the path and its type."""
+    text = " ".join(str(e).split())
+    if text.startswith(str(path)):
+        return text
+    return f"{path}: {type(e).__name__}: {text}" if text else f"{path}: {type(e).__name__}"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="mocapfix inspect", description=__doc__.split("\n")[0])
+    ap.add_argument("paths", nargs="+", metavar="FILE", help="motion files or folders")
+    ap.add_argument("--json", action="store_true", help="one JSON object per file per line")
+    ap.add_argument("--source", default="auto", choices=SOURCES)
+    ap.add_argument("--unit", default="auto", help="override the file's unit: m, cm, mm")
+    ap.add_argument("--up-axis", default="auto", help="override the file's up axis: z, y")
+    ap.add_argument("--fps", type=float, default=None, help="frame rate for files that lack one")
+    ap.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
+    args = ap.parse_args(argv)
+    return inspect_files(args.paths, args.json, source=args.source, unit=args.unit, up_axis=args.up_axis,
+                         fps=args.fps, body_model_path=args.body_model)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

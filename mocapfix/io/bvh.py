@@ -1,0 +1,461 @@
+"""BVH reader and writer.
+
+A BVH file is a joint tree (HIERARCHY: OFFSET + CHANNELS per joint) and one row of channel
+values per frame (MOTION). Positions come from forward kinematics of that tree; the clip also
+keeps the local rotations, so rotation-based models and noise can use them.
+
+Conventions (the BVH ones, as Blender, MotionBuilder and the Bandai Namco data use them):
+- Euler angles in degrees, applied in channel order as intrinsic rotations: channels
+  "Zrotation Xrotation Yrotation" give R = Rz(a) @ Rx(b) @ Ry(c).
+- A joint's translation in its parent's frame is its OFFSET, with each component that has a
+  position channel replaced by that channel's value (Bandai Namco's Hips carries the global
+  translation this way, under a root joint_Root that mostly stays at the origin).
+- End Site blocks are not joints.
+"""
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mocapfix.clip import Clip, MotionFileError
+from mocapfix.skeleton import Skeleton, guess_groups
+
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}
+# y-up -> z-up is a +90 degree rotation about x: (x, y, z) -> (x, -z, y). Right-handed (det +1),
+# so rotations stay rotations and left stays left.
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+AXES = {"y": Y_UP_TO_Z_UP, "z": np.eye(3)}
+FK_TOLERANCE_M = 1e-4  # rotations are kept only if their FK reproduces the positions this well
+
+_CHANNEL = re.compile(r"^([XYZ])(position|rotation)$", re.I)
+
+
+def read_bvh(path, unit: str = "auto", up_axis: str = "auto", groups: dict | None = None,
+             keep_joints: list[str] | None = None, drop_joints: list[str] | None = None) -> list[Clip]:
+    """One BVH file -> [Clip] (a list, like every reader) in metres, z up.
+
+    unit: "m" | "cm" | "mm" | "inch" | "auto" (from the leg length); up_axis: "y" | "z" | "auto".
+    groups: explicit limb groups {name: joint names or indices of the returned skeleton};
+        guessed from the joint names when None.
+    keep_joints / drop_joints: joint names to keep / to remove (Clip.select_joints, here where
+        the exact local rotations are still at hand). Needed for rotations when a joint below
+        the root carries a moving translation, as Bandai Namco's Hips does under joint_Root:
+        no constant bone offsets reproduce such a tree, so with it whole the clip comes without
+        rotations rather than with wrong ones (meta["no_rotations"] says why), and
+        drop_joints=["joint_Root"] makes Hips the root and the rotations exact.
+    """
+    path = Path(path)
+    names, parents, offsets, channels, data, frame_time = _parse(path)
+    T, J = data.shape[0], len(names)
+
+    # Local transforms in the file's units and axes, every frame. float64 throughout: the
+    # Bandai files have translations of metres in cm, and we promise 1e-5 m.
+    local_t = np.broadcast_to(offsets, (T, J, 3)).copy()   # (T, J, 3)
+    local_r = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy()  # (T, J, 3, 3)
+    for j, chans in enumerate(channels):
+        for col, (axis, kind) in chans:
+            if kind == "position":
+                local_t[:, j, "xyz".index(axis)] = data[:, col]
+            else:
+                local_r[:, j] = local_r[:, j] @ _axis_rotation(axis, np.deg2rad(data[:, col]))
+
+    pos = _forward_kinematics(local_r, local_t, parents)  # (T, J, 3) file units, file axes
+
+    unit = _guess_unit(path, names, parents, local_t) if unit == "auto" else unit
+    up_axis = _guess_up_axis(names, parents, pos) if up_axis == "auto" else up_axis
+    if unit not in UNITS:
+        raise MotionFileError(path, f"unknown unit {unit!r}; use one of {sorted(UNITS)} or 'auto'")
+    if up_axis not in AXES:
+        raise MotionFileError(path, f"unknown up axis {up_axis!r}; use 'y', 'z' or 'auto'")
+    scale, C = UNITS[unit], AXES[up_axis]
+
+    # A global change of axes C (and scale s): p' = s C p, so local rotations become C R C^T and
+    # every translation s C t.
+    positions = scale * pos @ C.T
+    local_r = C @ local_r @ C.T
+    local_t = scale * local_t @ C.T
+
+    skeleton = Skeleton(names, parents, {}, path.stem)
+    meta = {"format": "bvh", "unit": unit, "up_axis": up_axis, "frame_time": frame_time}
+    clip = Clip(positions, 1.0 / frame_time, skeleton, path.stem, str(path), meta=meta)
+
+    finite = np.isfinite(data).all()
+    # FK with one constant offset per joint is exact when no joint below the root moves its
+    # translation; the error bound adds each joint's deviation down its chain.
+    offs = local_t.mean(axis=0)  # (J, 3)
+    offs[0] = 0.0                # the root's translation is root_translation, not an offset
+    dev = np.linalg.norm(local_t - offs, axis=-1).max(axis=0) if finite else np.full(J, np.inf)  # (J,)
+    dev[0] = 0.0
+    chain_dev = dev.copy()
+    for j in range(1, J):
+        chain_dev[j] += chain_dev[parents[j]]
+
+    def rotvec() -> np.ndarray:  # (T, J, 3) float32
+        return Rotation.from_matrix(local_r.reshape(-1, 3, 3)).as_rotvec().reshape(T, J, 3).astype(np.float32)
+
+    if keep_joints or drop_joints:
+        unknown = [n for n in list(keep_joints or []) + list(drop_joints or []) if n not in names]
+        if unknown:
+            raise MotionFileError(path, f"joints {unknown} not in this file (joints: {', '.join(names)})")
+        keep = [j for j, n in enumerate(names) if (not keep_joints or n in set(keep_joints))
+                and n not in set(drop_joints or [])]
+        if finite:
+            # These rotations are exact but the offsets may not be (see above); select_joints works
+            # from the positions and the global rotations only, and checks its result.
+            clip = clip.replace(rotations=rotvec(), root_translation=positions[:, 0],
+                                offsets=offs.astype(np.float32))
+        try:
+            clip = clip.select_joints(keep)
+        except ValueError as e:  # the kept joints do not form one tree
+            raise MotionFileError(path, str(e).replace("\n", " ")) from None
+        clip.meta = dict(meta)
+        if not clip.has_rotations:
+            clip.meta["no_rotations"] = ("non-finite channel values" if not finite else
+                                         "the kept joints have no constant bone offsets")
+    elif not finite:
+        clip.meta["no_rotations"] = "non-finite channel values"
+    elif chain_dev.max() > FK_TOLERANCE_M:
+        j = int(np.argmax(dev))
+        above, a = [], parents[j]
+        while a >= 0:
+            above.insert(0, names[a])
+            a = parents[a]
+        clip.meta["no_rotations"] = (f"joint {names[j]!r} has a time-varying translation (up to {dev[j]:.3g} m); "
+                                     f"drop_joints={above} makes it the root")
+    else:
+        clip = clip.replace(rotations=rotvec(), root_translation=positions[:, 0].astype(np.float32),
+                            offsets=offs.astype(np.float32))
+
+    sk = clip.skeleton
+    try:
+        sk = sk.with_groups(groups) if groups is not None else Skeleton(
+            sk.joint_names, sk.parents, guess_groups(sk.joint_names, sk.parents), sk.name)
+    except (KeyError, ValueError) as e:
+        raise MotionFileError(path, f"bad groups: {e}") from None
+    return [clip.replace(skeleton=sk)]
+
+
+def write_bvh(path, clip: Clip, template: str | Path | None = None) -> None:
+    """Write a clip with rotations as BVH, atomically.
+
+    Units and up axis go back to clip.meta["unit"] / ["up_axis"] (what read_bvh found); without
+    them, those guessed for the template (a BVH file), else metres and z up. The template also
+    supplies the End Site offsets of joints of the same name (zero-length End Sites otherwise).
+    Layout: root with Xposition Yposition Zposition Zrotation Xrotation Yrotation, every other
+    joint Zrotation Xrotation Yrotation; the root OFFSET is zero (its channels carry the
+    translation).
+    """
+    path = Path(path)
+    if not clip.has_rotations:
+        raise MotionFileError(path, f"clip {clip.name!r} has no rotations; only rotation clips can be written as BVH")
+    # The template is the file the clip came from (or one like it): its End Sites are copied as
+    # they are, in its own units, which are the clip's meta unit and up axis.
+    end_sites, unit, up_axis = {}, clip.meta.get("unit"), clip.meta.get("up_axis")
+    if template is not None:
+        template = Path(template)
+        end_sites = _parse_hierarchy(template, _sections(template)[0])[4]
+        if unit is None or up_axis is None:
+            tmeta = read_bvh(template)[0].meta
+            unit, up_axis = unit or tmeta["unit"], up_axis or tmeta["up_axis"]
+    unit, up_axis = unit or "m", up_axis or "z"
+    if unit not in UNITS or up_axis not in AXES:
+        raise MotionFileError(path, f"cannot write unit {unit!r} / up axis {up_axis!r}")
+    scale, C = UNITS[unit], AXES[up_axis]
+    T, J = clip.rotations.shape[:2]
+    parents, names = clip.skeleton.parents, clip.skeleton.joint_names
+
+    # Back to the file frame: R_file = C^T R C, t_file = C^T t / s.
+    R = Rotation.from_rotvec(clip.rotations.reshape(-1, 3).astype(np.float64)).as_matrix().reshape(T, J, 3, 3)
+    R = C.T @ R @ C
+    with warnings.catch_warnings():  # gimbal lock still gives angles that rebuild the same matrix
+        warnings.simplefilter("ignore", UserWarning)
+        euler = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_euler("ZXY", degrees=True).reshape(T, J, 3)
+    root = clip.root_translation.astype(np.float64) @ C / scale   # (T, 3); row-vector form of C^T t
+    offsets = clip.offsets.astype(np.float64) @ C / scale          # (J, 3)
+    frames = np.concatenate([root, euler.reshape(T, -1)], axis=1)  # (T, 3 + 3J)
+
+    children = [[c for c in range(J) if parents[c] == j] for j in range(J)]
+    lines = ["HIERARCHY"]
+
+    def emit(j: int, depth: int) -> None:
+        ind = "  " * depth
+        if j == 0:
+            lines.extend([f"ROOT {names[0]}", "{", "  OFFSET 0 0 0",
+                          "  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation"])
+        else:
+            o = offsets[j]
+            lines.extend([f"{ind}JOINT {names[j]}", f"{ind}{{", f"{ind}  OFFSET {o[0]:.6f} {o[1]:.6f} {o[2]:.6f}",
+                          f"{ind}  CHANNELS 3 Zrotation Xrotation Yrotation"])
+        for c in children[j]:
+            emit(c, depth + 1)
+        if not children[j]:
+            e = end_sites.get(names[j], (0.0, 0.0, 0.0))
+            lines.extend([f"{ind}  End Site", f"{ind}  {{", f"{ind}    OFFSET {e[0]:.6f} {e[1]:.6f} {e[2]:.6f}",
+                          f"{ind}  }}"])
+        lines.append(f"{ind}}}")
+
+    emit(0, 0)
+    lines.extend(["MOTION", f"Frames: {T}", f"Frame Time: {1.0 / clip.fps:.8f}"])
+    body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in frames.tolist())
+    text = "\n".join(lines) + "\n" + body + "\n"
+
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+# --- parsing ---
+
+def _sections(path: Path) -> tuple[str, str, int]:
+    """(hierarchy text, motion text, 0-based line of MOTION) or a MotionFileError."""
+    try:
+        text = path.read_text(errors="replace")
+    except FileNotFoundError:
+        raise MotionFileError(path, "file not found") from None
+    except OSError as e:  # a folder, no permission, ...
+        raise MotionFileError(path, f"cannot read ({e.strerror or type(e).__name__})") from None
+    if not text.strip():
+        raise MotionFileError(path, "empty file")
+    h = re.search(r"^\s*HIERARCHY\b", text, re.M)
+    if h is None:
+        raise MotionFileError(path, "no HIERARCHY section (not a BVH file?)")
+    m = re.search(r"^\s*MOTION\b", text, re.M)
+    if m is None or m.start() < h.start():
+        raise MotionFileError(path, "no MOTION section after HIERARCHY")
+    return text[h.end():m.start()], text[m.end():], text.count("\n", 0, m.end())
+
+
+def _parse_hierarchy(path: Path, text: str):
+    """-> names, parents, offsets (J, 3), channels [[(column, (axis, kind))]], end sites {joint: offset}, columns."""
+    # Braces may share a line with other tokens; give them their own lines.
+    lines = [ln.strip() for ln in text.replace("{", "\n{\n").replace("}", "\n}\n").splitlines() if ln.strip()]
+    names, parents, offsets, channels, end_sites = [], [], [], [], {}
+    stack: list[int] = []   # open blocks: joint index, or -2 for an End Site
+    pending = None          # joint or End Site declared, its "{" not yet seen
+    col = 0
+    for ln in lines:
+        word, _, rest = ln.partition(" ")
+        if word in ("ROOT", "JOINT"):
+            if word == "ROOT" and names:
+                raise MotionFileError(path, "more than one ROOT (several skeletons in one file are not supported)")
+            if word == "JOINT" and not stack:
+                raise MotionFileError(path, f"JOINT {rest.strip()} outside the ROOT block")
+            if not rest.strip():
+                raise MotionFileError(path, f"{word} without a name")
+            if stack and stack[-1] == -2:
+                raise MotionFileError(path, "JOINT inside an End Site block")
+            names.append(rest.strip())
+            parents.append(stack[-1] if stack else -1)
+            offsets.append(None)
+            channels.append([])
+            pending = len(names) - 1
+        elif ln.replace(" ", "").lower() == "endsite":
+            if not stack or stack[-1] < 0:
+                raise MotionFileError(path, "End Site outside a joint")
+            pending = -2
+        elif word == "{":
+            if pending is None:
+                raise MotionFileError(path, "'{' without a ROOT, JOINT or End Site before it")
+            stack.append(pending)
+            if pending == -2:
+                end_sites.setdefault(names[stack[-2]], (0.0, 0.0, 0.0))
+            pending = None
+        elif word == "}":
+            if not stack:
+                raise MotionFileError(path, "unbalanced '}' in HIERARCHY")
+            stack.pop()
+        elif word == "OFFSET":
+            vals = rest.split()
+            try:
+                o = tuple(float(v) for v in vals)
+            except ValueError:
+                raise MotionFileError(path, f"non-numeric OFFSET {rest.strip()!r}") from None
+            if len(o) != 3 or not np.isfinite(o).all():
+                raise MotionFileError(path, f"OFFSET needs 3 finite numbers, got {rest.strip()!r}")
+            if not stack:
+                raise MotionFileError(path, "OFFSET outside a joint")
+            if stack[-1] == -2:
+                end_sites[names[stack[-2]]] = o
+            else:
+                offsets[stack[-1]] = o
+        elif word == "CHANNELS":
+            if not stack or stack[-1] < 0:
+                raise MotionFileError(path, "CHANNELS outside a joint")
+            toks = rest.split()
+            j = stack[-1]
+            if not toks or not toks[0].isdigit() or int(toks[0]) != len(toks) - 1:
+                raise MotionFileError(path, f"joint {names[j]!r}: CHANNELS count does not match the channel names")
+            seen = set()
+            for name in toks[1:]:
+                m = _CHANNEL.match(name)
+                if m is None:
+                    raise MotionFileError(path, f"joint {names[j]!r}: unknown channel {name!r}")
+                key = (m.group(1).lower(), m.group(2).lower())
+                if key in seen:
+                    raise MotionFileError(path, f"joint {names[j]!r}: channel {name} given twice")
+                seen.add(key)
+                channels[j].append((col, key))
+                col += 1
+        else:
+            raise MotionFileError(path, f"unexpected line in HIERARCHY: {ln[:60]!r}")
+    if not names:
+        raise MotionFileError(path, "HIERARCHY has no ROOT joint")
+    if stack or pending is not None:
+        raise MotionFileError(path, "HIERARCHY ends inside an open block (missing '}')")
+    missing = [n for n, o in zip(names, offsets) if o is None]
+    if missing:
+        raise MotionFileError(path, f"joint {missing[0]!r} has no OFFSET")
+    return names, parents, np.array(offsets, dtype=np.float64), channels, end_sites, col
+
+
+def _parse(path: Path):
+    """-> names, parents, offsets (J, 3), channels, data (T, columns) float64, frame time (s)."""
+    hier, motion, motion_line = _sections(path)
+    names, parents, offsets, channels, _, ncol = _parse_hierarchy(path, hier)
+
+    mf = re.search(r"^\s*Frames\s*:\s*(\S+)", motion, re.M)
+    mt = re.search(r"^\s*Frame\s+Time\s*:\s*(\S+)", motion, re.M)
+    if mf is None:
+        raise MotionFileError(path, "no 'Frames:' line after MOTION")
+    if mt is None:
+        raise MotionFileError(path, "no 'Frame Time:' line after MOTION")
+    try:
+        n_frames, frame_time = int(mf.group(1)), float(mt.group(1))
+    except ValueError:
+        raise MotionFileError(path, f"bad 'Frames: {mf.group(1)}' or 'Frame Time: {mt.group(1)}'") from None
+    if n_frames <= 0:
+        raise MotionFileError(path, f"Frames: {n_frames} (no motion)")
+    if not (np.isfinite(frame_time) and frame_time > 0):
+        raise MotionFileError(path, f"Frame Time must be positive, got {mt.group(1)}")
+
+    # The frame rows start after whichever of the two header lines comes last; rows[0] is the rest
+    # of that header line (normally empty). Line numbers in messages count from 1 in the file.
+    start = max(mf.end(), mt.end())
+    first_line = motion_line + motion.count("\n", 0, start) + 1
+    block = motion[start:]
+    rows = block.splitlines()
+    counts = [len(r.split()) for r in rows]
+    # Line numbers of the non-empty rows; trailing blank lines are fine, blank lines between rows are skipped.
+    nonempty = [i for i, c in enumerate(counts) if c]
+    bad = [i for i in nonempty if counts[i] != ncol]
+    if bad:
+        i = bad[0]
+        frame = nonempty.index(i)
+        if i == nonempty[-1] and counts[i] < ncol:
+            raise MotionFileError(path, f"truncated: last frame row (line {first_line + i}) has {counts[i]} "
+                                        f"of {ncol} values")
+        raise MotionFileError(path, f"line {first_line + i} (frame {frame}): expected {ncol} values, got {counts[i]}")
+    if len(nonempty) < n_frames:
+        raise MotionFileError(path, f"truncated: 'Frames: {n_frames}' but only {len(nonempty)} frame rows")
+    if len(nonempty) > n_frames:
+        raise MotionFileError(path, f"'Frames: {n_frames}' but {len(nonempty)} frame rows")
+    try:
+        data = np.array(block.split(), dtype=np.float64).reshape(n_frames, ncol)
+    except ValueError:
+        for i in nonempty:
+            for tok in rows[i].split():
+                try:
+                    float(tok)
+                except ValueError:
+                    raise MotionFileError(path, f"line {first_line + i} (frame {nonempty.index(i)}): "
+                                                f"non-numeric value {tok[:20]!r}") from None
+        raise MotionFileError(path, "non-numeric frame values") from None
+    return names, parents, offsets, channels, data, frame_time
+
+
+def _forward_kinematics(local_r: np.ndarray, local_t: np.ndarray, parents) -> np.ndarray:
+    """local_r: (T, J, 3, 3), local_t: (T, J, 3) (row 0: the root's position) -> positions (T, J, 3).
+
+    The numpy twin of kinematics.forward_kinematics: reading a file should not import torch.
+    """
+    pos, glob = np.empty_like(local_t), np.empty_like(local_r)
+    pos[:, 0], glob[:, 0] = local_t[:, 0], local_r[:, 0]
+    for j in range(1, len(parents)):
+        p = parents[j]
+        pos[:, j] = pos[:, p] + (glob[:, p] @ local_t[:, j, :, None])[..., 0]
+        glob[:, j] = glob[:, p] @ local_r[:, j]
+    return pos
+
+
+def _axis_rotation(axis: str, angle: np.ndarray) -> np.ndarray:
+    """angle: (T,) radians -> (T, 3, 3) rotation about one coordinate axis."""
+    i = "xyz".index(axis)
+    a, b = (i + 1) % 3, (i + 2) % 3  # the plane the rotation turns: (y, z), (z, x) or (x, y)
+    c, s = np.cos(angle), np.sin(angle)
+    m = np.zeros((len(angle), 3, 3))
+    m[:, i, i] = 1.0
+    m[:, a, a], m[:, a, b], m[:, b, a], m[:, b, b] = c, -s, s, c
+    return m
+
+
+# --- guessing units and up axis ---
+
+def _pelvis(parents) -> int:
+    """The first joint where three or more chains start (legs + spine); the root otherwise."""
+    nchild = np.bincount(np.array([p for p in parents if p >= 0], dtype=np.int64), minlength=len(parents))
+    hits = np.flatnonzero(nchild >= 3)
+    return int(hits[0]) if hits.size else 0
+
+
+def _find(names, pattern: str) -> int | None:
+    for j, n in enumerate(names):
+        if re.search(pattern, n, re.I):
+            return j
+    return None
+
+
+def _guess_unit(path: Path, names, parents, local_t: np.ndarray) -> str:
+    """The unit that makes the leg (pelvis to ankle, along the bones) about 0.85 m long.
+
+    local_t: (T, J, 3) local translations in file units. Bone lengths do not depend on the pose.
+    Without a joint named like a foot, the sum of all constant bone lengths (about 4 m for a
+    human) stands in; translations that change over time are trajectories, not bones.
+    """
+    length = np.linalg.norm(local_t, axis=-1)  # (T, J)
+    with warnings.catch_warnings():  # all-NaN joints: their length stays NaN and is skipped
+        warnings.simplefilter("ignore", RuntimeWarning)
+        bone = length[0] if np.isfinite(length[0]).all() else np.nanmedian(length, axis=0)  # (J,)
+        bone[np.nanmax(length, axis=0) - np.nanmin(length, axis=0) > 1e-3 * np.abs(bone) + 1e-9] = np.nan
+    pelvis = _pelvis(parents)
+    foot = _find(names, r"foot|ankle")
+    size = np.nan
+    if foot is not None:
+        leg, j = 0.0, foot
+        while j > pelvis:
+            leg += bone[j]
+            j = parents[j]
+        if j == pelvis:
+            size, target, what = leg, 0.85, "leg length"
+    if not np.isfinite(size):
+        size, target, what = np.nansum(bone[1:]), 4.0, "total bone length"
+    unit = min(UNITS, key=lambda u: abs(np.log(max(size, 1e-12) * UNITS[u] / target)))
+    if not 0.4 < size * UNITS[unit] / target < 2.5:
+        raise MotionFileError(path, f"cannot guess the unit ({what} {size:.4g} in file units); pass unit=")
+    return unit
+
+
+def _guess_up_axis(names, parents, pos: np.ndarray) -> str:
+    """'y' or 'z': the axis along which the head sits above the pelvis (feet below it otherwise)."""
+    pelvis = _pelvis(parents)
+    mean = np.nanmean(pos, axis=0) if np.isfinite(pos).any() else np.zeros((len(names), 3))  # (J, 3)
+    head = _find(names, r"head")
+    head = _find(names, r"neck") if head is None else head
+    foot = _find(names, r"foot|ankle|toe")
+    if head is not None and head != pelvis:
+        d = mean[head] - mean[pelvis]
+    elif foot is not None and foot != pelvis:
+        d = mean[pelvis] - mean[foot]
+    else:
+        return "y"  # the BVH default
+    return "z" if abs(d[2]) > abs(d[1]) else "y"

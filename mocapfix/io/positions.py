@@ -1,0 +1,527 @@
+"""Plain joint positions (.npz, .csv): the way tracking systems hand their output over.
+
+Both layouts carry the same things: positions of J joints over T frames for P people, the
+frame rate, the skeleton (parents and/or joint names), the unit and the up axis. Missing
+joints are NaN (npz) or empty cells (csv). docs/data-formats.md shows examples.
+
+npz: keys
+    positions   (T, J, 3) or (P, T, J, 3) numbers           required
+    fps         scalar > 0                                   required (or the reader's fps=)
+    parents     (J,) ints, parents[0] == -1, parent < child  parents and/or joint_names
+    joint_names (J,) strings                                 (names alone must match a preset)
+    unit        "m" | "cm" | "mm"                            optional (guessed from bone lengths)
+    up_axis     "z" | "y"                                    optional, default "z"
+
+csv: optional "# key=value" comment lines, then a header row, then one row per person and frame
+    # fps=30 unit=m up_axis=z
+    # parents=-1,0,1,2
+    person,frame,time,Hip_x,Hip_y,Hip_z,RHip_x,RHip_y,RHip_z,...
+    0,0,0,0.01,0.02,0.93,...
+  - comment keys: fps, unit, up_axis (or up), parents (comma-separated ints, no spaces).
+  - person (optional): any label; one clip per distinct label. Without it, one person.
+  - frame (optional): integer frame number; frames with no row are missing. Without it the
+    rows of each person are consecutive frames.
+  - time (optional): seconds; gives fps (1 / median step) when no "# fps=" line does.
+  - joint columns: <joint>_x, <joint>_y, <joint>_z, consecutive, in skeleton order; the
+    joint names are the header's prefixes. An empty cell or "nan" is missing; a joint with
+    any missing coordinate is missing.
+
+Readers return Clips in metres, z up (y-up data is turned by +90 degrees about x:
+(x, y, z) -> (x, -z, y)); the writers undo both so that `fix` writes outputs in the input's
+layout (write_clips uses what the reader put into clip.meta).
+"""
+from __future__ import annotations
+
+import csv
+import os
+import re
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from mocapfix.clip import Clip, MotionFileError
+from mocapfix.skeleton import PRESETS, Skeleton, guess_groups
+
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}  # metres per unit
+_UNIT_ALIASES = {"meters": "m", "metres": "m", "meter": "m", "metre": "m", "centimeters": "cm",
+                 "centimetres": "cm", "millimeters": "mm", "millimetres": "mm"}
+UP_AXES = ("z", "y")
+_SPECIAL_COLUMNS = ("person", "frame", "time")
+
+
+# --- units and axes (shared with the other readers) ---
+
+def to_z_up(x: np.ndarray, up_axis: str) -> np.ndarray:
+    """x: (..., 3) in a right-handed frame with `up_axis` up -> the same points, z up."""
+    if up_axis == "z":
+        return x
+    # y up (x right, z towards the viewer): rotate +90 deg about x, so y -> z and z -> -y.
+    return np.stack([x[..., 0], -x[..., 2], x[..., 1]], axis=-1)
+
+
+def from_z_up(x: np.ndarray, up_axis: str) -> np.ndarray:
+    """Inverse of to_z_up."""
+    if up_axis == "z":
+        return x
+    return np.stack([x[..., 0], x[..., 2], -x[..., 1]], axis=-1)
+
+
+def guess_unit(positions: np.ndarray, parents) -> str:
+    """positions: (..., T, J, 3) in an unknown unit -> "m", "cm" or "mm" from the median bone length.
+
+    Human bones are 0.05-0.5 m: the medians in m, cm and mm (~0.25, ~25, ~250) are far apart."""
+    p = np.asarray(parents)
+    child = np.nonzero(p >= 0)[0]
+    if len(child) == 0:
+        return "m"
+    lengths = np.linalg.norm(positions[..., child, :] - positions[..., p[child], :], axis=-1)
+    lengths = lengths[np.isfinite(lengths) & (lengths > 0)]
+    if lengths.size == 0:
+        return "m"
+    median = float(np.median(lengths))
+    return "m" if median < 2.0 else "cm" if median < 80.0 else "mm"
+
+
+def load_npz(path: Path, allow_pickle: bool = False):
+    """np.load that turns every way an npz can be broken into one MotionFileError."""
+    try:
+        return np.load(path, allow_pickle=allow_pickle)
+    except FileNotFoundError:
+        raise MotionFileError(path, "no such file") from None
+    except Exception as e:  # BadZipFile, EOFError, OSError, ValueError, pickle errors ...
+        raise MotionFileError(path, f"not a readable npz file ({_one_line(e)})") from None
+
+
+def npz_array(path: Path, data, key: str) -> np.ndarray:
+    """data[key], where a truncated or corrupt member is a MotionFileError, not a zlib traceback."""
+    try:
+        return data[key]
+    except Exception as e:
+        raise MotionFileError(path, f"cannot read array {key!r} ({_one_line(e)})") from None
+
+
+def _one_line(e: Exception) -> str:
+    text = " ".join(str(e).split())
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
+# --- skeleton from what a file gives ---
+
+def skeleton_from(path: Path, joint_names, parents, num_joints: int, groups=None) -> Skeleton:
+    """Preset when the names match one, else a custom skeleton with guessed limb groups."""
+    if joint_names is not None and len(joint_names) != num_joints:
+        raise MotionFileError(path, f"{len(joint_names)} joint names for {num_joints} joints")
+    if parents is not None and len(parents) != num_joints:
+        raise MotionFileError(path, f"{len(parents)} parents for {num_joints} joints")
+    try:
+        skel = None
+        if joint_names is not None:
+            names = tuple(str(n) for n in joint_names)
+            for p in PRESETS.values():
+                if names == p.joint_names and (parents is None or tuple(int(i) for i in parents) == p.parents):
+                    skel = p
+                    break
+            if skel is None:
+                if parents is None:
+                    raise MotionFileError(path, f"joint names match no preset ({', '.join(PRESETS)}); "
+                                                "give parents too")
+                skel = Skeleton(names, tuple(parents), name="custom")
+                skel = Skeleton(names, skel.parents, guess_groups(names, skel.parents), "custom")
+        elif parents is not None:
+            skel = Skeleton(tuple(f"joint{j}" for j in range(num_joints)), tuple(parents), name="custom")
+        else:
+            raise MotionFileError(path, "needs parents and/or joint_names to know the skeleton")
+        if groups:
+            skel = skel.with_groups(groups)
+        return skel
+    except (ValueError, KeyError) as e:
+        if isinstance(e, MotionFileError):
+            raise
+        raise MotionFileError(path, _one_line(e).split(": ", 1)[-1]) from None
+
+
+def _resolve_unit(path, unit_opt, unit_file, raw, parents) -> tuple[str, str]:
+    """-> (unit, where it came from): the reader's option, the file, or a guess."""
+    for unit, source in ((unit_opt, "option"), (unit_file, "file")):
+        if unit is not None and unit != "auto":
+            unit = str(unit).strip().lower()
+            unit = _UNIT_ALIASES.get(unit, unit)
+            if unit not in UNITS:
+                raise MotionFileError(path, f"unknown unit {unit!r} (from {source}); use one of {list(UNITS)}")
+            return unit, source
+    return guess_unit(raw, parents), "guessed"
+
+
+def _resolve_up(path, up_opt, up_file) -> str:
+    for up, source in ((up_opt, "option"), (up_file, "file")):
+        if up is not None and up != "auto":
+            up = str(up).lower()
+            if up not in UP_AXES:
+                raise MotionFileError(path, f"unknown up axis {up!r} (from {source}); use 'z' or 'y'")
+            return up
+    return "z"
+
+
+def _check_fps(path, fps) -> float:
+    try:
+        fps = float(fps)
+    except (TypeError, ValueError):
+        raise MotionFileError(path, f"fps must be a number, got {fps!r}") from None
+    if not np.isfinite(fps) or fps <= 0:
+        raise MotionFileError(path, f"fps must be positive, got {fps}")
+    return fps
+
+
+def _clips(path: Path, raw: np.ndarray, fps: float, skeleton: Skeleton, unit: str, unit_source: str,
+           up_axis: str, fmt: str, layout: list[dict]) -> list[Clip]:
+    """raw: (P, T, J, 3) in the file's unit and axes -> P clips in metres, z up."""
+    pos = to_z_up(raw.astype(np.float64) * UNITS[unit], up_axis).astype(np.float32)
+    P = pos.shape[0]
+    clips = []
+    for i in range(P):
+        meta = {"format": fmt, "person": i, "people": P, "unit": unit, "unit_source": unit_source,
+                "up_axis": up_axis, **layout[i]}
+        name = path.stem + (f"#p{i}" if P > 1 else "")
+        clips.append(Clip(pos[i], fps, skeleton, name=name, source=str(path), meta=meta))
+    return clips
+
+
+# --- npz ---
+
+def _npz_scalar_str(path, data, key) -> str | None:
+    if key not in data.files:
+        return None
+    a = npz_array(path, data, key)
+    if a.size != 1:
+        raise MotionFileError(path, f"{key!r} must be one string, got shape {a.shape}")
+    v = a.reshape(()).item()
+    return v.decode() if isinstance(v, bytes) else str(v)
+
+
+def read_positions_npz(path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None,
+                       groups=None) -> list[Clip]:
+    path = Path(path)
+    with load_npz(path) as data:
+        if "positions" not in data.files:
+            raise MotionFileError(path, f"no 'positions' array (keys: {', '.join(data.files) or 'none'})")
+        raw = npz_array(path, data, "positions")
+        if raw.dtype.kind not in "iuf":
+            raise MotionFileError(path, f"positions must be numbers, got dtype {raw.dtype}")
+        if raw.ndim not in (3, 4) or raw.shape[-1] != 3 or 0 in raw.shape:
+            raise MotionFileError(path, "positions must be (frames, joints, 3) or (people, frames, joints, 3), "
+                                        f"got {raw.shape}")
+        squeeze = raw.ndim == 3
+        raw = raw[None] if squeeze else raw
+        J = raw.shape[2]
+        if fps is None:
+            if "fps" not in data.files:
+                raise MotionFileError(path, "no 'fps' value")
+            f = npz_array(path, data, "fps")
+            if f.size != 1 or f.dtype.kind not in "iuf":
+                raise MotionFileError(path, f"fps must be one number, got {f.dtype} of shape {f.shape}")
+            fps = f.reshape(()).item()
+        fps = _check_fps(path, fps)
+        parents = names = None
+        if "parents" in data.files:
+            parents = npz_array(path, data, "parents")
+            if parents.ndim != 1 or parents.dtype.kind not in "iu":
+                raise MotionFileError(path, f"parents must be a list of ints, got {parents.dtype} of shape "
+                                            f"{parents.shape}")
+            parents = parents.tolist()
+        if "joint_names" in data.files:
+            names = npz_array(path, data, "joint_names")
+            if names.ndim != 1 or names.dtype.kind not in "US":
+                raise MotionFileError(path, f"joint_names must be a list of strings, got {names.dtype} of shape "
+                                            f"{names.shape}")
+            names = [n.decode() if isinstance(n, bytes) else str(n) for n in names.tolist()]
+        skel = skeleton_from(path, names, parents, J, groups)
+        unit, unit_source = _resolve_unit(path, unit, _npz_scalar_str(path, data, "unit"), raw, skel.parents)
+        up = _resolve_up(path, up_axis, _npz_scalar_str(path, data, "up_axis"))
+    layout = [{"squeeze": squeeze}] * raw.shape[0]
+    return _clips(path, raw, fps, skel, unit, unit_source, up, "positions-npz", layout)
+
+
+# --- csv ---
+
+def _parse_comments(path, lines) -> tuple[dict, int]:
+    """Leading '# key=value' lines -> (dict, index of the first other line)."""
+    meta, i = {}, 0
+    while i < len(lines) and (not lines[i].strip() or lines[i].lstrip().startswith("#")):
+        for token in lines[i].lstrip().lstrip("#").split():
+            if "=" in token:
+                k, v = token.split("=", 1)
+                meta[k.strip().lower()] = v.strip()
+        i += 1
+    return meta, i
+
+
+def _joint_columns(path, header: list[str]) -> tuple[dict, list[str], list[int]]:
+    """header -> ({special column: index}, joint names, [x column of each joint])."""
+    special, rest = {}, []
+    for c, h in enumerate(header):
+        key = h.strip().lower()
+        if key in _SPECIAL_COLUMNS:
+            if key in special:
+                raise MotionFileError(path, f"column {key!r} appears twice")
+            special[key] = c
+        else:
+            rest.append(c)
+    if not rest:
+        raise MotionFileError(path, "no joint columns (<joint>_x, <joint>_y, <joint>_z)")
+    names, x_cols = [], []
+    for k in range(0, len(rest), 3):
+        triple = rest[k:k + 3]
+        cols = [header[c].strip() for c in triple]
+        m = re.fullmatch(r"(.+)_[xX]", cols[0])
+        ok = (len(triple) == 3 and m is not None and triple == list(range(triple[0], triple[0] + 3))
+              and [c.lower() for c in cols[1:]] == [m.group(1).lower() + "_y", m.group(1).lower() + "_z"])
+        if not ok:
+            raise MotionFileError(path, f"columns {cols} are not <joint>_x,<joint>_y,<joint>_z")
+        names.append(m.group(1))
+        x_cols.append(triple[0])
+    if len(set(names)) != len(names):
+        raise MotionFileError(path, "a joint name appears twice in the header")
+    return special, names, x_cols
+
+
+def _to_float(path, cells: np.ndarray, header: list[str], cols: list[int], first_line: int) -> np.ndarray:
+    """cells: (N, C) strings -> (N, C) float64; '' and 'nan' -> NaN; anything else non-numeric is an error."""
+    try:  # fast path: numpy parses " 1.5" and "nan" itself; only blank cells need a word
+        return np.where(cells == "", "nan", cells).astype(np.float64)
+    except ValueError:
+        pass
+    cells = np.char.strip(cells)
+    cells = np.where(cells == "", "nan", cells)
+    try:
+        return cells.astype(np.float64)
+    except ValueError:
+        for r in range(cells.shape[0]):
+            for c in range(cells.shape[1]):
+                try:
+                    float(cells[r, c])
+                except ValueError:
+                    raise MotionFileError(path, f"line {first_line + r}: column {header[cols[c]]!r} has "
+                                                f"{cells[r, c]!r}, not a number") from None
+        raise
+
+
+def _fps_from_times(path, times: np.ndarray, frame: np.ndarray, person: np.ndarray) -> float:
+    """Median frames per second between a person's consecutive rows: rows may skip frames."""
+    order = np.lexsort((frame, person))
+    t, f, p = times[order], frame[order], person[order]
+    dt, df = np.diff(t), np.diff(f)
+    ok = (np.diff(p) == 0) & (df > 0) & np.isfinite(dt) & (dt > 0)
+    if not ok.any():
+        raise MotionFileError(path, "no '# fps=' line and too few times in the time column to tell the fps")
+    fps = float(np.median(df[ok] / dt[ok]))
+    # times written with a few decimals: 1/0.0333333 is 30.00003, which means 30
+    return float(round(fps)) if abs(fps - round(fps)) < 1e-4 * fps else fps
+
+
+def read_positions_csv(path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None,
+                       groups=None) -> list[Clip]:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise MotionFileError(path, "no such file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise MotionFileError(path, f"cannot read as text ({_one_line(e)})") from None
+    lines = text.splitlines()
+    comments, start = _parse_comments(path, lines)
+    if start >= len(lines):
+        raise MotionFileError(path, "empty file" if not comments else "no header row")
+    rows = []  # (line number, cells)
+    for k, cells in enumerate(csv.reader(lines[start:])):
+        if cells and (len(cells) > 1 or cells[0].strip()):
+            rows.append((start + k + 1, cells))
+    header = [h.strip() for h in rows[0][1]]
+    special, names, x_cols = _joint_columns(path, header)
+    data_rows = rows[1:]
+    if not data_rows:
+        raise MotionFileError(path, "no data rows after the header")
+    for line, cells in data_rows:
+        if len(cells) != len(header):
+            raise MotionFileError(path, f"line {line} has {len(cells)} cells, the header has {len(header)}")
+    cells = np.array([c for _, c in data_rows], dtype=str)  # (N, C)
+    first_line = data_rows[0][0]
+    J = len(names)
+    coord_cols = [c + k for c in x_cols for k in range(3)]
+    xyz = _to_float(path, cells[:, coord_cols], header, coord_cols, first_line).reshape(-1, J, 3)
+    xyz[np.isnan(xyz).any(axis=-1)] = np.nan  # a joint with a missing coordinate is missing
+
+    # people: one clip per label, numeric labels in numeric order
+    N = len(data_rows)
+    if "person" in special:
+        labels = np.char.strip(cells[:, special["person"]])
+        if (labels == "").any():
+            raise MotionFileError(path, f"line {data_rows[int(np.argmax(labels == ''))][0]}: empty person cell")
+        uniq = list(dict.fromkeys(labels.tolist()))
+        try:
+            uniq.sort(key=float)
+        except ValueError:
+            uniq.sort()
+        index = {s: i for i, s in enumerate(uniq)}
+        person = np.array([index[s] for s in labels.tolist()], dtype=np.int64)
+    else:
+        uniq, person = ["0"], np.zeros(N, dtype=np.int64)
+
+    times = None
+    if "time" in special:
+        times = _to_float(path, cells[:, [special["time"]]], header, [special["time"]], first_line)[:, 0]
+    if "frame" in special:
+        f = _to_float(path, cells[:, [special["frame"]]], header, [special["frame"]], first_line)[:, 0]
+        bad = ~np.isfinite(f) | (f != np.round(f))
+        if bad.any():
+            raise MotionFileError(path, f"line {data_rows[int(np.argmax(bad))][0]}: frame must be an integer")
+        frame = f.astype(np.int64)
+    else:  # consecutive rows of a person are consecutive frames
+        frame = np.zeros(N, dtype=np.int64)
+        for p in range(len(uniq)):
+            frame[person == p] = np.arange((person == p).sum())
+    if fps is None:
+        fps = comments["fps"] if "fps" in comments else \
+            _fps_from_times(path, times, frame, person) if times is not None else None
+    if fps is None:
+        raise MotionFileError(path, "no fps: add a '# fps=30' line or a time column in seconds")
+    fps = _check_fps(path, fps)
+    first_frame = int(frame.min())
+    T = int(frame.max()) - first_frame + 1
+    if T > 10 * N + 1000:
+        raise MotionFileError(path, f"frame numbers span {T} frames for only {N} rows")
+    P = len(uniq)
+    key = person * T + (frame - first_frame)
+    dup = np.nonzero(np.bincount(key, minlength=P * T) > 1)[0]
+    if dup.size:
+        line = data_rows[int(np.nonzero(key == dup[0])[0][1])][0]
+        raise MotionFileError(path, f"line {line}: person {uniq[dup[0] // T]} frame {dup[0] % T + first_frame} "
+                                    "appears twice")
+    raw = np.full((P * T, J, 3), np.nan)
+    raw[key] = xyz
+    raw = raw.reshape(P, T, J, 3)
+
+    parents = None
+    if "parents" in comments:
+        try:
+            parents = [int(v) for v in comments["parents"].split(",")]
+        except ValueError:
+            raise MotionFileError(path, f"'# parents=' must be comma-separated ints, got {comments['parents']!r}") \
+                from None
+    skel = skeleton_from(path, names, parents, J, groups)
+    unit, unit_source = _resolve_unit(path, unit, comments.get("unit"), raw, skel.parents)
+    up = _resolve_up(path, up_axis, comments.get("up_axis", comments.get("up")))
+    layout = [{"person_id": uniq[i], "person_column": "person" in special, "time_column": times is not None,
+               "frame_column": "frame" in special, "first_frame": first_frame} for i in range(P)]
+    return _clips(path, raw, fps, skel, unit, unit_source, up, "positions-csv", layout)
+
+
+def read_positions(path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None,
+                   groups=None) -> list[Clip]:
+    """A .npz or .csv positions file -> one Clip per person (metres, z up).
+
+    unit / up_axis: "auto" takes the file's value (unit guessed from bone lengths when the file
+    has none, up axis z); anything else overrides the file. fps overrides the file's too.
+    groups: {group name: [joint names or indices]} replacing the preset/guessed limb groups."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        return read_positions_npz(path, unit, up_axis, fps, groups)
+    if suffix == ".csv":
+        return read_positions_csv(path, unit, up_axis, fps, groups)
+    raise MotionFileError(path, f"positions files are .npz or .csv, not {suffix or 'no extension'!r}")
+
+
+# --- writers ---
+
+def _atomic_write(path: Path, write) -> None:
+    """write(file object) into a temp file beside path, then rename: readers never see half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _fmt(v: float) -> str:
+    return "" if v != v else f"{v:.9g}"  # 9 digits: float32 round-trips exactly
+
+
+def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton, unit: str = "m",
+                    up_axis: str = "z", *, squeeze: bool | None = None, person_ids: list | None = None,
+                    person_column: bool | None = None, frame_column: bool = True, time_column: bool = True,
+                    first_frame: int = 0) -> Path:
+    """Write positions (T, J, 3) or (P, T, J, 3), metres z up, NaN = missing, as .npz or .csv (by
+    the path's extension) in `unit` and `up_axis`. The layout options mirror what the readers put
+    into clip.meta: squeeze (npz: (T, J, 3) for one person; default when P == 1), person_ids and
+    person_column (csv; the column is written when P > 1 by default), frame/time columns and
+    first_frame (csv)."""
+    path = Path(path)
+    pos = np.asarray(positions, dtype=np.float64)
+    if pos.ndim == 3:
+        pos = pos[None]
+    if pos.ndim != 4 or pos.shape[-1] != 3 or pos.shape[2] != skeleton.num_joints:
+        raise ValueError(f"positions must be (T, {skeleton.num_joints}, 3) or (P, T, {skeleton.num_joints}, 3), "
+                         f"got {np.shape(positions)}")
+    if unit not in UNITS or up_axis not in UP_AXES:
+        raise ValueError(f"unit must be one of {list(UNITS)} and up_axis one of {list(UP_AXES)}")
+    P, T, J, _ = pos.shape
+    out = from_z_up(pos, up_axis) / UNITS[unit]
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        squeeze = P == 1 if squeeze is None else squeeze and P == 1
+        arrays = {"positions": (out[0] if squeeze else out).astype(np.float32), "fps": np.float64(fps),
+                  "parents": np.array(skeleton.parents, dtype=np.int64),
+                  "joint_names": np.array(skeleton.joint_names, dtype=str),
+                  "unit": np.array(unit), "up_axis": np.array(up_axis)}
+        _atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+    elif suffix == ".csv":
+        bad = [n for n in skeleton.joint_names if re.search(r"[,\"\s]", n) or n.lower() in _SPECIAL_COLUMNS]
+        if bad:
+            raise ValueError(f"joint names {bad} cannot be csv column prefixes")
+        ids = [str(i) for i in (person_ids if person_ids is not None else range(P))]
+        if len(ids) != P:
+            raise ValueError(f"{len(ids)} person ids for {P} people")
+        person_column = P > 1 if person_column is None else person_column or P > 1
+        header = (["person"] if person_column else []) + (["frame"] if frame_column else []) + \
+                 (["time"] if time_column else []) + [f"{n}_{a}" for n in skeleton.joint_names for a in "xyz"]
+        lines = [f"# fps={fps:.9g} unit={unit} up_axis={up_axis}",
+                 "# parents=" + ",".join(str(p) for p in skeleton.parents), ",".join(header)]
+        flat = out.reshape(P, T, J * 3)  # float64: 9 digits of it read back as the same float32 metres
+        for p in range(P):
+            for t in range(T):
+                lead = ([ids[p]] if person_column else []) + ([str(first_frame + t)] if frame_column else []) + \
+                       ([f"{(first_frame + t) / fps:.9g}"] if time_column else [])
+                lines.append(",".join(lead + [_fmt(v) for v in flat[p, t].tolist()]))
+        payload = ("\n".join(lines) + "\n").encode()
+        _atomic_write(path, lambda f: f.write(payload))
+    else:
+        raise ValueError(f"write_positions writes .npz or .csv, not {path.suffix!r}")
+    return path
+
+
+def write_clips(path, clips: list[Clip]) -> Path:
+    """Write the clips of one file (its people: same frames, fps and skeleton) in the layout the
+    reader found: unit, up axis, people and columns come from clips[0].meta (defaults m, z up)."""
+    if not clips:
+        raise ValueError("write_clips needs at least one clip")
+    c0 = clips[0]
+    for c in clips[1:]:
+        if c.num_frames != c0.num_frames or c.fps != c0.fps or c.skeleton.parents != c0.skeleton.parents:
+            raise ValueError("clips written to one positions file need the same frames, fps and skeleton")
+    m = c0.meta
+    unit = m.get("unit", "m") if m.get("unit", "m") in UNITS else "m"
+    up = m.get("up_axis", "z") if m.get("up_axis", "z") in UP_AXES else "z"
+    from_csv = m.get("format") == "positions-csv"
+    return write_positions(
+        path, np.stack([c.positions for c in clips]), c0.fps, c0.skeleton, unit, up,
+        squeeze=m.get("squeeze"),
+        person_ids=[c.meta.get("person_id", i) for i, c in enumerate(clips)],
+        person_column=m.get("person_column") if from_csv else None,
+        frame_column=m.get("frame_column", True) if from_csv else True,
+        time_column=m.get("time_column", True) if from_csv else True,
+        first_frame=int(m.get("first_frame", 0)))

@@ -1,0 +1,164 @@
+"""XMAE: a masked auto-encoder over joint tokens with a cross-attention decoder.
+
+Zhang et al.'s design as described in ../shared/papers/xmae.txt, section 3 and Table 1:
+one token per joint per frame (joint index fastest), the encoder sees observed tokens only,
+the decoder's queries are a learnable mask vector plus positional encodings for ALL J*T
+positions and the encoded tokens enter only through cross-attention. Because the queries never
+change with the number of missing tokens, there is no train/test gap in the decoder input.
+
+decoder="mae" is the original MAE design (ablation, section 4.3): encoded tokens scattered back
+to their positions, mask tokens elsewhere, self-attention only.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+
+class Attention(nn.Module):
+    """Multi-head attention on top of scaled_dot_product_attention (flash / memory-efficient
+    kernels apply on GPU when there is no mask)."""
+
+    def __init__(self, dim: int, head_dim: int = 64, kv_dim: int | None = None):
+        super().__init__()
+        assert dim % head_dim == 0, f"width {dim} is not a multiple of the head dim {head_dim}"
+        self.num_heads, self.head_dim = dim // head_dim, head_dim
+        kv_dim = kv_dim or dim
+        self.q = nn.Linear(dim, dim)
+        self.kv = nn.Linear(kv_dim, 2 * dim)
+        self.proj = nn.Linear(dim, dim)
+
+    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None,
+                key_padding: torch.Tensor | None = None) -> torch.Tensor:
+        # x: (B, Nq, D); context: (B, Nk, Dkv) (x itself for self-attention); key_padding: (B, Nk) True = ignore
+        context = x if context is None else context
+        B, Nq, D = x.shape
+        q = self.q(x).view(B, Nq, self.num_heads, self.head_dim).transpose(1, 2)           # (B, H, Nq, hd)
+        k, v = self.kv(context).view(B, -1, 2, self.num_heads, self.head_dim).permute(2, 0, 3, 1, 4)
+        attn_mask = None if key_padding is None else ~key_padding[:, None, None, :]         # (B, 1, 1, Nk)
+        y = F.scaled_dot_product_attention(q, k, v, attn_mask=attn_mask)                   # (B, H, Nq, hd)
+        return self.proj(y.transpose(1, 2).reshape(B, Nq, D))
+
+
+class MLP(nn.Sequential):
+    def __init__(self, dim: int, hidden: int):
+        super().__init__(nn.Linear(dim, hidden), nn.ReLU(), nn.Linear(hidden, dim))
+
+
+class EncoderBlock(nn.Module):
+    """Pre-norm transformer block: self-attention, MLP."""
+
+    def __init__(self, dim: int, mlp_dim: int, head_dim: int):
+        super().__init__()
+        self.norm1, self.attn = nn.LayerNorm(dim), Attention(dim, head_dim)
+        self.norm2, self.mlp = nn.LayerNorm(dim), MLP(dim, mlp_dim)
+
+    def forward(self, x, key_padding=None):
+        x = x + self.attn(self.norm1(x), key_padding=key_padding)
+        return x + self.mlp(self.norm2(x))
+
+
+class DecoderBlock(nn.Module):
+    """Pre-norm transformer decoder block: self-attention over the queries, cross-attention into
+    the encoded tokens, MLP (the original Transformer's decoder layer)."""
+
+    def __init__(self, dim: int, mlp_dim: int, head_dim: int):
+        super().__init__()
+        self.norm1, self.self_attn = nn.LayerNorm(dim), Attention(dim, head_dim)
+        self.norm2, self.cross_attn = nn.LayerNorm(dim), Attention(dim, head_dim)
+        self.norm3, self.mlp = nn.LayerNorm(dim), MLP(dim, mlp_dim)
+
+    def forward(self, q, memory, memory_padding=None):
+        q = q + self.self_attn(self.norm1(q))
+        q = q + self.cross_attn(self.norm2(q), memory, key_padding=memory_padding)
+        return q + self.mlp(self.norm3(q))
+
+
+class XMAE(nn.Module):
+    def __init__(
+        self,
+        num_joints: int,
+        num_frames: int,
+        enc_dim: int = 256,
+        enc_depth: int = 6,
+        enc_mlp_dim: int = 1024,
+        dec_dim: int = 128,
+        dec_depth: int = 3,
+        dec_mlp_dim: int = 512,
+        head_dim: int = 64,
+        decoder: str = "cross",
+    ):
+        super().__init__()
+        if decoder not in ("cross", "mae"):
+            raise ValueError(f"decoder must be 'cross' (XMAE) or 'mae' (original MAE), got {decoder!r}")
+        self.num_joints, self.num_frames, self.decoder_type = num_joints, num_frames, decoder
+        # eq. (2): W x + P_joint[j] + P_time[t]
+        self.embed = nn.Linear(3, enc_dim)
+        self.enc_pos_joint = nn.Parameter(torch.zeros(num_joints, enc_dim))
+        self.enc_pos_time = nn.Parameter(torch.zeros(num_frames, enc_dim))
+        self.encoder = nn.ModuleList([EncoderBlock(enc_dim, enc_mlp_dim, head_dim) for _ in range(enc_depth)])
+        self.enc_norm = nn.LayerNorm(enc_dim)
+        self.enc_to_dec = nn.Linear(enc_dim, dec_dim)
+        # eq. (4): m + P_joint[j] + P_time[t]; the decoder is narrower than the encoder, so it has
+        # its own positional encodings of its width (as MAE's decoder_pos_embed).
+        self.mask_token = nn.Parameter(torch.zeros(dec_dim))
+        self.dec_pos_joint = nn.Parameter(torch.zeros(num_joints, dec_dim))
+        self.dec_pos_time = nn.Parameter(torch.zeros(num_frames, dec_dim))
+        block = DecoderBlock if decoder == "cross" else EncoderBlock
+        self.decoder = nn.ModuleList([block(dec_dim, dec_mlp_dim, head_dim) for _ in range(dec_depth)])
+        self.dec_norm = nn.LayerNorm(dec_dim)
+        self.head = nn.Linear(dec_dim, 3)
+        self.apply(self._init_weights)
+        for p in (self.enc_pos_joint, self.enc_pos_time, self.mask_token, self.dec_pos_joint, self.dec_pos_time):
+            nn.init.normal_(p, std=0.02)
+
+    @staticmethod
+    def _init_weights(m):
+        if isinstance(m, nn.Linear):
+            nn.init.xavier_uniform_(m.weight)
+            nn.init.zeros_(m.bias)
+
+    @staticmethod
+    def _positions(pos_joint: torch.Tensor, pos_time: torch.Tensor) -> torch.Tensor:
+        # (J, D), (T, D) -> (T*J, D), joint index fastest as the token order of eq. (1)
+        return (pos_time[:, None, :] + pos_joint[None, :, :]).flatten(0, 1)
+
+    def encode(self, tokens: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None) -> torch.Tensor:
+        # tokens: (B, N, 3) all J*T tokens (values at unobserved ones are never read)
+        # kept: (B, K) indices of observed tokens; padding: (B, K) True where kept is padding
+        x = torch.gather(tokens, 1, kept[..., None].expand(-1, -1, 3))                     # (B, K, 3)
+        pos = self._positions(self.enc_pos_joint, self.enc_pos_time)                       # (N, D)
+        x = self.embed(x) + pos[kept]                                                       # (B, K, D)
+        for blk in self.encoder:
+            x = blk(x, key_padding=padding)
+        return self.enc_to_dec(self.enc_norm(x))                                            # (B, K, Dd)
+
+    def decode(self, memory: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None) -> torch.Tensor:
+        B = memory.shape[0]
+        pos = self._positions(self.dec_pos_joint, self.dec_pos_time)                       # (N, Dd)
+        queries = (self.mask_token + pos).expand(B, -1, -1)                                 # (B, N, Dd)
+        if self.decoder_type == "cross":
+            x = queries
+            for blk in self.decoder:
+                x = blk(x, memory, memory_padding=padding)
+        else:  # MAE: encoded tokens replace the mask tokens at their own positions
+            index = kept
+            if padding is not None:  # padded slots land on a spare position N, dropped after
+                index = kept.masked_fill(padding, queries.shape[1])
+            x = torch.cat([queries, queries[:, :1]], dim=1)                                 # (B, N+1, Dd)
+            x = x.scatter(1, index[..., None].expand(-1, -1, memory.shape[-1]), memory + pos[kept])[:, :-1]
+            for blk in self.decoder:
+                x = blk(x)
+        return self.head(self.dec_norm(x))                                                  # (B, N, 3)
+
+    def forward(self, tokens: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None = None) -> torch.Tensor:
+        """tokens: (B, N, 3), N = T*J (t-major, joint fastest); kept: (B, K) observed token indices;
+        padding: (B, K) True where a sample has fewer than K observed tokens (None: all real).
+        Returns every token's 3D position (B, N, 3)."""
+        if padding is not None:
+            # A sample with no observed token would attend to nothing (NaN): let it attend to one
+            # zero-valued slot instead; its output is then the model's unconditional guess.
+            padding = padding.clone()
+            padding[padding.all(1), 0] = False
+        return self.decode(self.encode(tokens, kept, padding), kept, padding)

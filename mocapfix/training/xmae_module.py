@@ -1,0 +1,237 @@
+"""XMAEModule: training, validation, the paper's test tables and prediction for XMAE.
+
+The nn.Module (models/xmae.py) knows nothing of this: losses, corruption, schedules and logging
+live here. The network is built in setup() from the data module's skeleton and window, and those
+are stored as plain hyperparameters so a checkpoint alone rebuilds it (fix, load_from_checkpoint).
+"""
+from __future__ import annotations
+
+import logging
+from functools import partial
+from pathlib import Path
+
+import lightning as L
+import torch
+import torch.nn as nn
+
+from mocapfix.data.corruption import kept_index, mask_and_displace, normalize, random_z_rotation, rotate_z
+from mocapfix.evaluation.baselines import lerp_infill
+from mocapfix.evaluation.metrics import MPJPE
+from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows, write_eval_json
+from mocapfix.inference import xmae_reconstruct
+from mocapfix.models.xmae import XMAE
+from mocapfix.skeleton import Skeleton
+from mocapfix.training.schedules import warmup_cosine
+
+log = logging.getLogger(__name__)
+
+
+class XMAEModule(L.LightningModule):
+    def __init__(
+        self,
+        enc_dim: int = 256,
+        enc_depth: int = 6,
+        enc_mlp_dim: int = 1024,
+        dec_dim: int = 128,
+        dec_depth: int = 3,
+        dec_mlp_dim: int = 512,
+        head_dim: int = 64,
+        decoder: str = "cross",
+        mask_ratio: float = 0.85,
+        displace_ratio: float = 0.05,
+        max_displacement_m: float = 1.0,
+        clean_loss_ratio: float = 0.0,
+        fixed_kept_count: bool = True,
+        rotate_augment: bool = True,
+        lr: float = 3e-4,
+        betas: tuple[float, float] = (0.9, 0.999),
+        warmup_steps: int = 1200,
+        total_steps: int | None = None,
+        val_gap_s: float = 0.5,
+        eval_gaps_s: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9),
+        eval_noise_sigmas_m: tuple[float, ...] = (0.02, 0.05),
+        eval_seed: int = 0,
+        figure_every_n_val: int = 1,
+        skeleton: dict | None = None,
+        window_fps: float | None = None,
+        window_frames: int | None = None,
+    ):
+        """
+        Args:
+            enc_* / dec_* / head_dim: widths and depths (paper Table 1 by default).
+            decoder: "cross" (XMAE) or "mae" (original MAE decoder, ablation).
+            mask_ratio, displace_ratio: fractions of all J*T tokens masked / displaced in training.
+            max_displacement_m: radius of the ball displacement offsets are drawn from.
+            clean_loss_ratio: fraction of all tokens kept clean AND put in the loss ("BERT masking": 0.05).
+            fixed_kept_count: every sample keeps the same number of tokens (no padding in the encoder).
+            rotate_augment: random rotation about z after normalisation.
+            warmup_steps, total_steps: linear warm-up then cosine to zero at total_steps
+                (None: the Trainer's estimated number of optimiser steps).
+            val_gap_s: the full-skeleton gap logged every validation, XMAE beside Lerp.
+            eval_gaps_s, eval_noise_sigmas_m: the `test` tables.
+            skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
+        """
+        super().__init__()
+        self.save_hyperparameters()
+        self.net: XMAE | None = None
+        if skeleton is not None and window_frames is not None:
+            self._build()
+
+    # --- construction ---
+
+    @property
+    def skeleton(self) -> Skeleton:
+        return Skeleton.from_dict(self.hparams.skeleton)
+
+    def _build(self) -> None:
+        hp = self.hparams
+        self.net = XMAE(len(hp.skeleton["parents"]), hp.window_frames, hp.enc_dim, hp.enc_depth, hp.enc_mlp_dim,
+                        hp.dec_dim, hp.dec_depth, hp.dec_mlp_dim, hp.head_dim, hp.decoder)
+        self.val_mpjpe = MPJPE()
+        self.val_gap = nn.ModuleDict({"xmae": MPJPE(), "lerp": MPJPE()})
+
+    def setup(self, stage: str) -> None:
+        dm = self.trainer.datamodule
+        if dm is None:
+            if self.net is None:
+                raise RuntimeError("XMAEModule needs a data module (or a checkpoint) to know the skeleton and window")
+            return
+        skeleton, fps, frames = dm.skeleton.to_dict(), float(dm.hparams.fps), dm.window_frames
+        if self.net is None:
+            self.hparams.update(skeleton=skeleton, window_fps=fps, window_frames=frames)
+            self._build()
+        elif (skeleton["parents"], frames) != (self.hparams.skeleton["parents"], self.hparams.window_frames) \
+                or abs(fps - self.hparams.window_fps) > 1e-6:
+            raise ValueError(f"this model was built for {len(self.hparams.skeleton['parents'])} joints, "
+                             f"{self.hparams.window_frames} frames at {self.hparams.window_fps} fps; the data gives "
+                             f"{len(skeleton['parents'])} joints, {frames} frames at {fps} fps")
+
+    def configure_optimizers(self):
+        hp = self.hparams
+        opt = torch.optim.Adam(self.parameters(), lr=hp.lr, betas=tuple(hp.betas))
+        total = hp.total_steps or int(self.trainer.estimated_stepping_batches)
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, partial(warmup_cosine, warmup_steps=hp.warmup_steps,
+                                                               total_steps=total))
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+    # --- training ---
+
+    def _corrupt_and_predict(self, positions: torch.Tensor, generator: torch.Generator | None = None):
+        """The training objective on a batch. positions: (B, T, J, 3) metres, NaN = missing in the data.
+        Returns loss, prediction and target (both normalised), and the corruption."""
+        hp = self.hparams
+        B, T, J, _ = positions.shape
+        c = mask_and_displace(positions, hp.mask_ratio, hp.displace_ratio, hp.max_displacement_m,
+                              hp.fixed_kept_count, generator)
+        x, offset = normalize(c.positions, c.observed)
+        target = positions - offset
+        if hp.rotate_augment and self.training:
+            x, angle = random_z_rotation(x, generator)
+            target = rotate_z(target, angle)
+        kept, padding = kept_index(c.observed)
+        pred = self.net(x.reshape(B, T * J, 3), kept, padding).reshape(B, T, J, 3)
+        has_truth = ~torch.isnan(target).any(-1)
+        in_loss = (~c.observed | c.displaced) & has_truth
+        if hp.clean_loss_ratio > 0:  # BERT masking: some clean observed tokens are scored too
+            clean = c.observed & ~c.displaced
+            p = hp.clean_loss_ratio / (1 - hp.mask_ratio - hp.displace_ratio)
+            in_loss |= clean & (torch.rand(clean.shape, device=clean.device) < p)
+        err = (pred.float() - torch.nan_to_num(target).float()).abs().sum(-1)               # (B, T, J)
+        loss = (err * in_loss).sum() / (3 * in_loss.sum().clamp_min(1))
+        return loss, pred, target, c, in_loss, offset
+
+    def training_step(self, batch, batch_idx):
+        loss, *_ = self._corrupt_and_predict(batch["positions"])
+        self.log("train/loss", loss, prog_bar=True)
+        return loss
+
+    # --- validation ---
+
+    def _generator(self, batch_idx: int) -> torch.Generator:
+        # CPU generator: the same corruption on any device and precision (see corruption.py).
+        return torch.Generator().manual_seed(self.hparams.eval_seed * 100_003 + batch_idx)
+
+    def validation_step(self, batch, batch_idx):
+        positions = batch["positions"]
+        loss, pred, target, c, in_loss, offset = self._corrupt_and_predict(positions, self._generator(batch_idx))
+        self.log("val/loss", loss, prog_bar=True, batch_size=len(positions))
+        self.val_mpjpe(pred.float(), target.float(), in_loss)
+        self.log("val/mpjpe_mm", self.val_mpjpe, prog_bar=True)
+
+        task = Task("infill", "full", gap_s=self.hparams.val_gap_s)
+        gap = task.corrupt(positions, self.hparams.window_fps, self.skeleton, None)
+        scored = task.evaluated(gap, positions)
+        xmae = xmae_reconstruct(self.net, gap.positions, gap.observed)
+        self.val_gap["xmae"](xmae.float(), positions.float(), scored)
+        self.val_gap["lerp"](lerp_infill(gap.positions, gap.observed).float(), positions.float(), scored)
+        for name, metric in self.val_gap.items():
+            self.log(f"val/gap{self.hparams.val_gap_s}s_mpjpe_mm/{name}", metric)
+        if batch_idx == 0:
+            self._figure_sample = (positions[0], gap.positions[0], gap.observed[0], xmae[0])
+
+    def on_validation_epoch_end(self):
+        hp = self.hparams
+        if self.trainer.sanity_checking:
+            return
+        mpjpe = self.trainer.callback_metrics.get("val/mpjpe_mm")
+        if mpjpe is not None:
+            self.log("hp_metric", mpjpe)
+        sample = getattr(self, "_figure_sample", None)
+        experiment = getattr(self.logger, "experiment", None)
+        n_val = getattr(self, "_n_val", 0)
+        self._n_val = n_val + 1
+        if sample is None or not hasattr(experiment, "add_figure") or n_val % max(1, hp.figure_every_n_val):
+            return
+        from mocapfix.viz import window_figure
+        truth, given, observed, output = (t.detach().float().cpu().numpy() for t in sample)
+        fig = window_figure(truth, given, observed, output, self.skeleton.limbs, hp.window_fps,
+                            title=f"full-skeleton {hp.val_gap_s} s gap, step {self.global_step}")
+        experiment.add_figure("val/infill_example", fig, self.global_step)
+
+    # --- test: the paper's tables ---
+
+    def on_test_epoch_start(self):
+        self._tasks = paper_tasks(self.skeleton, self.hparams.eval_gaps_s, self.hparams.eval_noise_sigmas_m)
+        self._test_metrics = nn.ModuleDict({
+            f"{t.key}|{m}|{rel}".replace(".", "_"): MPJPE(root_relative=rel == "rel")
+            for t in self._tasks for m in ("xmae", "lerp") for rel in ("abs", "rel")}).to(self.device)
+        self.eval_rows: list[dict] = []
+
+    def test_step(self, batch, batch_idx):
+        positions = batch["positions"]
+        generator = self._generator(batch_idx)
+        for t in self._tasks:
+            c = t.corrupt(positions, self.hparams.window_fps, self.skeleton, generator)
+            scored = t.evaluated(c, positions)
+            preds = {"xmae": xmae_reconstruct(self.net, c.positions, c.observed),
+                     # Lerp fills the missing tokens and leaves the observed ones as given
+                     "lerp": lerp_infill(c.positions, c.observed)}
+            for m, pred in preds.items():
+                for rel in ("abs", "rel"):
+                    self._test_metrics[f"{t.key}|{m}|{rel}".replace(".", "_")].update(pred.float(), positions.float(), scored)
+
+    def on_test_epoch_end(self):
+        results = {}
+        for t in self._tasks:
+            for m in ("xmae", "lerp"):
+                k = f"{t.key}|{m}|".replace(".", "_")
+                results[(t.key, m)] = (float(self._test_metrics[k + "abs"].compute()),
+                                       float(self._test_metrics[k + "rel"].compute()))
+        self.eval_rows = table_rows(results, self._tasks)
+        for r in self.eval_rows:
+            param = f"gap{r['gap_s']}s" if "gap_s" in r else f"sigma{r['sigma_m']}m"
+            self.log(f"test/{r['task']}/{r['part']}/{param}/{r['method']}_mpjpe_mm", r["mpjpe_mm"])
+        if self.trainer.is_global_zero:
+            print("\n" + format_table(self.eval_rows))
+            log_dir = Path(self.logger.log_dir if self.logger and self.logger.log_dir else self.trainer.default_root_dir)
+            self.eval_json_path = write_eval_json(log_dir / "eval.json", self.eval_rows)
+
+    # --- predict ---
+
+    def predict_step(self, batch, batch_idx):
+        """Windows with NaN where joints are missing -> completed windows (B, T, J, 3), metres.
+        Observed tokens keep their given values; XMAE fills the missing ones."""
+        positions = batch["positions"]
+        observed = ~torch.isnan(positions).any(-1)
+        out = xmae_reconstruct(self.net, positions, observed)
+        return torch.where(observed[..., None], positions, out)

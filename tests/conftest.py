@@ -1,0 +1,26 @@
+"""Shared fixtures. The real data lives beside the repository (../shared/data), never inside it."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+BANDAI_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"
+
+
+@pytest.fixture(scope="session")
+def bandai_dir() -> Path:
+    """The Bandai Namco BVH clips (384 files, cm, y up); tests that need them skip without them."""
+    if not BANDAI_DIR.is_dir():
+        pytest.skip(f"Bandai Namco data not found at {BANDAI_DIR} (expected ../shared/data/bandai-namco "
+                    "beside the repository)")
+    return BANDAI_DIR
+
+
+@pytest.fixture(scope="session")
+def bandai_files(bandai_dir: Path) -> list[Path]:
+    """Every *.bvh under bandai_dir, sorted."""
+    files = sorted(bandai_dir.rglob("*.bvh"))
+    if not files:
+        pytest.skip(f"no .bvh files under {bandai_dir}")
+    return files

@@ -1,0 +1,85 @@
+import numpy as np
+import pytest
+import torch
+
+from mocapfix.data.corruption import infill_gap
+from mocapfix.evaluation.baselines import lerp_infill
+
+
+def np_lerp(x, observed):
+    """Per-joint np.interp reference (np.interp holds the edge values outside the observed range)."""
+    B, T, J, _ = x.shape
+    out = np.empty_like(x)
+    seen = observed.any(axis=1)  # (B, J)
+    for b in range(B):
+        for j in range(J):
+            if not seen[b, j]:
+                continue
+            ts = np.nonzero(observed[b, :, j])[0]
+            for k in range(3):
+                out[b, :, j, k] = np.interp(np.arange(T), ts, x[b, ts, j, k])
+        for j in range(J):
+            if not seen[b, j]:
+                out[b, :, j] = out[b][:, seen[b]].mean(axis=1) if seen[b].any() else 0.0
+    return out
+
+
+def test_lerp_matches_np_interp_on_random_masks():
+    rng = np.random.default_rng(0)
+    B, T, J = 5, 40, 6
+    x = rng.normal(size=(B, T, J, 3))
+    observed = rng.random((B, T, J)) < 0.3
+    observed[0, :, 2] = False          # a joint never observed: body mean
+    observed[1, :, 0] = False
+    observed[1, 7, 0] = True           # a single observation: held everywhere
+    observed[2] = False                # nothing observed: zeros
+    x[~observed] = np.nan              # values at unobserved tokens must not matter
+    out = lerp_infill(torch.from_numpy(x), torch.from_numpy(observed))
+    ref = np_lerp(x, observed)
+    assert not torch.isnan(out).any()
+    np.testing.assert_allclose(out.numpy(), ref, rtol=1e-12, atol=1e-12)
+    assert (out[2] == 0).all()
+    assert torch.allclose(out[1, :, 0], torch.from_numpy(x[1, 7, 0]).expand(T, 3))
+    # observed tokens bit-identical
+    obs = torch.from_numpy(observed)
+    assert torch.equal(out[obs], torch.from_numpy(x)[obs])
+
+
+def test_lerp_exact_on_linear_motion_and_border_gaps():
+    T = 30
+    tt = torch.arange(T, dtype=torch.float32)
+    x = torch.stack([0.1 * tt, -0.2 * tt, torch.ones(T)], dim=-1)[None, :, None, :].repeat(2, 1, 3, 1)  # (2, T, 3, 3)
+    c = infill_gap(x, fps=30, gap_s=0.5)
+    out = lerp_infill(c.positions, c.observed)
+    assert torch.allclose(out, x, atol=1e-6)  # linear motion: lerp is exact inside the window
+    observed = torch.ones(2, T, 3, dtype=torch.bool)
+    observed[:, :5] = False
+    observed[:, -4:] = False
+    out = lerp_infill(x, observed)
+    assert torch.equal(out[:, :5], x[:, 5:6].expand(2, 5, 3, 3))   # held first observed value
+    assert torch.equal(out[:, -4:], x[:, -5:-4].expand(2, 4, 3, 3))  # held last observed value
+
+
+def test_lerp_float32_and_observed_nan_treated_as_missing():
+    rng = np.random.default_rng(1)
+    x = torch.from_numpy(rng.normal(size=(2, 20, 4, 3)).astype(np.float32))
+    observed = torch.from_numpy(rng.random((2, 20, 4)) < 0.5)
+    observed[:, 0] = True
+    observed[:, -1] = True
+    x[0, 0, 0] = float("nan")  # marked observed but NaN: filled from the neighbours
+    out = lerp_infill(x, observed)
+    assert out.dtype == torch.float32 and not torch.isnan(out).any()
+    eff = observed.clone()
+    eff[0, 0, 0] = False
+    ref = np_lerp(x.double().numpy(), eff.numpy())
+    np.testing.assert_allclose(out.numpy(), ref, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_lerp_on_cuda():
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=(3, 25, 5, 3))
+    observed = rng.random((3, 25, 5)) < 0.4
+    out = lerp_infill(torch.from_numpy(x).cuda(), torch.from_numpy(observed).cuda())
+    np.testing.assert_allclose(out.cpu().numpy(), np_lerp(x, observed), rtol=1e-10, atol=1e-10)

@@ -1,0 +1,193 @@
+"""Positions files (.npz, .csv): layouts, units, axes, skeletons, missing data and round trips."""
+import numpy as np
+import pytest
+
+from mocapfix.clip import MotionFileError
+from mocapfix.io import read_motion
+from mocapfix.io.positions import from_z_up, read_positions, to_z_up, write_clips, write_positions
+from mocapfix.skeleton import PRESETS
+
+H36M = PRESETS["h36m17"]
+CHAIN_PARENTS = [-1, 0, 1, 1]  # root, spine, left_arm, right_arm
+
+
+def _motion(P=2, T=6, J=17, seed=0):
+    rng = np.random.default_rng(seed)
+    pos = rng.normal(scale=0.3, size=(P, T, J, 3)).astype(np.float32)
+    pos[..., 2] += 1.0
+    return pos
+
+
+def test_npz_single_person_preset_by_names(tmp_path):
+    pos = _motion(P=1)[0]
+    f = tmp_path / "take.npz"
+    np.savez(f, positions=pos, fps=50, joint_names=np.array(H36M.joint_names))
+    [clip] = read_positions(f)
+    assert clip.skeleton == H36M  # names alone pick the preset, with its limb groups
+    assert clip.name == "take" and clip.fps == 50.0 and clip.source == str(f)
+    np.testing.assert_array_equal(clip.positions, pos)
+    assert clip.meta["format"] == "positions-npz" and clip.meta["people"] == 1 and clip.meta["person"] == 0
+    assert clip.meta["unit"] == "m" and clip.meta["up_axis"] == "z" and clip.meta["squeeze"] is True
+
+
+def test_npz_people_mm_y_up(tmp_path):
+    """(P, T, J, 3) in mm, y up -> P clips in metres, z up: y becomes z and z becomes -y."""
+    raw = np.zeros((3, 2, 4, 3))
+    raw[:, :, :, 1] = 1000.0 * np.arange(4)[None, None, :]  # height along y, mm
+    raw[1, 0, 2] = [100.0, 2000.0, 300.0]
+    f = tmp_path / "track.npz"
+    np.savez(f, positions=raw, fps=np.float64(25), parents=np.array(CHAIN_PARENTS), unit="mm", up_axis="y")
+    clips = read_positions(f)
+    assert [c.name for c in clips] == ["track#p0", "track#p1", "track#p2"]
+    assert [c.meta["person"] for c in clips] == [0, 1, 2] and all(c.meta["people"] == 3 for c in clips)
+    np.testing.assert_allclose(clips[1].positions[0, 2], [0.1, -0.3, 2.0], atol=1e-6)
+    np.testing.assert_allclose(clips[0].positions[1, :, 2], [0.0, 1.0, 2.0, 3.0], atol=1e-6)
+    assert clips[0].skeleton.joint_names == ("joint0", "joint1", "joint2", "joint3")
+    assert clips[0].meta["unit"] == "mm" and clips[0].meta["unit_source"] == "file"
+
+
+def test_axis_conversion_is_a_rotation_and_inverts():
+    x = np.random.default_rng(1).normal(size=(10, 3))
+    z = to_z_up(x, "y")
+    np.testing.assert_allclose(np.linalg.norm(z, axis=-1), np.linalg.norm(x, axis=-1))
+    np.testing.assert_allclose(np.cross(z[0], z[1]), to_z_up(np.cross(x[0], x[1])[None], "y")[0])  # det +1
+    np.testing.assert_allclose(from_z_up(z, "y"), x)
+
+
+@pytest.mark.parametrize("unit,scale", [("mm", 1000.0), ("cm", 100.0), ("m", 1.0)])
+def test_unit_guessed_when_the_file_has_none(tmp_path, unit, scale):
+    pos = _motion(P=1)[0] * scale
+    f = tmp_path / "x.npz"
+    np.savez(f, positions=pos, fps=30, parents=np.array(H36M.parents))
+    [clip] = read_positions(f)
+    assert clip.meta["unit"] == unit and clip.meta["unit_source"] == "guessed"
+    np.testing.assert_allclose(clip.positions, pos / scale, rtol=1e-5, atol=1e-6)
+    # an explicit option wins over the guess
+    [clip] = read_positions(f, unit="cm")
+    assert clip.meta["unit"] == "cm" and clip.meta["unit_source"] == "option"
+
+
+def test_names_without_parents_must_match_a_preset(tmp_path):
+    f = tmp_path / "x.npz"
+    np.savez(f, positions=_motion(P=1, J=4)[0], fps=30, joint_names=np.array(["a", "b", "c", "d"]))
+    with pytest.raises(MotionFileError, match="match no preset"):
+        read_positions(f)
+    np.savez(f, positions=_motion(P=1, J=4)[0], fps=30)
+    with pytest.raises(MotionFileError, match="parents and/or joint_names"):
+        read_positions(f)
+
+
+def test_custom_names_get_guessed_groups_and_groups_option(tmp_path):
+    names = ["Hips", "Spine", "LeftArm", "RightArm"]
+    f = tmp_path / "x.npz"
+    np.savez(f, positions=_motion(P=1, J=4)[0], fps=30, joint_names=np.array(names),
+             parents=np.array(CHAIN_PARENTS))
+    [clip] = read_positions(f)
+    assert clip.skeleton.groups == {"left_arm": (2,), "right_arm": (3,)}
+    [clip] = read_motion(f, groups={"left_arm": ["LeftArm", "Spine"]})
+    assert clip.skeleton.groups == {"left_arm": (2, 1)}
+
+
+def test_all_missing_person_is_still_a_clip(tmp_path):
+    pos = _motion(P=2)
+    pos[1] = np.nan
+    f = tmp_path / "x.npz"
+    np.savez(f, positions=pos, fps=30, joint_names=np.array(H36M.joint_names))
+    clips = read_positions(f)
+    assert len(clips) == 2 and clips[1].missing_mask().all() and not clips[0].missing_mask().any()
+
+
+def test_csv_hand_written(tmp_path):
+    """Comments, header, a missing frame (2), an empty cell and 'nan': all become missing joints."""
+    f = tmp_path / "cam.csv"
+    f.write_text("# exported by some tracker\n"
+                 "# unit=cm up_axis=z\n"
+                 "# parents=-1,0,1,1\n"
+                 "frame,time,Hips_x,Hips_y,Hips_z,Spine_x,Spine_y,Spine_z,LeftArm_x,LeftArm_y,LeftArm_z,"
+                 "RightArm_x,RightArm_y,RightArm_z\n"
+                 "10,0.0,0,0,90,0,0,120,10,0,140,-10,0,140\n"
+                 "11,0.04,1,0,90,1,0,120,11,,140,-9,0,140\n"
+                 "13,0.12,3,0,90,3,0,120,13,0,140,nan,nan,nan\n")
+    [clip] = read_positions(f)
+    assert clip.fps == pytest.approx(25.0)  # from the time column
+    assert clip.num_frames == 4 and clip.meta["first_frame"] == 10
+    assert clip.meta["format"] == "positions-csv" and clip.meta["unit"] == "cm"
+    missing = clip.missing_mask()
+    assert missing[2].all()  # frame 12 has no row
+    assert missing[1].tolist() == [False, False, True, False]
+    assert missing[3].tolist() == [False, False, False, True]
+    np.testing.assert_allclose(clip.positions[0, 1], [0.0, 0.0, 1.2], atol=1e-6)
+    assert clip.skeleton.joint_names == ("Hips", "Spine", "LeftArm", "RightArm")
+
+
+def test_csv_without_frame_column_and_fps_comment(tmp_path):
+    f = tmp_path / "c.csv"
+    f.write_text("# fps=60 parents=-1,0\nperson,Hip_x,Hip_y,Hip_z,Knee_x,Knee_y,Knee_z\n"
+                 "b,0,0,1,0,0,0.5\na,5,0,1,5,0,0.5\nb,1,0,1,1,0,0.5\n")
+    clips = read_positions(f, fps=None, unit="m")
+    assert [c.meta["person_id"] for c in clips] == ["a", "b"] and [c.name for c in clips] == ["c#p0", "c#p1"]
+    assert clips[0].fps == 60.0 and clips[0].num_frames == 2 and clips[1].num_frames == 2
+    assert clips[0].missing_mask()[1].all()  # person a has one row only
+    np.testing.assert_allclose(clips[1].positions[:, 0, 0], [0.0, 1.0])
+
+
+def test_csv_needs_fps(tmp_path):
+    f = tmp_path / "c.csv"
+    f.write_text("# parents=-1\nframe,Hip_x,Hip_y,Hip_z\n0,0,0,1\n")
+    with pytest.raises(MotionFileError, match="fps"):
+        read_positions(f)
+    assert read_positions(f, fps=30)[0].fps == 30.0
+
+
+@pytest.mark.parametrize("ext", ["npz", "csv"])
+@pytest.mark.parametrize("unit,up", [("m", "z"), ("mm", "y"), ("cm", "z")])
+def test_round_trip_in_the_input_layout(tmp_path, ext, unit, up):
+    pos = _motion(P=2, T=5)
+    pos[0, 1, 3] = np.nan
+    pos[1, 4] = np.nan
+    f = tmp_path / f"a.{ext}"
+    write_positions(f, pos, 30, H36M, unit=unit, up_axis=up)
+    clips = read_positions(f)
+    assert [c.meta["unit"] for c in clips] == [unit] * 2 and clips[0].meta["up_axis"] == up
+    back = np.stack([c.positions for c in clips])
+    assert np.array_equal(np.isnan(back), np.isnan(pos))
+    np.testing.assert_allclose(back, pos, atol=1e-6, rtol=1e-6)
+    # write what was read: same layout, same numbers; csv text identical
+    g = tmp_path / f"b.{ext}"
+    write_clips(g, clips)
+    again = read_positions(g)
+    assert [c.meta for c in again] == [c.meta for c in clips]
+    if ext == "csv":  # 9 digits of the converted value read back as the same float32
+        np.testing.assert_array_equal(np.stack([c.positions for c in again]), back)
+        assert g.read_text() == f.read_text()
+    else:  # float32 in the file's unit: a unit conversion may move the last bit
+        np.testing.assert_allclose(np.stack([c.positions for c in again]), back, rtol=3e-7, atol=1e-7)
+
+
+def test_write_keeps_single_person_squeezed_and_csv_ids(tmp_path):
+    f = tmp_path / "one.npz"
+    write_positions(f, _motion(P=1)[0], 30, H36M)
+    with np.load(f) as z:
+        assert z["positions"].shape == (6, 17, 3) and str(z["unit"]) == "m"
+    c = tmp_path / "two.csv"
+    c.write_text("# fps=30 parents=-1,0\nperson,frame,A_x,A_y,A_z,B_x,B_y,B_z\n7,3,0,0,1,0,0,0\n12,4,1,1,1,0,0,0\n")
+    clips = read_positions(c)
+    out = tmp_path / "out.csv"
+    write_clips(out, clips)
+    lines = out.read_text().splitlines()
+    assert lines[2] == "person,frame,A_x,A_y,A_z,B_x,B_y,B_z"  # no time column in, none out
+    assert [ln.split(",")[:2] for ln in lines[3:]] == [["7", "3"], ["7", "4"], ["12", "3"], ["12", "4"]]
+
+
+def test_atomic_write_leaves_the_old_file_on_failure(tmp_path, monkeypatch):
+    f = tmp_path / "a.npz"
+    write_positions(f, _motion(P=1)[0], 30, H36M)
+    before = f.read_bytes()
+
+    def boom(*a, **k):
+        raise OSError("disk full")
+    monkeypatch.setattr(np, "savez_compressed", boom)
+    with pytest.raises(OSError):
+        write_positions(f, _motion(P=1, seed=3)[0], 30, H36M)
+    assert f.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz"]  # no temp file left
