@@ -67,7 +67,7 @@ def _lightning_cli(args: list[str]):
     return MocapCLI(
         datamodule_class=MotionDataModule,
         subclass_mode_model=True,
-        args=args,
+        args=None if args == sys.argv[1:] else args,  # LightningCLI warns when given both
         parser_kwargs={"parser_mode": "omegaconf"},
         save_config_kwargs={"overwrite": True},
         auto_configure_optimizers=False,
@@ -76,7 +76,11 @@ def _lightning_cli(args: list[str]):
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    # Our own progress lines (parsing, cache, windows); Lightning configures its own loggers.
+    handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    logging.getLogger("mocapfix").addHandler(handler)
+    logging.getLogger("mocapfix").setLevel(logging.INFO)
     command = argv[0] if argv else "--help"
     if command == "inspect":
         from mocapfix.inspect import main as inspect_main

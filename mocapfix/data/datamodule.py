@@ -21,7 +21,7 @@ from mocapfix.skeleton import Skeleton
 
 log = logging.getLogger(__name__)
 
-SOURCES = ("synthetic", "bvh", "positions", "h36m", "amass")
+SOURCES = ("synthetic", "bvh", "positions", "h36m", "amass", "archive")
 SPLITS = ("train", "val", "test")
 
 
@@ -105,7 +105,8 @@ class MotionDataModule(L.LightningDataModule):
     ):
         """
         Args:
-            source: one of synthetic, bvh, positions, h36m, amass.
+            source: one of synthetic, bvh, positions, h36m, amass, or archive (an .npz of parsed
+                clips in the cache's format, e.g. to train on a machine without the raw files).
             path: a file or a folder of files (not used by synthetic).
             fps: every clip is resampled to this rate.
             window_s: window length in seconds; stride_s: step between training windows.
@@ -144,6 +145,8 @@ class MotionDataModule(L.LightningDataModule):
         if hp.source == "synthetic":
             from mocapfix.io.synthetic import generate_clips
             return generate_clips(hp.synthetic_clips, hp.synthetic_seconds, hp.fps, hp.synthetic_seed)
+        if hp.source == "archive":  # a dataset parsed before (the cache's format): no re-parsing
+            return load_clips(Path(hp.path))
         from mocapfix.io import read_motion
         clips = []
         for f in self._files():
@@ -189,7 +192,7 @@ class MotionDataModule(L.LightningDataModule):
                                       "body_model_path", "synthetic_clips", "synthetic_seconds", "synthetic_seed")}
         cache = None
         if hp.cache_dir:
-            files = [] if hp.source == "synthetic" else self._files()
+            files = [] if hp.source == "synthetic" else [Path(hp.path)] if hp.source == "archive" else self._files()
             cache = Path(hp.cache_dir) / f"{hp.source}-{cache_key(files, options)}.npz"
             if cache.exists():
                 t0 = time.perf_counter()

@@ -156,6 +156,8 @@ class XMAE(nn.Module):
         """tokens: (B, N, 3), N = T*J (t-major, joint fastest); kept: (B, K) observed token indices;
         padding: (B, K) True where a sample has fewer than K observed tokens (None: all real).
         Returns every token's 3D position (B, N, 3)."""
+        if padding is not None and not padding.any():
+            padding = None  # fixed kept count: no mask lets the fast attention kernels run
         if padding is not None:
             # A sample with no observed token would attend to nothing (NaN): let it attend to one
             # zero-valued slot instead; its output is then the model's unconditional guess.
