@@ -220,11 +220,16 @@ class MotionDataModule(L.LightningDataModule):
         self.skeleton = clips[0].skeleton
         patterns = {"train": hp.train_patterns, "val": hp.val_patterns, "test": hp.test_patterns}
         self.clips = {s: [] for s in SPLITS}
+        official = False
         for c in clips:
-            if c.meta.get("split") in SPLITS:  # datasets with an official split (Human3.6M subjects)
+            if c.meta.get("split") in SPLITS:  # an official split (Human3.6M subjects, AMASS sub-datasets)
                 self.clips[c.meta["split"]].append(c)
+                official = True
             else:
                 self.clips[split_of(c.source, hp.val_fraction, hp.test_fraction, hp.split_seed, patterns)].append(c)
+        if official and not self.clips["val"]:
+            # Human3.6M's standard split has no validation part: the field validates on S9/S11.
+            self.clips["val"] = self.clips["test"]
         eval_stride = hp.eval_stride_s or hp.window_s
         for s in SPLITS:
             stride = hp.stride_s if s == "train" else eval_stride

@@ -27,8 +27,9 @@ def resample(clip: Clip, fps: float) -> Clip:
     """
     if abs(clip.fps - fps) < 1e-6:
         return clip
-    t_new = np.arange(0.0, (clip.num_frames - 1) / clip.fps + 1e-9, 1.0 / fps)  # seconds
-    f = t_new * clip.fps
+    num_new = int(np.floor((clip.num_frames - 1) * fps / clip.fps + 1e-9)) + 1
+    f = np.arange(num_new) * (clip.fps / fps)  # source frame of each new frame (exact on shared instants)
+    f = np.where(np.abs(f - np.round(f)) < 1e-6, np.round(f), f)
     i0 = np.minimum(np.floor(f).astype(np.int64), clip.num_frames - 1)
     i1 = np.minimum(i0 + 1, clip.num_frames - 1)
     w = (f - i0).astype(np.float32)
@@ -56,7 +57,7 @@ def resample(clip: Clip, fps: float) -> Clip:
     b = np.where(small, ww, np.sin(ww * theta) / np.where(small, 1, sin_t))
     qn = a * q0 + b * q1
     qn /= np.linalg.norm(qn, axis=-1, keepdims=True)
-    rotations = Rotation.from_quat(qn.reshape(-1, 4)).as_rotvec().reshape(len(t_new), J, 3).astype(np.float32)
+    rotations = Rotation.from_quat(qn.reshape(-1, 4)).as_rotvec().reshape(num_new, J, 3).astype(np.float32)
     root = lerp(clip.root_translation)
     positions = fk_axis_angle(torch.from_numpy(rotations), torch.from_numpy(root), torch.from_numpy(clip.offsets),
                               clip.skeleton.parents).numpy()

@@ -60,6 +60,7 @@ def read_h36m(path, groups=None) -> list[Clip]:
                 pos = pos[:, H36M_KEEP]
             clips.append(Clip(pos.astype(np.float32), H36M_FPS, skel, name=f"{subject}/{action}", source=str(path),
                               meta={"format": "h36m", "subject": str(subject), "action": str(action),
+                                    "split": next((k for k, v in H36M_SPLIT.items() if str(subject) in v), None),
                                     "unit": "m", "up_axis": "z"}))
     if not clips:
         raise MotionFileError(path, "'positions_3d' holds no sequences")

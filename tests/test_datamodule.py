@@ -1,0 +1,135 @@
+"""MotionDataModule: splits by file, windows, cache, resampling, errors."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from mocapfix.clip import Clip, MotionFileError
+from mocapfix.data.datamodule import MotionDataModule
+from mocapfix.data.windows import resample, split_of
+from mocapfix.io.positions import write_positions
+from mocapfix.io.synthetic import generate_clips
+from mocapfix.skeleton import preset
+
+
+def _positions_folder(tmp_path, n_files=12, seconds=3.0, fps=60.0):
+    skel = preset("h36m17")
+    rng = np.random.default_rng(0)
+    for i in range(n_files):
+        T = int(seconds * fps)
+        pos = np.cumsum(rng.normal(0, 0.01, (T, 17, 3)), axis=0).astype(np.float32) + 1.0
+        pos[T // 2: T // 2 + 5, 3] = np.nan  # a missing joint: data, not an error
+        write_positions(tmp_path / f"take_{i:02d}.npz", pos, fps, skel)
+    return tmp_path
+
+
+def test_split_by_file_no_leak_and_deterministic(tmp_path):
+    folder = _positions_folder(tmp_path)
+    dm = MotionDataModule(source="positions", path=str(folder), fps=30, window_s=1.0, stride_s=0.25,
+                          val_fraction=0.25, test_fraction=0.25, cache_dir=None, batch_size=4)
+    dm.setup("fit")
+    sources = {s: {c.source for c in dm.clips[s]} for s in ("train", "val", "test")}
+    assert sources["train"] and sources["val"] and sources["test"]
+    assert not (sources["train"] & sources["val"]) and not (sources["train"] & sources["test"]) \
+        and not (sources["val"] & sources["test"])
+    # the same files land in the same splits on every run
+    dm2 = MotionDataModule(source="positions", path=str(folder), fps=30, val_fraction=0.25, test_fraction=0.25,
+                           cache_dir=None)
+    dm2.setup("fit")
+    assert {s: {c.source for c in dm2.clips[s]} for s in sources} == sources
+    batch = next(iter(dm.train_dataloader()))
+    assert batch["positions"].shape == (4, 30, 17, 3)
+    assert batch["positions"].dtype == torch.float32
+
+
+def test_patterns_override_hash():
+    assert split_of("/data/S9_walk.npz", 0.0, 0.0, 0, {"test": ["S9_*"]}) == "test"
+    assert split_of("/data/S1_walk.npz", 0.0, 0.0, 0, {"test": ["S9_*"]}) == "train"
+    assert split_of("/data/x.npz", 0.0, 1.0, 0) == "test"
+
+
+def test_windows_cover_clip_and_keep_nan(tmp_path):
+    folder = _positions_folder(tmp_path, n_files=2)
+    dm = MotionDataModule(source="positions", path=str(folder), fps=60, window_s=1.0, stride_s=0.5,
+                          val_fraction=0.0, test_fraction=0.0, cache_dir=None)
+    dm.setup("fit")
+    ds = dm.datasets["train"]
+    # 3 s at 60 fps, 1 s windows every 0.5 s -> starts 0, 30, ..., 120: 5 per file
+    assert len(ds) == 10
+    w = ds.__getitems__([0, 1])["positions"]
+    clip = dm.clips["train"][0]
+    np.testing.assert_array_equal(w[1].numpy(), clip.positions[30:90])
+    assert torch.isnan(ds.positions).any(), "missing joints must stay NaN (data), not be dropped or zeroed"
+
+
+def test_cache_second_run_skips_parsing(tmp_path, monkeypatch):
+    folder = _positions_folder(tmp_path / "data")
+    kw = dict(source="positions", path=str(folder), fps=30, cache_dir=str(tmp_path / "cache"))
+    dm = MotionDataModule(**kw)
+    clips = dm.load_clips()
+    calls = []
+    monkeypatch.setattr(MotionDataModule, "_read_all", lambda self: calls.append(1) or [])
+    again = MotionDataModule(**kw).load_clips()
+    assert not calls, "the second run must come from the cache"
+    assert [c.name for c in again] == [c.name for c in clips]
+    np.testing.assert_array_equal(again[3].positions, clips[3].positions)
+    # a changed option is another cache entry, parsed again
+    with pytest.raises(MotionFileError):
+        MotionDataModule(**{**kw, "fps": 25}).load_clips()  # _read_all returns nothing now
+    assert calls
+
+
+def test_resample_rotation_clip_keeps_bones_exact():
+    clip = generate_clips(1, 2.0, 60.0, seed=3)[0]
+    r = resample(clip, 25.0)
+    assert r.fps == 25.0 and r.num_frames == 50
+    bone = lambda p, a, b: np.linalg.norm(p[:, a] - p[:, b], axis=-1)  # noqa: E731
+    for a, b in [(0, 1), (4, 7), (16, 18)]:
+        np.testing.assert_allclose(bone(r.positions, b, a), bone(clip.positions, b, a)[0], atol=1e-5)
+    # the resampled frame at t = 1.0 s equals the source frame at t = 1.0 s
+    np.testing.assert_allclose(r.positions[25], clip.positions[60], atol=1e-4)
+
+
+def test_resample_positions_marks_neighbours_of_missing_as_missing():
+    skel = preset("h36m17")
+    pos = np.zeros((10, 17, 3), np.float32) + np.arange(10, dtype=np.float32)[:, None, None]
+    pos[4, 0] = np.nan
+    r = resample(Clip(pos, 10.0, skel), 20.0)
+    assert np.isnan(r.positions[7:10, 0]).all() and not np.isnan(r.positions[6, 0]).any()
+    np.testing.assert_allclose(r.positions[3, 1], [1.5, 1.5, 1.5])
+
+
+def test_synthetic_rotations_in_batches():
+    dm = MotionDataModule(source="synthetic", synthetic_clips=10, synthetic_seconds=3.0, with_rotations=True,
+                          cache_dir=None, batch_size=3, val_fraction=0.2, test_fraction=0.2)
+    dm.setup("fit")
+    b = next(iter(dm.train_dataloader()))
+    assert b["rotations"].shape == (3, 30, 22, 3) and b["offsets"].shape == (3, 22, 3)
+    assert b["root_translation"].shape == (3, 30, 3)
+
+
+def test_unknown_source_is_a_clear_error():
+    with pytest.raises(ValueError, match="unknown source type 'mocap'"):
+        MotionDataModule(source="mocap", path="x")
+
+
+def test_bandai_drop_root_cache_timing(bandai_dir, tmp_path):
+    """All 384 clips, 1-second windows at 30 fps: parse, then from the cache."""
+    kw = dict(source="bvh", path=str(bandai_dir), drop_joints=["joint_Root"], fps=30, cache_dir=str(tmp_path))
+    t0 = time.perf_counter()
+    dm = MotionDataModule(**kw)
+    dm.setup("fit")
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    dm2 = MotionDataModule(**kw)
+    dm2.setup("fit")
+    cached = time.perf_counter() - t0
+    print(f"bandai: parse {first:.1f} s, cache {cached:.2f} s")
+    assert sum(len(v) for v in dm.clips.values()) == 384
+    assert dm.skeleton.num_joints == 21 and "joint_Root" not in dm.skeleton.joint_names
+    assert all(c.has_rotations for c in dm.clips["train"])
+    assert len(dm2.datasets["train"]) == len(dm.datasets["train"]) > 1000
+    assert cached < first

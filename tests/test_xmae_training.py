@@ -1,0 +1,167 @@
+"""XMAE through the product path: configs, fit/validate/test/predict, checkpoints, resume, TensorBoard."""
+from __future__ import annotations
+
+import json
+import pickle
+
+import numpy as np
+import pytest
+import torch
+from cli_utils import CONFIGS, QUIET, SMALL_DATA, TINY, run_cli
+
+from mocapfix.training.xmae_module import XMAEModule
+
+FAST = ["--trainer.fast_dev_run", "1", "--data.batch_size", "4", "--data.eval_batch_size", "4",
+        "--trainer.precision", "32-true", "--trainer.accelerator", "cpu", *QUIET]
+
+
+def test_fast_dev_run_xmae_yaml(tmp_path):
+    assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *FAST, "--data.synthetic_clips", "8",
+                    "--data.synthetic_seconds", "3", "--data.cache_dir", "null", "--data.val_fraction", "0.25",
+                    "--data.test_fraction", "0.25"], tmp_path) == 0
+
+
+def test_fast_dev_run_xmae_bvh_yaml(tmp_path, bandai_dir):
+    assert run_cli(["fit", "--config", CONFIGS / "xmae_bvh.yaml", *FAST, "--data.path", bandai_dir,
+                    "--data.cache_dir", tmp_path / "cache"], tmp_path) == 0
+
+
+def test_fast_dev_run_xmae_h36m_yaml(tmp_path):
+    rng = np.random.default_rng(0)
+    tree = {s: {a: (np.cumsum(rng.normal(0, 0.005, (120, 32, 3)), 0) + 1).astype(np.float32)
+                for a in ("Walking", "Eating")} for s in ("S1", "S5", "S9", "S11")}
+    np.savez(tmp_path / "data_3d_h36m.npz", positions_3d=np.array(tree, dtype=object))
+    assert run_cli(["fit", "--config", CONFIGS / "xmae_h36m.yaml", *FAST, "--data.path",
+                    tmp_path / "data_3d_h36m.npz", "--data.cache_dir", "null"], tmp_path) == 0
+
+
+def test_fast_dev_run_xmae_amass_yaml(tmp_path):
+    pytest.importorskip("smplx", reason="AMASS needs the optional smplx extra (pip install mocapfix[smpl])")
+    from test_amass import _amass, _model
+    models = tmp_path / "models" / "smplh"
+    models.mkdir(parents=True)
+    with open(models / "SMPLH_MALE.pkl", "wb") as f:
+        pickle.dump(_model(52, 10, hands=True), f)
+    for split_dir in ("CMU", "HumanEva", "SFU"):
+        (tmp_path / "amass" / split_dir / "s1").mkdir(parents=True)
+        _amass(tmp_path / "amass" / split_dir / "s1" / "take_poses.npz", 180, 156, 10)
+    assert run_cli(["fit", "--config", CONFIGS / "xmae_amass.yaml", *FAST, "--data.path", tmp_path / "amass",
+                    "--data.body_model_path", tmp_path / "models", "--data.cache_dir", "null"], tmp_path) == 0
+
+
+def test_fit_writes_tensorboard_scalars_hparams_and_figures(tmp_path):
+    assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "tb",
+                    "--trainer.max_steps", "6", "--trainer.val_check_interval", "3",
+                    "--trainer.log_every_n_steps", "1", "--model.init_args.warmup_steps", "2"], tmp_path) == 0
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    run_dir = tmp_path / "logs" / "tb" / "version_0"
+    ea = EventAccumulator(str(run_dir), size_guidance={"images": 0, "scalars": 0})
+    ea.Reload()
+    scalars = set(ea.Tags()["scalars"])
+    for tag in ("train/loss", "val/loss", "val/mpjpe_mm", "val/gap0.5s_mpjpe_mm/xmae", "val/gap0.5s_mpjpe_mm/lerp",
+                "lr-Adam", "hp_metric"):
+        assert tag in scalars, f"{tag} missing from {sorted(scalars)}"
+    assert "val/infill_example" in ea.Tags()["images"]
+    assert len(ea.Images("val/infill_example")) == 2  # one figure per validation
+    # the hparams plugin entry TensorBoard's HPARAMS tab reads
+    assert any(t.startswith("_hparams_") for t in ea.summary_metadata), "no hparams summary"
+    lr = [e.value for e in ea.Scalars("lr-Adam")]
+    assert lr[0] < lr[1] and lr[-1] < max(lr), "warm-up then decay"
+    assert (tmp_path / "checkpoints" / "tb" / "last.ckpt").exists()
+    assert list((tmp_path / "checkpoints" / "tb").glob("best-*.ckpt"))
+
+
+def test_resume_continues_step_and_optimiser(tmp_path):
+    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "resume",
+              "--trainer.val_check_interval", "4", "--checkpoint_every_n_steps", "2",
+              "--model.init_args.total_steps", "8", "--model.init_args.warmup_steps", "2"]
+    assert run_cli([*common, "--trainer.max_steps", "4"], tmp_path) == 0
+    last = tmp_path / "checkpoints" / "resume" / "last.ckpt"
+    first = torch.load(last, map_location="cpu", weights_only=True)
+    assert first["global_step"] == 4
+    assert run_cli([*common, "--trainer.max_steps", "8", "--ckpt_path", "last"], tmp_path) == 0
+    second = torch.load(last, map_location="cpu", weights_only=True)
+    assert second["global_step"] == 8
+    adam_steps = {float(s["step"]) for s in second["optimizer_states"][0]["state"].values()}
+    assert adam_steps == {8.0}, "Adam's step count must continue from the checkpoint, not restart"
+    assert second["lr_schedulers"][0]["last_epoch"] == 8
+    # it really resumed: the weights moved on from the first checkpoint
+    k = "net.head.weight"
+    assert not torch.equal(first["state_dict"][k], second["state_dict"][k])
+
+
+def test_checkpoint_is_self_contained_and_loads_safely(tmp_path):
+    assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "ck",
+                    "--trainer.max_steps", "2", "--trainer.val_check_interval", "2"], tmp_path) == 0
+    path = tmp_path / "checkpoints" / "ck" / "last.ckpt"
+    ckpt = torch.load(path, map_location="cpu", weights_only=True)  # plain hyperparameters only
+    hp = ckpt["hyper_parameters"]
+    assert hp["skeleton"]["name"] == "smpl22" and hp["window_frames"] == 30 and hp["window_fps"] == 30.0
+    model = XMAEModule.load_from_checkpoint(path, map_location="cpu")  # no data module needed
+    assert model.net is not None and model.net.num_joints == 22
+    # a checkpoint moved to another device map (here: "meta" tensors are not allowed, cpu is) loads
+    model2 = XMAEModule.load_from_checkpoint(path, map_location={"cuda:0": "cpu"})
+    torch.testing.assert_close(model2.net.head.weight, model.net.head.weight)
+
+
+def test_test_writes_eval_json_in_paper_layout(tmp_path, capsys):
+    assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "ev",
+                    "--trainer.max_steps", "2", "--trainer.val_check_interval", "2"], tmp_path) == 0
+    capsys.readouterr()
+    assert run_cli(["test", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "ev",
+                    "--ckpt_path", tmp_path / "checkpoints" / "ev" / "last.ckpt",
+                    "--trainer.limit_test_batches", "1"], tmp_path) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out[-1].startswith("eval.json: ")
+    path = tmp_path / out[-1].split(": ", 1)[1]
+    rows = json.loads(path.read_text())
+    keys = {(r["task"], r["part"], r.get("gap_s", r.get("sigma_m")), r["method"]) for r in rows}
+    for gap in (0.1, 0.3, 0.5, 0.7, 0.9):
+        for part in ("full", "arm", "leg"):
+            assert ("infill", part, gap, "xmae") in keys and ("infill", part, gap, "lerp") in keys
+        assert ("displacement", "arm", gap, "xmae") in keys
+    assert ("noise", "full", 0.02, "xmae") in keys
+    assert all(np.isfinite(r["mpjpe_mm"]) and np.isfinite(r["mpjpe_rel_mm"]) for r in rows)
+    # Lerp is exact where nothing is missing: on displacement it returns the displaced input,
+    # whose error is the displacement itself (0.5-1 m)
+    disp = [r for r in rows if r["task"] == "displacement" and r["method"] == "lerp"]
+    assert all(500 <= r["mpjpe_mm"] <= 1000 for r in disp)
+
+
+def test_predict_fills_only_missing(tmp_path):
+    from mocapfix.data.datamodule import MotionDataModule
+    assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "pr",
+                    "--trainer.max_steps", "1", "--trainer.val_check_interval", "1"], tmp_path) == 0
+    model = XMAEModule.load_from_checkpoint(tmp_path / "checkpoints" / "pr" / "last.ckpt", map_location="cpu")
+    dm = MotionDataModule(synthetic_clips=4, synthetic_seconds=2.0, cache_dir=None, val_fraction=0, test_fraction=1.0)
+    dm.setup("predict")
+    batch = dm.datasets["test"].__getitems__([0, 1])
+    pos = batch["positions"].clone()
+    pos[:, 10:15, 3] = float("nan")
+    out = model.predict_step({"positions": pos}, 0)
+    assert torch.isfinite(out).all()
+    seen = ~torch.isnan(pos)
+    assert torch.equal(out[seen], pos[seen])
+
+
+def test_wrong_key_is_a_short_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        run_cli(["fit", "--config", CONFIGS / "xmae.yaml", "--model.init_args.mask_ratoi", "0.5"], tmp_path)
+    assert e.value.code != 0
+    err = capsys.readouterr().err
+    assert "mask_ratoi" in err and "Traceback" not in err
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_gpu_checkpoint_resumes_on_cpu_and_back(tmp_path):
+    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "dev",
+              "--trainer.val_check_interval", "2", "--checkpoint_every_n_steps", "2"]
+    assert run_cli([*common, "--trainer.max_steps", "2", "--trainer.accelerator", "gpu",
+                    "--trainer.precision", "bf16-mixed"], tmp_path) == 0
+    assert run_cli([*common, "--trainer.max_steps", "4", "--trainer.accelerator", "cpu", "--ckpt_path", "last"],
+                   tmp_path) == 0
+    assert run_cli([*common, "--trainer.max_steps", "6", "--trainer.accelerator", "gpu", "--ckpt_path", "last"],
+                   tmp_path) == 0
+    ckpt = torch.load(tmp_path / "checkpoints" / "dev" / "last.ckpt", map_location="cpu", weights_only=True)
+    assert ckpt["global_step"] == 6
