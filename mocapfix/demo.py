@@ -10,7 +10,7 @@ CONFIG = Path(__file__).resolve().parents[1] / "configs" / "xmae.yaml"
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="mocapfix demo", description=__doc__)
-    ap.add_argument("--steps", type=int, default=300, help="optimiser steps (default 300, a few minutes on 2 cores)")
+    ap.add_argument("--steps", type=int, default=200, help="optimiser steps (default 200: a few minutes on 2 cores)")
     ap.add_argument("--experiment", default="demo")
     args = ap.parse_args(argv)
     if not CONFIG.exists():
