@@ -15,7 +15,7 @@ START=$(date +%s)
 python3 -m mocapfix fit --config configs/xmae_bvh.yaml --experiment "$EXP" \
   --data.source archive --data.path "$ARCHIVE" --data.cache_dir null \
   --trainer.max_steps "$STEPS" --model.init_args.total_steps "$STEPS" \
-  --trainer.max_time 00:00:06:30 --trainer.val_check_interval 1000 --trainer.enable_progress_bar false
+  --trainer.max_time "${MAX_TIME:-00:00:06:30}" --trainer.val_check_interval 1000 --trainer.enable_progress_bar false
 FIT_END=$(date +%s)
 python3 -m mocapfix test --config configs/xmae_bvh.yaml --experiment "$EXP" \
   --data.source archive --data.path "$ARCHIVE" --data.cache_dir null \

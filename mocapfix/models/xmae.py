@@ -88,11 +88,16 @@ class XMAE(nn.Module):
         dec_mlp_dim: int = 512,
         head_dim: int = 64,
         decoder: str = "cross",
+        position_unit_m: float = 0.1,
     ):
         super().__init__()
         if decoder not in ("cross", "mae"):
             raise ValueError(f"decoder must be 'cross' (XMAE) or 'mae' (original MAE), got {decoder!r}")
         self.num_joints, self.num_frames, self.decoder_type = num_joints, num_frames, decoder
+        # The network reads and writes positions in units of position_unit_m (default 0.1 m).
+        # In metres, a joint's motion within a window (cm) is a tiny signal beside the metre-scale
+        # body, and training sits at the mean pose for thousands of steps (docs/xmae-notes.md).
+        self.position_unit_m = position_unit_m
         # eq. (2): W x + P_joint[j] + P_time[t]
         self.embed = nn.Linear(3, enc_dim)
         self.enc_pos_joint = nn.Parameter(torch.zeros(num_joints, enc_dim))
@@ -100,18 +105,32 @@ class XMAE(nn.Module):
         self.encoder = nn.ModuleList([EncoderBlock(enc_dim, enc_mlp_dim, head_dim) for _ in range(enc_depth)])
         self.enc_norm = nn.LayerNorm(enc_dim)
         self.enc_to_dec = nn.Linear(enc_dim, dec_dim)
-        # eq. (4): m + P_joint[j] + P_time[t]; the decoder is narrower than the encoder, so it has
-        # its own positional encodings of its width (as MAE's decoder_pos_embed).
-        self.mask_token = nn.Parameter(torch.zeros(dec_dim))
-        self.dec_pos_joint = nn.Parameter(torch.zeros(num_joints, dec_dim))
-        self.dec_pos_time = nn.Parameter(torch.zeros(num_frames, dec_dim))
+        if decoder == "cross":
+            # eq. (4): m + P_joint[j] + P_time[t] with the SAME positional encodings as the token
+            # embedding, in the encoder's width, brought to the decoder's width by the same
+            # projection as the encoded tokens. Queries and keys then share one positional code:
+            # with separate decoder encodings the cross-attention has to learn to align two
+            # unrelated codes, and in practice it does not (the output collapses to a mean pose).
+            self.mask_token = nn.Parameter(torch.zeros(enc_dim))
+        else:
+            # original MAE: the decoder has its own positional encodings, added to mask tokens and
+            # to the encoded tokens alike (MAE's decoder_pos_embed), which aligns them.
+            self.mask_token = nn.Parameter(torch.zeros(dec_dim))
+            self.dec_pos_joint = nn.Parameter(torch.zeros(num_joints, dec_dim))
+            self.dec_pos_time = nn.Parameter(torch.zeros(num_frames, dec_dim))
         block = DecoderBlock if decoder == "cross" else EncoderBlock
         self.decoder = nn.ModuleList([block(dec_dim, dec_mlp_dim, head_dim) for _ in range(dec_depth)])
         self.dec_norm = nn.LayerNorm(dec_dim)
         self.head = nn.Linear(dec_dim, 3)
         self.apply(self._init_weights)
-        for p in (self.enc_pos_joint, self.enc_pos_time, self.mask_token, self.dec_pos_joint, self.dec_pos_time):
-            nn.init.normal_(p, std=0.02)
+        # Positional encodings start at unit scale (nn.Embedding's default), not MAE's 0.02:
+        # queries find their joint's observed tokens only through them, and from 0.02 the
+        # cross-attention takes thousands of steps to start routing (docs/xmae-notes.md).
+        for p in (self.enc_pos_joint, self.enc_pos_time, getattr(self, "dec_pos_joint", None),
+                  getattr(self, "dec_pos_time", None)):
+            if p is not None:
+                nn.init.normal_(p, std=1.0)
+        nn.init.normal_(self.mask_token, std=0.02)
 
     @staticmethod
     def _init_weights(m):
@@ -127,7 +146,7 @@ class XMAE(nn.Module):
     def encode(self, tokens: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None) -> torch.Tensor:
         # tokens: (B, N, 3) all J*T tokens (values at unobserved ones are never read)
         # kept: (B, K) indices of observed tokens; padding: (B, K) True where kept is padding
-        x = torch.gather(tokens, 1, kept[..., None].expand(-1, -1, 3))                     # (B, K, 3)
+        x = torch.gather(tokens, 1, kept[..., None].expand(-1, -1, 3)) / self.position_unit_m  # (B, K, 3)
         pos = self._positions(self.enc_pos_joint, self.enc_pos_time)                       # (N, D)
         x = self.embed(x) + pos[kept]                                                       # (B, K, D)
         for blk in self.encoder:
@@ -136,13 +155,14 @@ class XMAE(nn.Module):
 
     def decode(self, memory: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None) -> torch.Tensor:
         B = memory.shape[0]
-        pos = self._positions(self.dec_pos_joint, self.dec_pos_time)                       # (N, Dd)
-        queries = (self.mask_token + pos).expand(B, -1, -1)                                 # (B, N, Dd)
         if self.decoder_type == "cross":
-            x = queries
+            pos = self._positions(self.enc_pos_joint, self.enc_pos_time)                   # (N, D)
+            x = self.enc_to_dec(self.mask_token + pos).expand(B, -1, -1)                    # (B, N, Dd)
             for blk in self.decoder:
                 x = blk(x, memory, memory_padding=padding)
         else:  # MAE: encoded tokens replace the mask tokens at their own positions
+            pos = self._positions(self.dec_pos_joint, self.dec_pos_time)                   # (N, Dd)
+            queries = (self.mask_token + pos).expand(B, -1, -1)                             # (B, N, Dd)
             index = kept
             if padding is not None:  # padded slots land on a spare position N, dropped after
                 index = kept.masked_fill(padding, queries.shape[1])
@@ -150,7 +170,7 @@ class XMAE(nn.Module):
             x = x.scatter(1, index[..., None].expand(-1, -1, memory.shape[-1]), memory + pos[kept])[:, :-1]
             for blk in self.decoder:
                 x = blk(x)
-        return self.head(self.dec_norm(x))                                                  # (B, N, 3)
+        return self.head(self.dec_norm(x)) * self.position_unit_m                          # (B, N, 3) metres
 
     def forward(self, tokens: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None = None) -> torch.Tensor:
         """tokens: (B, N, 3), N = T*J (t-major, joint fastest); kept: (B, K) observed token indices;

@@ -37,6 +37,7 @@ class XMAEModule(L.LightningModule):
         dec_mlp_dim: int = 512,
         head_dim: int = 64,
         decoder: str = "cross",
+        position_unit_m: float = 0.1,
         mask_ratio: float = 0.85,
         displace_ratio: float = 0.05,
         max_displacement_m: float = 1.0,
@@ -60,6 +61,7 @@ class XMAEModule(L.LightningModule):
         Args:
             enc_* / dec_* / head_dim: widths and depths (paper Table 1 by default).
             decoder: "cross" (XMAE) or "mae" (original MAE decoder, ablation).
+            position_unit_m: the network's internal position unit (inputs divided, outputs multiplied).
             mask_ratio, displace_ratio: fractions of all J*T tokens masked / displaced in training.
             max_displacement_m: radius of the ball displacement offsets are drawn from.
             clean_loss_ratio: fraction of all tokens kept clean AND put in the loss ("BERT masking": 0.05).
@@ -86,7 +88,7 @@ class XMAEModule(L.LightningModule):
     def _build(self) -> None:
         hp = self.hparams
         self.net = XMAE(len(hp.skeleton["parents"]), hp.window_frames, hp.enc_dim, hp.enc_depth, hp.enc_mlp_dim,
-                        hp.dec_dim, hp.dec_depth, hp.dec_mlp_dim, hp.head_dim, hp.decoder)
+                        hp.dec_dim, hp.dec_depth, hp.dec_mlp_dim, hp.head_dim, hp.decoder, hp.position_unit_m)
         self.val_mpjpe = MPJPE()
         self.val_gap = nn.ModuleDict({"xmae": MPJPE(), "lerp": MPJPE()})
 
