@@ -5,7 +5,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 PY := $(VENV)/bin/python
 
-.PHONY: demo test venv clean
+.PHONY: demo test test-all venv clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -19,7 +19,11 @@ venv: $(VENV)/.installed
 demo: $(VENV)/.installed
 	$(PY) -m mocapfix demo
 
+# The everyday suite; tests marked slow (minutes of CPU training) run with `make test-all`.
 test: $(VENV)/.installed
+	$(PY) -m pytest -q -ra -m "not slow"
+
+test-all: $(VENV)/.installed
 	$(PY) -m pytest -q -ra
 
 clean:

@@ -85,6 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     if command == "inspect":
         from mocapfix.inspect import main as inspect_main
         return inspect_main(argv[1:])
+    if command == "fix":
+        from mocapfix.fix_cli import main as fix_main
+        return fix_main(argv[1:])
     if command == "demo":
         from mocapfix.demo import main as demo_main
         return demo_main(argv[1:])

@@ -284,7 +284,6 @@ def test_bandai_reference_fk(bandai_files):
         np.testing.assert_allclose(rerooted.positions, clip.positions[:, 1:], atol=1e-6)
 
 
-@pytest.mark.slow
 def test_every_bandai_clip(bandai_files):
     """Batch over all 384 clips: geometry, guessed units, rotations, re-rooting."""
     assert len(bandai_files) == 384

@@ -1,0 +1,415 @@
+"""Cleaning motion of any length with a trained checkpoint: the library behind `mocapfix fix`.
+
+One file's clips (its people) -> the model's joints, by name -> the model's fps -> sliding
+windows of the model's length (every window of every person in one batched pass) -> the
+model's estimate of every token -> windows blended with smooth weights -> the input's frame
+times -> merged with the input by mode:
+
+    infill   missing tokens (NaN) get the estimate; observed tokens stay bit-identical.
+    denoise  observed tokens get the estimate; missing tokens stay missing.
+    both     every token gets the estimate (denoised and filled).
+
+A Fixer turns a batch of windows into estimates; there is one per checkpoint kind and
+model_kind() picks it from the checkpoint's keys. Nothing here imports training code: a
+checkpoint holds everything fix needs (skeleton, fps, window, network sizes) as plain values.
+"""
+from __future__ import annotations
+
+import inspect
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Protocol
+
+import numpy as np
+import torch
+
+from mocapfix.clip import Clip, MotionFileError
+from mocapfix.evaluation.baselines import lerp_infill
+from mocapfix.evaluation.metrics import LimbSigma
+from mocapfix.inference import xmae_reconstruct
+from mocapfix.models.xmae import XMAE
+from mocapfix.skeleton import Skeleton
+
+MODES = ("infill", "denoise", "both")
+
+
+# --- fixers: one per checkpoint kind ---
+
+class Fixer(Protocol):
+    kind: str           # "xmae", ...
+    skeleton: Skeleton  # the model's joints, in the model's order
+    fps: float          # the model's frame rate
+    window: int         # frames per window
+
+    def estimate(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+        """positions: (B, W, J, 3) metres, z up, NaN or anything at unobserved tokens;
+        observed: (B, W, J) bool -> every token's estimate (B, W, J, 3), float32 on the CPU."""
+        ...
+
+
+class XMAEFixer:
+    """XMAE applied as the paper does: every available token observed (denoising is the same
+    pass as infilling), the normalisation of mocapfix.inference."""
+
+    kind = "xmae"
+
+    def __init__(self, net: XMAE, skeleton: Skeleton, fps: float, device: str | torch.device = "cpu"):
+        self.net = net.to(device).eval()
+        self.skeleton, self.fps, self.window = skeleton, float(fps), int(net.num_frames)
+        self.device = torch.device(device)
+
+    @classmethod
+    def from_checkpoint(cls, path, hparams: dict, state_dict: dict, device="cpu") -> "XMAEFixer":
+        skeleton, fps, frames = _window_hparams(path, hparams)
+        # Network sizes the checkpoint names; XMAE's defaults for any it lacks.
+        sizes = {k: hparams[k] for k in inspect.signature(XMAE).parameters
+                 if k in hparams and k not in ("num_joints", "num_frames")}
+        try:
+            net = XMAE(skeleton.num_joints, frames, **sizes)
+        except (TypeError, ValueError, AssertionError) as e:
+            raise MotionFileError(path, f"bad XMAE sizes in the checkpoint ({e})") from None
+        weights = {k[len("net."):]: v for k, v in state_dict.items() if k.startswith("net.")}
+        try:
+            net.load_state_dict(weights)
+        except RuntimeError as e:
+            first = " ".join(str(e).split())[:200]
+            raise MotionFileError(path, f"weights do not fit the network its hyperparameters describe ({first})") \
+                from None
+        return cls(net, skeleton, fps, device)
+
+    @torch.inference_mode()
+    def estimate(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+        out = xmae_reconstruct(self.net, positions.to(self.device), observed.to(self.device))
+        return out.float().cpu()
+
+
+def _window_hparams(path, hp: dict) -> tuple[Skeleton, float, int]:
+    missing = [k for k in ("skeleton", "window_fps", "window_frames") if hp.get(k) is None]
+    if missing:
+        raise MotionFileError(path, f"checkpoint lacks {', '.join(missing)} (saved before training set it up?)")
+    try:
+        skeleton = Skeleton.from_dict(hp["skeleton"])
+        fps, frames = float(hp["window_fps"]), int(hp["window_frames"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise MotionFileError(path, f"checkpoint's skeleton or window is malformed ({e})") from None
+    if not (fps > 0 and frames > 0):
+        raise MotionFileError(path, f"checkpoint's window is {frames} frames at {fps} fps")
+    return skeleton, fps, frames
+
+
+def model_kind(hparams: dict, state_dict: dict) -> str | None:
+    """Which fixer reads a checkpoint, from the keys its training module saves; None if unknown.
+    A new model kind adds its test here and its class to FIXERS (Motion-DVAE: its modules save
+    `net.*` weights of MotionDVAE and hparams such as latent_dim / prior_hparams)."""
+    if "net.enc_pos_joint" in state_dict and "enc_dim" in hparams:  # training/xmae_module.py
+        return "xmae"
+    return None
+
+
+# kind -> class with from_checkpoint(path, hparams, state_dict, device)
+FIXERS: dict[str, Callable] = {"xmae": XMAEFixer}
+
+
+def read_checkpoint(path) -> tuple[dict, dict]:
+    """A checkpoint -> (hyper_parameters, state_dict), loaded with weights_only=True (plain
+    values only: a checkpoint can never run code here). Anything else is a MotionFileError."""
+    path = Path(path)
+    if not path.is_file():
+        raise MotionFileError(path, "no such checkpoint file" if not path.exists() else "is not a file")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # not a zip/pickle, truncated, or objects that are not plain values
+        text = " ".join(str(e).split())
+        reason = "holds objects that are not plain values" if "weights_only" in text.lower() or \
+            "unpickl" in text.lower() else f"not a PyTorch checkpoint ({type(e).__name__})"
+        raise MotionFileError(path, f"not a mocapfix checkpoint: {reason}") from None
+    if not isinstance(ckpt, dict) or not isinstance(ckpt.get("hyper_parameters"), dict) \
+            or not isinstance(ckpt.get("state_dict"), dict):
+        raise MotionFileError(path, "not a mocapfix checkpoint: no hyper_parameters and state_dict")
+    return ckpt["hyper_parameters"], ckpt["state_dict"]
+
+
+def load_fixer(path, device: str | torch.device = "cpu") -> Fixer:
+    """The Fixer for a checkpoint file (XMAE now; other kinds as FIXERS grows)."""
+    hparams, state_dict = read_checkpoint(path)
+    kind = model_kind(hparams, state_dict)
+    if kind not in FIXERS:
+        raise MotionFileError(path, "not a mocapfix checkpoint of a model fix knows "
+                                    f"({', '.join(FIXERS)}): no matching network weights")
+    return FIXERS[kind].from_checkpoint(path, hparams, state_dict, device)
+
+
+def xmae_checkpoint(net: XMAE, skeleton: Skeleton, fps: float, **sizes) -> dict:
+    """The smallest checkpoint load_fixer reads for an XMAE (what XMAEModule saves, minus the
+    training state): for benchmarks and tests that need a model without training one."""
+    hp = {"skeleton": skeleton.to_dict(), "window_fps": float(fps), "window_frames": int(net.num_frames),
+          "enc_dim": net.embed.out_features, "decoder": net.decoder_type, **sizes}
+    if hasattr(net, "position_unit_m"):
+        hp["position_unit_m"] = float(net.position_unit_m)
+    return {"hyper_parameters": hp, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}
+
+
+# --- joints and frame times ---
+
+def map_joints(skeleton: Skeleton, model: Skeleton, source="") -> np.ndarray:
+    """(J_model,) index of each model joint in `skeleton`, by name (exact, else ignoring case).
+    A model joint the input lacks is an error naming them all; input joints the model does not
+    know are simply not in the map (they pass through)."""
+    exact = {n: i for i, n in enumerate(skeleton.joint_names)}
+    folded: dict[str, list[int]] = {}
+    for i, n in enumerate(skeleton.joint_names):
+        folded.setdefault(n.lower(), []).append(i)
+    index, missing = [], []
+    for n in model.joint_names:
+        if n in exact:
+            index.append(exact[n])
+        elif len(folded.get(n.lower(), [])) == 1:
+            index.append(folded[n.lower()][0])
+        else:
+            missing.append(n)
+    if missing:
+        raise MotionFileError(source, f"skeleton does not match the model's ({model.name}, {model.num_joints} "
+                                      f"joints): missing {', '.join(missing)}")
+    return np.array(index, dtype=np.int64)
+
+
+def resample_frames(x: np.ndarray, src_fps: float, dst_fps: float, num: int) -> np.ndarray:
+    """x: (T, ...) sampled at t = k / src_fps -> (num, ...) at t = k / dst_fps, linear.
+    A sample takes NaN from a neighbour it uses; shared instants are copied exactly; times past
+    the last frame are NaN (the caller decides what they mean)."""
+    T = x.shape[0]
+    f = np.arange(num) * (src_fps / dst_fps)
+    f = np.where(np.abs(f - np.round(f)) < 1e-6, np.round(f), f)
+    past = f > T - 1
+    f = np.minimum(f, T - 1)
+    i0 = np.floor(f).astype(np.int64)
+    i1 = np.minimum(i0 + 1, T - 1)
+    w = (f - i0).reshape(-1, *([1] * (x.ndim - 1)))
+    out = x[i0] * (1 - w) + x[i1] * w
+    exact = (w == 0).reshape(-1)
+    out[exact] = x[i0[exact]]  # bit-identical, and no NaN from an unused neighbour
+    out[past] = np.nan
+    return out.astype(x.dtype, copy=False)
+
+
+def model_frames(num_frames: int, fps: float, model_fps: float) -> int:
+    """Frames at the model's fps that cover the input's time span (the last one may be past it)."""
+    return int(math.ceil((num_frames - 1) * model_fps / fps - 1e-6)) + 1
+
+
+# --- windows ---
+
+def window_layout(num_frames: int, window: int, overlap: float) -> tuple[np.ndarray, int]:
+    """Starts of the windows over a clip of num_frames (model fps) and the stride.
+    Stride window * (1 - overlap); one more window ends at the clip's end when the stride does
+    not land there. A clip shorter than a window gets one window, centred: start < 0."""
+    stride = max(1, int(round(window * (1.0 - overlap))))
+    if num_frames <= window:
+        return np.array([-((window - num_frames) // 2)], dtype=np.int64), stride
+    starts = np.arange(0, num_frames - window + 1, stride, dtype=np.int64)
+    if starts[-1] != num_frames - window:
+        starts = np.append(starts, num_frames - window)
+    return starts, stride
+
+
+def blend_weights(window: int, stride: int) -> np.ndarray:
+    """(W,) weights that rise over the overlap, stay 1 between, and fall over the overlap:
+    sin^2 ramps, so two windows one stride apart sum to exactly 1 where they overlap (Hann for
+    overlap W/2). Never 0, so a frame that only one window covers (clip ends) keeps it."""
+    overlap = window - stride
+    w = np.ones(window)
+    if overlap > 0:
+        ramp = np.sin(0.5 * np.pi * (np.arange(overlap) + 0.5) / overlap) ** 2
+        w[:overlap] = ramp
+        w[window - overlap:] = np.minimum(w[window - overlap:], ramp[::-1])
+    return w
+
+
+# --- fixing the clips of one file ---
+
+@dataclass
+class FixReport:
+    frames: int                    # per person, at the input's fps
+    people: int                    # clips of the file (people; sequences for Human3.6M)
+    filled: int                    # missing tokens given a value
+    replaced: int                  # observed tokens replaced by the estimate
+    limb_sigma_before_mm: float    # the model's limbs, over the input's tokens
+    limb_sigma_after_mm: float
+    windows: int                   # windows the model ran on
+    notes: list[str] = field(default_factory=list)
+
+
+def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: float = 0.5,
+              batch_size: int = 64, progress: Callable[[int, int], None] | None = None
+              ) -> tuple[list[Clip], FixReport]:
+    """Fix the clips of one file; each keeps its skeleton, frames and fps (positions only: no
+    rotations). progress(done, total) is called after each batch of windows."""
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if not 0.0 <= overlap < 1.0:
+        raise ValueError(f"overlap must be in [0, 1), got {overlap}")
+    if not clips:
+        raise ValueError("fix_clips needs at least one clip")
+    model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps
+    source = clips[0].source or clips[0].name
+    many = len(clips) > 1
+
+    def who(i: int) -> str:
+        c = clips[i]
+        return "" if not many else f"sequence {c.name}: " if c.meta.get("format") == "h36m" else \
+            f"person {c.meta.get('person_id', i)}: "
+
+    # Each clip at the model's joints and fps. Frames past the input's end are unobserved.
+    index, x_in, x_m = [], [], []
+    for i, c in enumerate(clips):
+        idx = map_joints(c.skeleton, model, source)
+        x = c.positions[:, idx]                                                   # (T, Jm, 3)
+        if not np.isfinite(x).all(-1).any():
+            raise MotionFileError(source, f"{who(i)}no data for any of the model's joints in any frame")
+        index.append(idx)
+        x_in.append(x)
+        x_m.append(resample_frames(x, c.fps, fps_m, model_frames(c.num_frames, c.fps, fps_m)))
+
+    # Which model frames need an estimate: infill only uses it at missing tokens and at the
+    # observed frames next to them (anchors); the other modes use it wherever there is data.
+    need_m = []
+    for c, x, xm in zip(clips, x_in, x_m):
+        obs = np.isfinite(x).all(-1)                                              # (T, Jm)
+        if mode == "infill":
+            gap = ~obs.all(-1)
+            need = gap.copy()
+            need[1:] |= gap[:-1]
+            need[:-1] |= gap[1:]
+        elif mode == "denoise":
+            need = obs.any(-1)
+        else:
+            need = np.ones(len(obs), dtype=bool)
+        # the model frames each needed input frame interpolates from
+        f = np.nonzero(need)[0] * (fps_m / c.fps)
+        nm = np.zeros(len(xm), dtype=bool)
+        nm[np.minimum(np.floor(f + 1e-6).astype(np.int64), len(xm) - 1)] = True
+        nm[np.minimum(np.ceil(f - 1e-6).astype(np.int64), len(xm) - 1)] = True
+        need_m.append(nm)
+
+    # Every window of every clip, as rows of frame indices into the clips laid end to end;
+    # padding (short clips) points at a NaN row past the end. Windows with data go to the model;
+    # windows without any (a hole longer than a window) get Lerp instead, blended the same way,
+    # so there is no seam where the model's estimate meets the fallback.
+    offsets = np.cumsum([0] + [len(xm) for xm in x_m])
+    pad_row = int(offsets[-1])
+    padded = np.concatenate(x_m + [np.full((1,) + x_m[0].shape[1:], np.nan, dtype=np.float32)])
+    model_rows, lerp_rows, stride = [], [], W
+    for k, xm in enumerate(x_m):
+        starts, stride = window_layout(len(xm), W, overlap)
+        f = starts[:, None] + np.arange(W)[None]                                  # (n, W) clip frames
+        valid = (f >= 0) & (f < len(xm))
+        fc = np.clip(f, 0, len(xm) - 1)
+        needed = (valid & need_m[k][fc]).any(1)
+        data = (valid & np.isfinite(xm).all(-1).any(-1)[fc]).any(1)
+        r = np.where(valid, fc + offsets[k], pad_row)
+        model_rows.append(r[needed & data])
+        lerp_rows.append(r[needed & ~data])
+    rows = np.concatenate(model_rows)                                             # (N, W)
+    weights = torch.from_numpy(blend_weights(W, stride))                          # (W,)
+    Jm = model.num_joints
+    acc = torch.zeros(pad_row + 1, Jm, 3, dtype=torch.float64)
+    wsum = torch.zeros(pad_row + 1, dtype=torch.float64)
+
+    def add(r: torch.Tensor, est: torch.Tensor) -> None:
+        # r: (B, W) rows, est: (B, W, Jm, 3); padding rows weigh nothing
+        w = weights[None].expand(len(r), -1) * (r != pad_row)                     # (B, W)
+        acc.index_add_(0, r.reshape(-1), (est * w[..., None, None]).reshape(-1, Jm, 3))
+        wsum.index_add_(0, r.reshape(-1), w.reshape(-1))
+
+    bad = []
+    for b0 in range(0, len(rows), batch_size):
+        r = torch.from_numpy(rows[b0:b0 + batch_size])                            # (B, W)
+        pos = torch.from_numpy(padded)[r]                                         # (B, W, Jm, 3)
+        est = fixer.estimate(pos, ~torch.isnan(pos).any(-1)).to(torch.float64)    # (B, W, Jm, 3)
+        ok = torch.isfinite(est).flatten(1).all(1)                                # (B,)
+        add(r[ok], est[ok])
+        bad.append(rows[b0:b0 + batch_size][~ok.numpy()])
+        if progress is not None:
+            progress(min(b0 + batch_size, len(rows)), len(rows))
+    model_wsum = wsum.clone()
+    fallback = np.concatenate(lerp_rows + bad)
+    if len(fallback):
+        lerp = [lerp_infill(torch.from_numpy(xm).double()[None], torch.from_numpy(np.isfinite(xm).all(-1))[None])[0]
+                for xm in x_m]
+        lerp = torch.cat(lerp + [torch.zeros(1, Jm, 3, dtype=torch.float64)])    # (frames + 1, Jm, 3)
+        r = torch.from_numpy(fallback)
+        add(r, lerp[r])
+    bad_windows = sum(len(b) for b in bad)
+
+    out_clips, notes = [], []
+    filled = replaced = lerped = 0
+    never = {}
+    sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
+    for k, c in enumerate(clips):
+        a, b = offsets[k], offsets[k + 1]
+        est_m = (acc[a:b] / wsum[a:b].clamp_min(1e-12)[:, None, None]).numpy()   # (K, Jm, 3)
+        lerped += int(((model_wsum[a:b] <= 0).numpy() & need_m[k]).sum())
+        est = resample_frames(est_m, fps_m, c.fps, c.num_frames)                  # (T, Jm, 3)
+
+        x = x_in[k].astype(np.float64)
+        obs = np.isfinite(x).all(-1)                                              # (T, Jm)
+        if mode == "infill":
+            # Anchor the estimate on the data: the residual at observed tokens, interpolated
+            # over each gap, is added to the fill, so the fill meets the data at both gap ends.
+            resid = torch.from_numpy(np.where(obs[..., None], x - est, np.nan))
+            resid = lerp_infill(resid[None], torch.from_numpy(obs)[None])[0].numpy()
+            new = np.where(obs[..., None], x, est + resid)
+        elif mode == "denoise":
+            new = np.where(obs[..., None], est, np.nan)
+        else:
+            new = est
+        new = new.astype(np.float32)
+        if mode == "infill":
+            new[obs] = x_in[k][obs]  # bit-identical, whatever float64 did
+        must = obs if mode == "denoise" else np.ones_like(obs)
+        if not np.isfinite(new[must]).all():  # a bug, never data: do not write it
+            raise MotionFileError(source, f"{who(k)}the estimate is not finite; nothing written")
+        filled += int((~obs).sum()) if mode != "denoise" else 0
+        replaced += int(obs.sum()) if mode != "infill" else 0
+        lost = [model.joint_names[j] for j in np.nonzero(~obs.any(0))[0]]
+        if lost:
+            never[who(k) or ""] = lost
+
+        positions = c.positions.copy()
+        positions[:, index[k]] = new
+        sigma_before.update(torch.from_numpy(x_in[k])[None])
+        sigma_after.update(torch.from_numpy(new)[None])
+        out_clips.append(c.replace(positions=positions, rotations=None, root_translation=None, offsets=None))
+
+    if lerped:
+        notes.append(f"{lerped} frames at {fps_m:g} fps had no data within a window: linear interpolation")
+    if bad_windows:
+        notes.append(f"{bad_windows} windows gave non-finite estimates: linear interpolation there")
+    fate = "left missing" if mode == "denoise" else "estimated from the rest of the body"
+    for person, joints in never.items():
+        notes.append(f"{person}joints never observed: {', '.join(joints)} ({fate})")
+    whole = _joints_missing_for_a_window(x_m, W, overlap)
+    if whole:
+        notes.append(f"{whole} windows had a joint missing throughout ({fate})")
+    people = len(clips)
+    frames = sum(c.num_frames for c in clips) // people if clips[0].meta.get("format") != "h36m" else \
+        sum(c.num_frames for c in clips)
+    report = FixReport(frames, people, filled, replaced, float(sigma_before.compute()),
+                       float(sigma_after.compute()), len(rows), notes)
+    return out_clips, report
+
+
+def _joints_missing_for_a_window(x_m: list[np.ndarray], W: int, overlap: float) -> int:
+    """Windows (with data) in which some model joint is missing in every frame, joints that are
+    missing in the whole clip aside (reported on their own)."""
+    count = 0
+    for xm in x_m:
+        obs = np.isfinite(xm).all(-1)                                             # (K, Jm)
+        starts, _ = window_layout(len(xm), W, overlap)
+        sometimes = obs.any(0)
+        for s in starts:
+            o = obs[max(s, 0):s + W]
+            if o.any() and (~o.any(0) & sometimes).any():
+                count += 1
+    return count

@@ -1,0 +1,243 @@
+"""`mocapfix fix INPUT... --ckpt CKPT`: clean motion files with a trained checkpoint.
+
+Per file: read (any format the data module reads), fix (mocapfix.fix), write positions in the
+input's layout, one report line. A bad file is one error line and the others still run; the
+exit code is 1 when any file failed. Outputs are written to a temporary file and renamed:
+never half a file, never over the input, never over an existing file without --force.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mocapfix.clip import Clip, MotionFileError
+from mocapfix.fix import MODES, fix_clips, load_fixer
+from mocapfix.io import SOURCES, list_motion_files, read_motion
+from mocapfix.io.positions import UNITS, _atomic_write, load_npz, npz_array, to_z_up, write_clips, write_positions
+
+FIXED = ".fixed"          # default output: <stem>.fixed<ext> beside the input
+LONG_INPUT_S = 600.0      # progress is shown for inputs this long even when stderr is not a terminal
+
+
+def output_suffix(clips: list[Clip], path: Path) -> str:
+    """Positions files keep their extension; BVH and AMASS (rotations in, positions out) and
+    Human3.6M become .npz."""
+    fmt = clips[0].meta.get("format", "")
+    return path.suffix.lower() if fmt in ("positions-npz", "positions-csv") else ".npz"
+
+
+def output_path(path: Path, clips: list[Clip], out: Path | None, out_dir: Path | None, rel: Path | None) -> Path:
+    suffix = output_suffix(clips, path)
+    if out is not None:
+        target = out
+    elif out_dir is not None:
+        target = out_dir / (rel if rel is not None else Path(path.name)).with_suffix(suffix)
+    else:
+        target = path.with_name(path.stem + FIXED + suffix)
+    fmt = clips[0].meta.get("format", "")
+    ext = target.suffix.lower()
+    if ext == ".bvh":
+        raise MotionFileError(path, f"cannot write {target.name}: the model gives positions, not rotations; "
+                                    "write .npz or .csv")
+    if ext not in (".npz", ".csv") or (fmt == "h36m" and ext != ".npz"):
+        raise MotionFileError(path, f"cannot write {target.name}: outputs are "
+                                    f"{'.npz' if fmt == 'h36m' else '.npz or .csv'}")
+    return target
+
+
+def write_output(target: Path, clips: list[Clip], inputs: list[Clip]) -> None:
+    """Positions in the input's layout (people, unit, up axis, csv columns); Human3.6M as its
+    own {subject: {action: (T, 17, 3)}} npz. inputs: the clips as read, for exact copies."""
+    fmt = clips[0].meta.get("format")
+    if fmt == "h36m":
+        tree: dict = {}
+        for c in clips:
+            tree.setdefault(c.meta["subject"], {})[c.meta["action"]] = c.positions.astype(np.float32)
+        _atomic_write(target, lambda f: np.savez_compressed(f, positions_3d=np.array(tree, dtype=object)))
+        return
+    m = clips[0].meta
+    if fmt == "positions-npz" and m.get("unit") in UNITS and m.get("unit") != "m":
+        # Metres -> cm/mm -> metres is not exact in float32 (1 value in 8 is off by an ulp): tokens
+        # fix left alone are written from the file's own numbers, so they come back bit-identical.
+        with load_npz(Path(inputs[0].source)) as data:
+            raw = npz_array(Path(inputs[0].source), data, "positions").astype(np.float64)
+        raw = to_z_up(raw.reshape((-1,) + raw.shape[-3:]) * UNITS[m["unit"]], m.get("up_axis", "z"))
+        new = np.stack([c.positions for c in clips]).astype(np.float64)              # (P, T, J, 3)
+        old = np.stack([c.positions for c in inputs])
+        same = ((new == old) & np.isfinite(old)).all(-1, keepdims=True)
+        write_positions(target, np.where(same, raw, new), clips[0].fps, clips[0].skeleton, m["unit"],
+                        m.get("up_axis", "z"), squeeze=m.get("squeeze"))
+        return
+    write_clips(target, clips)
+
+
+class Progress:
+    """A bar on a terminal, a line every 10% otherwise; silent when disabled."""
+
+    def __init__(self, label: str, enabled: bool, stream=None):
+        self.label, self.enabled = label, enabled
+        self.stream = stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.last = -1
+
+    def __call__(self, done: int, total: int) -> None:
+        if not self.enabled or total <= 0:
+            return
+        pct = int(100 * done / total)
+        if self.tty:
+            bar = "#" * (pct // 4)
+            print(f"\r{self.label} [{bar:<25}] {pct:3d}% ({done}/{total} windows)", end="", file=self.stream,
+                  flush=True)
+            if done >= total:
+                print(file=self.stream, flush=True)
+        elif pct // 10 > self.last // 10 or done >= total:
+            print(f"{self.label}: {done}/{total} windows ({pct}%)", file=self.stream, flush=True)
+        self.last = pct
+
+
+def _one_line(path, e: BaseException) -> str:
+    """MotionFileError reads "path: problem"; anything else gets the path and its type."""
+    text = " ".join(str(e).split())
+    if isinstance(e, MotionFileError) or text.startswith(str(path)):
+        return text
+    return f"{path}: {type(e).__name__}: {text}" if text else f"{path}: {type(e).__name__}"
+
+
+def _num(v: float) -> str:
+    return f"{v:.2f}" if math.isfinite(v) else "-"
+
+
+def _inputs(paths: list[str], source: str, err) -> tuple[list[tuple[Path, Path | None]], bool]:
+    """(file, path relative to the folder it was found in, None for files given by name);
+    earlier outputs (*.fixed.*) inside folders are skipped."""
+    files, failed = [], False
+    for p in paths:
+        p = Path(p)
+        if p.is_dir():
+            found = [f for f in list_motion_files(p, source) if not f.stem.endswith(FIXED)]
+            if not found:
+                print(f"error: {p}: no motion files in this folder", file=err)
+                failed = True
+            files.extend((f, f.relative_to(p)) for f in found)
+        else:
+            files.append((p, None))  # a missing file fails in read_motion, with the others still run
+    return files, failed
+
+
+def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str | None = None,
+              mode: str = "infill", device: str = "auto", batch_size: int = 64, overlap: float = 0.5,
+              force: bool = False, source: str = "auto", progress: str = "auto", as_json: bool = False,
+              stdout=None, stderr=None, **read_options) -> int:
+    """Fix every file; -> exit code (0 all written, 1 some failed). read_options go to read_motion."""
+    out_stream, err = stdout or sys.stdout, stderr or sys.stderr
+    try:
+        fixer = load_fixer(ckpt, device)
+    except Exception as e:
+        print(f"error: {_one_line(ckpt, e)}", file=err)
+        return 1
+    files, failed = _inputs(paths, source, err)
+    written: dict[Path, Path] = {}
+    for path, rel in files:
+        t0 = time.perf_counter()
+        try:
+            clips = read_motion(path, source, **read_options)
+            if not clips:
+                raise MotionFileError(path, "no motion in the file")
+            target = output_path(path, clips, Path(out) if out else None, Path(out_dir) if out_dir else None, rel)
+            resolved = target.resolve()
+            if resolved == path.resolve():
+                raise MotionFileError(path, f"output {target} is the input; fix never overwrites its input")
+            if resolved in written:
+                raise MotionFileError(path, f"output {target} was already written for {written[resolved]}")
+            if target.exists() and not force:
+                raise MotionFileError(path, f"output {target} exists (use --force to overwrite)")
+            seconds = sum(c.duration_s for c in clips)
+            show = progress == "always" or (progress == "auto" and (
+                getattr(err, "isatty", lambda: False)() or seconds >= LONG_INPUT_S))
+            fixed, report = fix_clips(clips, fixer, mode, overlap, batch_size, Progress(str(path), show, err))
+            write_output(target, fixed, clips)
+            written[resolved] = path
+        except Exception as e:  # one bad file must not stop the others
+            print(f"error: {_one_line(path, e)}", file=err, flush=True)
+            failed = True
+            continue
+        elapsed = time.perf_counter() - t0
+        notes = list(report.notes)
+        if clips[0].meta.get("format") in ("bvh", "amass"):
+            notes.insert(0, f"positions .npz/.csv: {fixer.kind.upper()} gives positions, not rotations")
+        kind = "sequences" if clips[0].meta.get("format") == "h36m" else \
+            "person" if report.people == 1 else "people"
+        if as_json:
+            print(json.dumps({"input": str(path), "output": str(target), "mode": mode, "model": fixer.kind,
+                              "frames": report.frames, "people": report.people, "filled": report.filled,
+                              "replaced": report.replaced, "windows": report.windows,
+                              "limb_sigma_before_mm": _finite_or_none(report.limb_sigma_before_mm),
+                              "limb_sigma_after_mm": _finite_or_none(report.limb_sigma_after_mm),
+                              "seconds": round(elapsed, 3), "notes": notes}), file=out_stream, flush=True)
+        else:
+            line = (f"{path} -> {target}: {report.frames} frames, {report.people} {kind}, "
+                    f"{report.filled} tokens filled, {report.replaced} replaced ({mode}, {fixer.kind}), "
+                    f"limb sigma {_num(report.limb_sigma_before_mm)} -> {_num(report.limb_sigma_after_mm)} mm, "
+                    f"{elapsed:.2f} s")
+            print(line + "".join(f"; {n}" for n in notes), file=out_stream, flush=True)
+    return 1 if failed else 0
+
+
+def _finite_or_none(v: float):
+    return v if math.isfinite(v) else None
+
+
+def _device(name: str) -> str:
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return name
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="mocapfix fix", description=__doc__.split("\n")[0])
+    ap.add_argument("paths", nargs="+", metavar="INPUT", help="motion files or folders")
+    ap.add_argument("--ckpt", required=True, help="a mocapfix checkpoint (XMAE)")
+    where = ap.add_mutually_exclusive_group()
+    where.add_argument("-o", "--out", default=None, help="output file (one input file only)")
+    where.add_argument("--out-dir", default=None, help="folder for the outputs (default: <input>.fixed.<ext>)")
+    ap.add_argument("--mode", default="infill", choices=MODES,
+                    help="infill: fill missing tokens only; denoise: replace observed tokens; both: both")
+    ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+    ap.add_argument("--batch-size", type=int, default=64, help="windows per model call")
+    ap.add_argument("--overlap", type=float, default=0.5, help="fraction of a window shared by neighbours, [0, 1)")
+    ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    ap.add_argument("--json", action="store_true", help="one JSON object per file instead of the report line")
+    ap.add_argument("--progress", default="auto", choices=("auto", "always", "never"),
+                    help="auto: on a terminal, or for inputs over 10 minutes")
+    ap.add_argument("--source", default="auto", choices=SOURCES)
+    ap.add_argument("--unit", default="auto", help="override the file's unit: m, cm, mm")
+    ap.add_argument("--up-axis", default="auto", help="override the file's up axis: z, y")
+    ap.add_argument("--fps", type=float, default=None, help="frame rate for files that lack one")
+    ap.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
+    args = ap.parse_args(argv)
+    if args.out and (len(args.paths) > 1 or Path(args.paths[0]).is_dir()):
+        ap.error("-o/--out takes one input file; use --out-dir for several")
+    if args.batch_size < 1:
+        ap.error("--batch-size must be at least 1")
+    if not 0.0 <= args.overlap < 1.0:
+        ap.error("--overlap must be in [0, 1)")
+    if args.device == "cuda" and not torch.cuda.is_available():
+        ap.error("--device cuda, but no CUDA device is available")
+    try:
+        return fix_files(args.paths, args.ckpt, args.out, args.out_dir, args.mode, _device(args.device),
+                         args.batch_size, args.overlap, args.force, args.source, args.progress, args.json,
+                         unit=args.unit, up_axis=args.up_axis, fps=args.fps, body_model_path=args.body_model)
+    except KeyboardInterrupt:  # outputs are renamed into place whole: nothing half-written is left
+        print("mocapfix fix: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,423 @@
+"""DVAEDenoiseModule: unsupervised learned denoising with a trained Motion-DVAE (paper section 4).
+
+Starts from a prior checkpoint (MotionDVAEModule), freezes its prior and decoder (the generative
+model), and trains the encoder q_phi, an initial-state predictor q_omega(x_0 | y) and a noise
+predictor q_gamma(v_t | z_1:t, y_t, x_0) on NOISY windows only. The clean window is used to make
+the noise and, at validation and test, to score; it never enters the loss: every loss input
+comes from observation(), which reads the noisy keys of the batch and nothing else.
+
+Negative ELBO per window (eq. 12-15; sums over t, observed points j and axes d; batch mean), with
+s = obs_scale_m, y / m the observed / predicted 3D points in units of s, v ~ IG(alpha, beta):
+  data  = 1/2 sum_{t=0..T} [E[1/v] (y - m)^2 + E[log v]],  E[1/v] = alpha/beta, E[log v] = log beta - digamma(alpha)
+          m_0 = M(x_0), m_t = M(mu_theta_x(x_0, z_1:t))
+  kl_z  = sum_{t=1..T} KL(q_phi(z_t | z_<t, y_t:T, x_0) || p_theta(z_t | z_<t, x_0))     (annealed like the prior)
+  kl_v  = sum_{t=0..T} KL(IG(alpha, beta) || IG(lambda/2, lambda/2))
+The entropy of q_omega is left out as the paper does (C.2.2); E[log v] is kept (eq. 13 drops
+it), without it nothing but the prior stops v from growing.
+
+test: for each noise level, the noisy input, regression mode (one forward pass) and optimisation
+mode (opt_iterations ELBO steps on the test batch, then the forward pass), scored by MPJPE and
+joint acceleration against the clean windows, with seconds per frame.
+Lightning runs `test` under torch.inference_mode, where no gradient can be taken: the denoise
+configs set trainer.inference_mode: false; the optimisation loop also leaves inference mode itself.
+"""
+from __future__ import annotations
+
+import contextvars
+import math
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import lightning as L
+import torch
+import torch.nn as nn
+
+from mocapfix.data.corruption import gaussian_noise, rotation_noise
+from mocapfix.evaluation.metrics import MPJPE, JointAcceleration
+from mocapfix.evaluation.tasks import write_eval_json
+from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
+from mocapfix.models.dvae_state import Canonical, from_canonical, velocity_mask
+from mocapfix.skeleton import Skeleton
+from mocapfix.training.dvae_module import (MotionDVAEModule, anneal_steps_of, complete_windows, kl_anneal_weight,
+                                           select)
+
+METHODS = ("noisy", "dvae_regression", "dvae_optimisation")
+GAUSSIAN_LAMBDA = 1e4  # from here on the IG prior is the paper's Gaussian setting: final estimate = decoder output
+
+
+class Observation(NamedTuple):
+    """What the denoiser may see of a window: noisy data and the known shape."""
+    positions: torch.Tensor                # (B, T+1, J, 3) noisy joint positions, world
+    rotations: torch.Tensor | None         # (B, T+1, J, 3) noisy local axis-angle (rotation noise only)
+    root_translation: torch.Tensor | None  # (B, T+1, 3) observed root translation (the protocol keeps it)
+    offsets: torch.Tensor | None           # (B, J, 3) bone offsets: the shape, observed (q(beta | y) of the paper)
+
+
+class Inference(NamedTuple):
+    canon: Canonical
+    y3d: torch.Tensor       # (B, T+1, K, 3) observed points, canonical frame, metres
+    m: torch.Tensor         # (B, T+1, K, 3) predicted points M(x_0), M(x_hat_t)
+    x0_mu: torch.Tensor     # (B, D) standardised
+    x0_logvar: torch.Tensor
+    q_mu: torch.Tensor      # (B, T, L)
+    q_logvar: torch.Tensor
+    p_mu: torch.Tensor
+    p_logvar: torch.Tensor
+    a: torch.Tensor         # (B, T+1, 3K) alpha = lambda/2 e^a
+    b: torch.Tensor         # (B, T+1, 3K) beta = lambda/2 e^b
+
+
+class DVAEDenoiseModule(L.LightningModule):
+    def __init__(
+        self,
+        prior_ckpt: str | None = None,
+        noise: str = "rotation",
+        train_sigmas: tuple[float, ...] = (0.1, 0.15, 0.2),
+        val_sigma: float = 0.15,
+        test_sigmas: tuple[float, ...] = (0.1, 0.15, 0.2),
+        noise_lambda: float = 1e6,
+        obs_scale_m: float = 0.05,
+        estimate: str = "auto",
+        lr: float = 1e-3,
+        betas: tuple[float, float] = (0.9, 0.999),
+        kl_weight: float = 1.0,
+        kl_anneal_epochs: float = 0.0,
+        kl_anneal_steps: int | None = None,
+        opt_iterations: int = 50,
+        opt_lr: float | None = 1e-4,
+        eval_seed: int = 0,
+        figure_every_n_val: int = 1,
+        prior_hparams: dict | None = None,
+    ):
+        """
+        Args:
+            prior_ckpt: a MotionDVAEModule checkpoint (its prior, decoder and encoder start this stage).
+            noise: "rotation" (Gaussian on the body joints' axis-angle, sigmas in rad: the paper's
+                protocol, needs rotation data) or "position" (Gaussian on joint positions, sigmas in m).
+            train_sigmas: each training batch draws one; val_sigma: validation; test_sigmas: the table.
+            noise_lambda: lambda of the IG(lambda/2, lambda/2) noise prior; large = Gaussian setting.
+            obs_scale_m: the unit of the noise variance v (metres): v = 1 means noise std obs_scale_m.
+            estimate: "decoder" (section 5.1), "fusion" (eq. 18) or "auto" (fusion when
+                noise_lambda < 1e4, i.e. when the noise model is in use).
+            lr, betas: Adamax. kl_weight, kl_anneal_*: KL(q_phi || p_theta) annealing, as the prior's.
+            opt_iterations, opt_lr: optimisation mode (50 as the paper). A fresh Adamax on a trained
+                network jumps in its first steps: opt_lr stays below lr (None: lr).
+            prior_hparams: filled in from the prior checkpoint; with it the module rebuilds without the file.
+        """
+        super().__init__()
+        if noise not in ("rotation", "position"):
+            raise ValueError(f"noise must be 'rotation' or 'position', got {noise!r}")
+        if estimate not in ("auto", "decoder", "fusion"):
+            raise ValueError(f"estimate must be 'auto', 'decoder' or 'fusion', got {estimate!r}")
+        self.save_hyperparameters()
+        # LightningCLI hands this module's hyperparameters to save_hyperparameters through a context
+        # variable; the prior is built in a fresh context so that it saves its own.
+        if prior_hparams is not None:  # from a denoise checkpoint: its state_dict brings the weights
+            prior = contextvars.Context().run(MotionDVAEModule,
+                                              **{k: v for k, v in prior_hparams.items() if not k.startswith("_")})
+        elif prior_ckpt:
+            if not Path(prior_ckpt).is_file():
+                raise ValueError(f"{prior_ckpt}: no such prior checkpoint "
+                                 "(train the prior first: configs/motion_dvae*.yaml)")
+            prior = contextvars.Context().run(MotionDVAEModule.load_from_checkpoint, prior_ckpt, map_location="cpu")
+            # plain values only (no Lightning bookkeeping keys): the checkpoint stays weights_only-loadable
+            self.hparams.prior_hparams = {k: v for k, v in prior.hparams.items() if not k.startswith("_")}
+        else:
+            raise ValueError("model.init_args.prior_ckpt: give the Motion-DVAE prior checkpoint to start from")
+        if prior.net is None:
+            raise ValueError(f"{prior_ckpt}: the prior checkpoint has no network (skeleton and window missing)")
+        ph = self.hparams.prior_hparams
+        self.net, self.body, self.codec = prior.net, prior.body, prior.codec
+        self.net.gen.requires_grad_(False)  # prior p_theta_z and decoder p_theta_x stay as trained
+        self.window_fps = float(ph["window_fps"])
+        D, H, Hm, G = self.codec.dim, ph["lstm_hidden"], ph["mlp_hidden"], ph["norm_groups"]
+        num_points = self.codec.num_joints + (self.body.num_markers if self.body is not None else 0)
+        self.x0_pred = InitialStatePredictor(D, H, Hm, G, velocity_mask(self.codec.kind, self.codec.num_joints))
+        self.noise_pred = NoisePredictor(H, 3 * num_points, Hm, G)
+        self._anneal_steps = 0
+        self.val_mpjpe, self.val_noisy_mpjpe = MPJPE(), MPJPE()
+
+    @property
+    def skeleton(self) -> Skeleton:
+        return Skeleton.from_dict(self.hparams.prior_hparams["skeleton"])
+
+    def trainable_parameters(self) -> list[nn.Parameter]:
+        return [p for p in self.parameters() if p.requires_grad]
+
+    def setup(self, stage: str) -> None:
+        dm = self.trainer.datamodule
+        ph = self.hparams.prior_hparams
+        if dm is None:
+            return
+        if self.hparams.noise == "rotation" and not dm.hparams.with_rotations:
+            raise ValueError("model.noise rotation needs rotation data: set data.with_rotations: true "
+                             "(bvh, amass, synthetic sources), or model.noise: position")
+        if self.hparams.noise == "position" and ph["state"] == "rotations":
+            raise ValueError("noise on positions gives no noisy rotations to a rotation-state prior: "
+                             "use a positions-state prior or noise: rotation")
+        if (dm.skeleton.parents, dm.window_frames) != (tuple(ph["skeleton"]["parents"]), ph["window_frames"]) \
+                or abs(float(dm.hparams.fps) - ph["window_fps"]) > 1e-6:
+            raise ValueError(f"the prior was trained on {len(ph['skeleton']['parents'])} joints, {ph['window_frames']} "
+                             f"frames at {ph['window_fps']} fps; the data gives {dm.skeleton.num_joints} joints, "
+                             f"{dm.window_frames} frames at {dm.hparams.fps} fps")
+
+    def configure_optimizers(self):
+        return torch.optim.Adamax(self.trainable_parameters(), lr=self.hparams.lr, betas=tuple(self.hparams.betas))
+
+    # --- noise and observation ---
+
+    def add_noise(self, batch: dict, sigma: float, generator: torch.Generator | None = None) -> dict:
+        """The batch plus its noisy version: noisy_positions (and noisy_rotations for rotation noise)."""
+        out = dict(batch)
+        if self.hparams.noise == "rotation":
+            # offsets (B, 1, J, 3): FK broadcasts them over the window's frames
+            rot, pos = rotation_noise(batch["rotations"], batch["root_translation"], batch["offsets"][:, None],
+                                      self.codec.parents, sigma, generator)
+            out.update(noisy_rotations=rot, noisy_positions=pos)
+        else:
+            out["noisy_positions"] = gaussian_noise(batch["positions"], sigma, generator).positions
+        return out
+
+    @staticmethod
+    def observation(batch: dict) -> Observation:
+        """The loss's only door to the batch: noisy keys, root translation and offsets."""
+        return Observation(batch["noisy_positions"], batch.get("noisy_rotations"), batch.get("root_translation"),
+                           batch.get("offsets"))
+
+    # --- inference and the ELBO ---
+
+    def infer(self, obs: Observation, sample: bool) -> Inference:
+        codec, net = self.codec, self.net
+        y, canon = codec.encode(obs.positions, obs.rotations, obs.root_translation)  # (B, T+1, D) raw state
+        shape = codec.shape(obs.offsets)
+        y3d = codec.points(y, shape).points()                                          # (B, T+1, K, 3)
+        yn = net.normalize(y)
+        x0_mu, x0_logvar = self.x0_pred(yn)
+        x0 = x0_mu + torch.randn_like(x0_mu) * (0.5 * x0_logvar).exp() if sample else x0_mu
+        out = net(x0, yn[:, 1:], sample)  # encoder on the noisy states, frozen prior and decoder
+        x_all = net.denormalize(torch.cat([x0[:, None], out.x_hat], dim=1).float())   # (B, T+1, D)
+        m = codec.points(x_all, shape).points()
+        a, b = self.noise_pred(out.h, y3d.flatten(-2))
+        return Inference(canon, y3d, m, x0_mu, x0_logvar, out.q_mu, out.q_logvar, out.p_mu, out.p_logvar, a, b)
+
+    def elbo_terms(self, inf: Inference) -> dict[str, torch.Tensor]:
+        hp = self.hparams
+        c = hp.noise_lambda / 2.0
+        a, b = inf.a.double(), inf.b.double()
+        alpha, beta = c * a.exp(), c * b.exp()
+        sq = (((inf.y3d - inf.m) / hp.obs_scale_m) ** 2).flatten(-2).double()          # (B, T+1, 3K)
+        e_log_v = math.log(c) + b - torch.digamma(alpha)
+        data = 0.5 * ((a - b).exp() * sq + e_log_v).sum((1, 2)).mean()
+        kl_z = gaussian_kl(inf.q_mu.float(), inf.q_logvar.float(), inf.p_mu.float(), inf.p_logvar.float()
+                           ).sum((1, 2)).mean()
+        kl_v = inverse_gamma_kl(alpha, beta, c, c).sum((1, 2)).mean()
+        return {"data": data.float(), "kl_z": kl_z, "kl_v": kl_v.float()}
+
+    def denoise_loss(self, obs: Observation, kl_weight: float, sample: bool = True):
+        terms = self.elbo_terms(self.infer(obs, sample))
+        return terms["data"] + kl_weight * terms["kl_z"] + terms["kl_v"], terms
+
+    def uses_noise_model(self) -> bool:
+        if self.hparams.estimate == "auto":
+            return self.hparams.noise_lambda < GAUSSIAN_LAMBDA
+        return self.hparams.estimate == "fusion"
+
+    def estimate(self, obs: Observation) -> torch.Tensor:
+        """Denoised joint positions (B, T+1, J, 3), world frame (section 4.3): x_0 from the
+        initial-state predictor's mean (eq. 16), then the decoder output on the posterior-mean
+        path, fused with the observation by eq. 18 when the noise model is used."""
+        inf = self.infer(obs, sample=False)
+        est = inf.m
+        if self.uses_noise_model():
+            c = self.hparams.noise_lambda / 2.0
+            alpha, beta = c * inf.a.exp(), c * inf.b.exp()
+            v = torch.where(alpha > 1, beta / (alpha - 1).clamp_min(1e-6), beta / (alpha + 1))  # E[v], else the mode
+            v = v.reshape(est.shape).to(est.dtype)
+            fused = (v * est + inf.y3d) / (v + 1)
+            est = torch.cat([est[:, :1], fused[:, 1:]], dim=1)  # x_0 stays eq. 16
+        joints = est[:, :, :self.codec.num_joints]
+        return from_canonical(joints, inf.canon)
+
+    # --- training ---
+
+    def on_train_start(self) -> None:
+        self._anneal_steps = anneal_steps_of(self.trainer, self.hparams.kl_anneal_steps, self.hparams.kl_anneal_epochs)
+
+    def current_kl_weight(self) -> float:
+        return self.hparams.kl_weight * kl_anneal_weight(self.global_step, self._anneal_steps)
+
+    def training_step(self, batch, batch_idx):
+        if "noisy_positions" not in batch:
+            keep = complete_windows(batch)
+            if not keep.any():
+                return None
+            sigmas = list(self.hparams.train_sigmas)
+            sigma = sigmas[int(torch.randint(len(sigmas), ()))]
+            batch = self.add_noise(select(batch, keep), sigma)
+        w = self.current_kl_weight()
+        loss, terms = self.denoise_loss(self.observation(batch), w)
+        B = len(batch["noisy_positions"])
+        self.log("train/loss", loss, prog_bar=True, batch_size=B)
+        self.log_dict({f"train/{k}": v for k, v in terms.items()}, batch_size=B)
+        self.log("train/kl_weight", w, batch_size=B)
+        return loss
+
+    # --- validation: the noisy ELBO (checkpoint monitor) and, for the reader, the MPJPE ---
+
+    def _generator(self, batch_idx: int, k: int = 0) -> torch.Generator:
+        # CPU generator: the same noise on any device (see corruption.py)
+        return torch.Generator().manual_seed(self.hparams.eval_seed * 100_003 + batch_idx * 101 + k)
+
+    def validation_step(self, batch, batch_idx):
+        keep = complete_windows(batch)
+        if not keep.any():
+            return
+        batch = self.add_noise(select(batch, keep), self.hparams.val_sigma, self._generator(batch_idx))
+        obs = self.observation(batch)
+        B = len(obs.positions)
+        loss, terms = self.denoise_loss(obs, self.hparams.kl_weight, sample=False)
+        self.log("val/loss", loss, prog_bar=True, batch_size=B)
+        self.log_dict({f"val/{k}": v for k, v in terms.items()}, batch_size=B)
+        est = self.estimate(obs)
+        self.val_mpjpe(est.float(), batch["positions"].float())
+        self.val_noisy_mpjpe(obs.positions.float(), batch["positions"].float())
+        self.log("val/mpjpe_mm", self.val_mpjpe, prog_bar=True, batch_size=B)
+        self.log("val/noisy_mpjpe_mm", self.val_noisy_mpjpe, batch_size=B)
+        if batch_idx == 0:
+            self._figure_sample = (batch["positions"][0], obs.positions[0], est[0])
+
+    def on_validation_epoch_end(self):
+        if self.trainer.sanity_checking:
+            return
+        loss = self.trainer.callback_metrics.get("val/loss")
+        if loss is not None:
+            self.log("hp_metric", loss)
+        sample = getattr(self, "_figure_sample", None)
+        experiment = getattr(self.logger, "experiment", None)
+        n_val = getattr(self, "_n_val", 0)
+        self._n_val = n_val + 1
+        if sample is None or not hasattr(experiment, "add_figure") or n_val % max(1, self.hparams.figure_every_n_val):
+            return
+        from mocapfix.viz import window_figure
+        truth, noisy, est = (t.detach().float().cpu().numpy() for t in sample)
+        fig = window_figure(truth, noisy, noisy[..., 0] == noisy[..., 0], est, self.skeleton.limbs, self.window_fps,
+                            title=f"denoising, sigma {self.hparams.val_sigma}, step {self.global_step}")
+        experiment.add_figure("val/denoise_example", fig, self.global_step)
+
+    # --- test: noisy / regression / optimisation for each sigma ---
+
+    def optimise_and_estimate(self, obs: Observation) -> torch.Tensor:
+        """Optimisation mode: opt_iterations ELBO steps of the inference networks on these noisy
+        windows, then the forward pass; the trained weights are put back afterwards."""
+        hp = self.hparams
+        was_training = self.training
+        self.train()  # cuDNN takes RNN gradients in training mode only; no layer here acts differently in it
+        with torch.inference_mode(False), torch.enable_grad():
+            params = self.trainable_parameters()
+            saved = [p.detach().clone() for p in params]
+            obs = Observation(*(t.clone() if t is not None else None for t in obs))  # out of inference mode
+            opt = torch.optim.Adamax(params, lr=hp.opt_lr or hp.lr, betas=tuple(hp.betas))
+            for _ in range(hp.opt_iterations):
+                opt.zero_grad(set_to_none=True)
+                loss, _ = self.denoise_loss(obs, hp.kl_weight)
+                loss.backward()
+                opt.step()
+            with torch.no_grad():
+                est = self.estimate(obs)
+                for p, s in zip(params, saved):
+                    p.copy_(s)
+        self.train(was_training)
+        return est.detach()
+
+    def _sync(self) -> None:
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+
+    def on_test_epoch_start(self):
+        sigmas = [float(s) for s in self.hparams.test_sigmas]
+        self._sigmas = sigmas
+        fps = self.window_fps
+        self._test = nn.ModuleDict({
+            f"{i}|{m}|{k}": JointAcceleration(fps) if k == "acc" else MPJPE(root_relative=k == "rel")
+            for i in range(len(sigmas)) for m in METHODS for k in ("abs", "rel", "acc")}).to(self.device)
+        self._test_gt_acc = JointAcceleration(fps).to(self.device)
+        self._seconds = {(i, m): 0.0 for i in range(len(sigmas)) for m in METHODS}
+        self._frames = {i: 0 for i in range(len(sigmas))}
+
+    def test_step(self, batch, batch_idx):
+        keep = complete_windows(batch)
+        if not keep.any():
+            return
+        batch = select(batch, keep)
+        truth = batch["positions"].float()
+        self._test_gt_acc.update(truth)
+        for i, sigma in enumerate(self._sigmas):
+            obs = self.observation(self.add_noise(batch, sigma, self._generator(batch_idx, i + 1)))
+            self._frames[i] += truth.shape[0] * truth.shape[1]
+            self._sync()
+            t0 = time.perf_counter()
+            regression = self.estimate(obs)
+            self._sync()
+            t1 = time.perf_counter()
+            optimisation = self.optimise_and_estimate(obs) if self.hparams.opt_iterations > 0 else regression
+            self._sync()
+            t2 = time.perf_counter()
+            self._seconds[(i, "dvae_regression")] += t1 - t0
+            self._seconds[(i, "dvae_optimisation")] += t2 - t1 if self.hparams.opt_iterations > 0 else t1 - t0
+            preds = {"noisy": obs.positions, "dvae_regression": regression, "dvae_optimisation": optimisation}
+            for m, pred in preds.items():
+                pred = pred.float()
+                self._test[f"{i}|{m}|abs"].update(pred, truth)
+                self._test[f"{i}|{m}|rel"].update(pred, truth)
+                self._test[f"{i}|{m}|acc"].update(pred)
+
+    def on_test_epoch_end(self):
+        key = "sigma_rad" if self.hparams.noise == "rotation" else "sigma_m"
+        rows = []
+        gt_acc = round(float(self._test_gt_acc.compute()), 2)
+        for i, sigma in enumerate(self._sigmas):
+            rows.append({"task": "noise", "part": "full", key: sigma, "method": "ground_truth", "mpjpe_mm": 0.0,
+                         "mpjpe_rel_mm": 0.0, "accel_ms2": gt_acc, "seconds_per_frame": None})
+            for m in METHODS:
+                spf = self._seconds[(i, m)] / max(1, self._frames[i]) if m != "noisy" else None
+                rows.append({"task": "noise", "part": "full", key: sigma, "method": m,
+                             "mpjpe_mm": round(float(self._test[f"{i}|{m}|abs"].compute()), 2),
+                             "mpjpe_rel_mm": round(float(self._test[f"{i}|{m}|rel"].compute()), 2),
+                             "accel_ms2": round(float(self._test[f"{i}|{m}|acc"].compute()), 2),
+                             "seconds_per_frame": None if spf is None else float(f"{spf:.3g}")})
+                self.log(f"test/{key}{sigma}/{m}_mpjpe_mm", rows[-1]["mpjpe_mm"])
+        self.eval_rows = rows
+        if self.trainer.is_global_zero:
+            print("\n" + format_denoise_table(rows, key))
+            log_dir = Path(self.logger.log_dir if self.logger and self.logger.log_dir
+                           else self.trainer.default_root_dir)
+            self.eval_json_path = write_eval_json(log_dir / "eval.json", rows)
+
+    # --- predict: noisy windows in, denoised joint positions out ---
+
+    def predict_step(self, batch, batch_idx):
+        """A batch of (noisy) windows as the data module gives them -> denoised positions
+        (B, T, J, 3), world frame (regression mode); NaN for windows with missing values."""
+        obs = Observation(batch["positions"], batch.get("rotations"), batch.get("root_translation"),
+                          batch.get("offsets"))
+        keep = complete_windows(batch)
+        out = torch.full_like(batch["positions"], float("nan"))
+        if keep.any():
+            out[keep] = self.estimate(Observation(*(t[keep] if t is not None else None for t in obs))).to(out.dtype)
+        return out
+
+
+def format_denoise_table(rows: list[dict], key: str) -> str:
+    """The paper's Table 1 layout: one line per method, MPJPE / joint acceleration per noise level."""
+    sigmas = sorted({r[key] for r in rows})
+    unit = "rad" if key == "sigma_rad" else "m"
+    lines = [f"Motion-DVAE denoising, Gaussian noise sigma ({unit}): " + " ".join(f"{s:g}" for s in sigmas),
+             f"{'method':20s} {'MPJPE mm':>26s} {'rel. mm':>26s} {'accel m/s^2':>26s} {'s/frame':>12s}"]
+    for m in ("ground_truth", *METHODS):
+        sub = {r[key]: r for r in rows if r["method"] == m}
+        cols = [" ".join(f"{sub[s][c]:8.1f}" for s in sigmas) for c in ("mpjpe_mm", "mpjpe_rel_mm", "accel_ms2")]
+        spf = [sub[s]["seconds_per_frame"] for s in sigmas if sub[s]["seconds_per_frame"] is not None]
+        lines.append(f"{m:20s} {cols[0]:>26s} {cols[1]:>26s} {cols[2]:>26s} "
+                     f"{(f'{sum(spf) / len(spf):.2e}' if spf else '-'):>12s}")
+    return "\n".join(lines)

@@ -1,0 +1,258 @@
+"""MotionDVAEModule: training the Motion-DVAE motion prior on clean motion (paper section 3, appendix A).
+
+Loss per window (sums over frames t = 1..T and coordinates, mean over the batch), appendix A.3:
+  rec = sum_t ||mu_theta_x(z_1:t, x_0) - x_t||^2       on the standardised state (-log N(x_t; mu, Id) + const, x2)
+  kl  = sum_t KL(q_phi(z_t | z_<t, x_t:T, x_0) || p_theta(z_t | z_<t, x_0))
+  reg = sum_t ||M(mu_theta_x(z_1:t, x_0)) - M(x_t)||^2  metres, joints (+ markers when the body has a mesh)
+  loss = rec + w(step) * kl + reg_weight * reg,  w rising linearly from 0 to kl_weight (KL annealing).
+The state is standardised per dimension with training-set statistics (as HuMoR, whose training
+recipe the paper follows): raw velocities in rad/s would otherwise outweigh everything else.
+The networks are built in setup() from the data module's skeleton and window, stored as plain
+hyperparameters so a checkpoint alone rebuilds them (the denoising stage loads it that way).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import lightning as L
+import torch
+
+from mocapfix.evaluation.metrics import MPJPE
+from mocapfix.models.body import build_body_model
+from mocapfix.models.dvae import MotionDVAE, gaussian_kl
+from mocapfix.models.dvae_state import MotionState
+from mocapfix.skeleton import Skeleton
+
+STD_FLOOR = 0.05  # dimensions the data never moves (a joint axis the synthetic body never turns) stay finite
+
+
+def kl_anneal_weight(step: int, anneal_steps: int) -> float:
+    """Linear KL annealing: 0 at step 0, 1 from anneal_steps on (1 throughout when anneal_steps <= 0)."""
+    return 1.0 if anneal_steps <= 0 else min(1.0, step / anneal_steps)
+
+
+def anneal_steps_of(trainer, steps: int | None, epochs: float) -> int:
+    """The annealing length in optimiser steps: `steps` when given, else `epochs` epochs of the trainer."""
+    if steps is not None:
+        return int(steps)
+    per_epoch = trainer.num_training_batches / max(1, trainer.accumulate_grad_batches)
+    return int(round(epochs * per_epoch)) if per_epoch != float("inf") else 0
+
+
+def complete_windows(batch: dict) -> torch.Tensor:
+    """(B,) bool: windows with no missing value. The DVAE has no notion of a missing joint."""
+    ok = torch.isfinite(batch["positions"]).flatten(1).all(1)
+    if "rotations" in batch:
+        ok &= torch.isfinite(batch["rotations"]).flatten(1).all(1)
+    return ok
+
+
+def select(batch: dict, keep: torch.Tensor) -> dict:
+    return {k: v[keep] if torch.is_tensor(v) and v.shape[:1] == keep.shape else v for k, v in batch.items()}
+
+
+@torch.no_grad()
+def state_statistics(codec: MotionState, dataset, max_windows: int = 4096) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-dimension mean and std (D,) of the state over up to max_windows evenly spread windows."""
+    n = len(dataset)
+    idx = torch.linspace(0, n - 1, min(n, max_windows)).round().long().unique().tolist()
+    xs = []
+    for i in range(0, len(idx), 512):
+        batch = dataset.__getitems__(idx[i:i + 512])
+        batch = select(batch, complete_windows(batch))
+        if len(batch["positions"]):
+            xs.append(codec.encode(batch["positions"], batch.get("rotations"), batch.get("root_translation"))[0]
+                      .flatten(0, 1))
+    if not xs:
+        raise ValueError("no complete training window to standardise the state with")
+    x = torch.cat(xs)
+    return x.mean(0), x.std(0).clamp_min(STD_FLOOR)
+
+
+class ELBOTerms(NamedTuple):
+    rec: torch.Tensor
+    kl: torch.Tensor
+    reg: torch.Tensor
+
+
+class MotionDVAEModule(L.LightningModule):
+    def __init__(
+        self,
+        state: str = "rotations",
+        latent_dim: int = 48,
+        lstm_hidden: int = 1024,
+        mlp_hidden: int = 1024,
+        norm_groups: int = 16,
+        body_model: str = "skeleton",
+        body_model_path: str | None = None,
+        gender: str = "neutral",
+        model_type: str = "smplh",
+        markers: list[int] | None = None,
+        reg_weight: float = 1.0,
+        kl_weight: float = 1.0,
+        normalize: bool = True,
+        lr: float = 1e-3,
+        betas: tuple[float, float] = (0.9, 0.999),
+        lr_milestones: list[int] | None = None,
+        lr_decay: float = 0.5,
+        kl_anneal_epochs: float = 50.0,
+        kl_anneal_steps: int | None = None,
+        figure_every_n_val: int = 1,
+        skeleton: dict | None = None,
+        window_fps: float | None = None,
+        window_frames: int | None = None,
+    ):
+        """
+        Args:
+            state: "rotations" (the paper's state, needs data.with_rotations) or "positions"
+                (joint positions and velocities, M = identity: any data the data module reads).
+            latent_dim, lstm_hidden: 48 and 1024 (paper A.1). mlp_hidden: width of the 2 hidden
+                layers of every MLP (not given by the paper). norm_groups: GroupNorm groups (16).
+            body_model: "skeleton" (FK with the clip's bone offsets) or "smpl" (SMPL / SMPL-H from
+                body_model_path, gender, model_type; marker vertices `markers`, None = the paper's 43).
+            reg_weight: weight of the body-model regulariser (1 in the paper).
+            kl_weight: the KL weight annealing ends at (1: the ELBO).
+            normalize: standardise the state with training-set statistics (saved in the checkpoint).
+            lr, betas: Adamax. lr_milestones: optimiser steps where lr is multiplied by lr_decay.
+            kl_anneal_epochs / kl_anneal_steps: linear KL annealing length (steps win when given).
+            skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
+        """
+        super().__init__()
+        self.save_hyperparameters()
+        self.net: MotionDVAE | None = None
+        self._anneal_steps = 0
+        if skeleton is not None and window_frames is not None:
+            self._build()
+
+    # --- construction ---
+
+    @property
+    def skeleton(self) -> Skeleton:
+        return Skeleton.from_dict(self.hparams.skeleton)
+
+    def _build(self) -> None:
+        hp = self.hparams
+        skel = self.skeleton
+        self.body = build_body_model(hp.body_model, skel.parents, hp.body_model_path, hp.gender, hp.model_type,
+                                     hp.markers) if hp.state == "rotations" else None
+        self.codec = MotionState(hp.state, skel.parents, skel.groups, hp.window_fps, self.body)
+        self.net = MotionDVAE(self.codec.dim, hp.latent_dim, hp.lstm_hidden, hp.mlp_hidden, hp.norm_groups)
+        self.val_mpjpe, self.test_mpjpe = MPJPE(), MPJPE()
+
+    def setup(self, stage: str) -> None:
+        dm = self.trainer.datamodule
+        if dm is None:
+            if self.net is None:
+                raise RuntimeError("MotionDVAEModule needs a data module (or a checkpoint) to know the skeleton "
+                                   "and window")
+            return
+        if self.hparams.state == "rotations" and not dm.hparams.with_rotations:
+            raise ValueError("model.state rotations needs rotation data: set data.with_rotations: true "
+                             "(bvh, amass, synthetic sources), or model.state: positions")
+        skeleton, fps, frames = dm.skeleton.to_dict(), float(dm.hparams.fps), dm.window_frames
+        if self.net is None:
+            self.hparams.update(skeleton=skeleton, window_fps=fps, window_frames=frames)
+            self._build()
+            if stage == "fit" and self.hparams.normalize:  # a resumed run then loads the same values back
+                mean, std = state_statistics(self.codec, dm.datasets["train"])
+                self.net.x_mean.copy_(mean)
+                self.net.x_std.copy_(std)
+        elif (skeleton["parents"], frames) != (self.hparams.skeleton["parents"], self.hparams.window_frames) \
+                or abs(fps - self.hparams.window_fps) > 1e-6:
+            raise ValueError(f"this model was built for {len(self.hparams.skeleton['parents'])} joints, "
+                             f"{self.hparams.window_frames} frames at {self.hparams.window_fps} fps; the data gives "
+                             f"{len(skeleton['parents'])} joints, {frames} frames at {fps} fps")
+
+    def configure_optimizers(self):
+        hp = self.hparams
+        opt = torch.optim.Adamax(self.parameters(), lr=hp.lr, betas=tuple(hp.betas))
+        sched = torch.optim.lr_scheduler.MultiStepLR(opt, list(hp.lr_milestones or []), gamma=hp.lr_decay)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+    # --- the objective ---
+
+    def encode_batch(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """A batch of clean windows -> state x (B, T+1, D) in each window's canonical frame, body shape."""
+        x, _ = self.codec.encode(batch["positions"], batch.get("rotations"), batch.get("root_translation"))
+        return x, self.codec.shape(batch.get("offsets"))
+
+    def elbo_terms(self, x: torch.Tensor, shape: torch.Tensor | None, sample: bool = True):
+        """x (B, T+1, D) raw state -> ELBOTerms (per-window sums, batch means), the decoded states
+        x_hat (B, T, D) in raw units, and the network output (standardised).
+        sample=False runs the posterior-mean path (z_t = mu_t): deterministic validation."""
+        xn = self.net.normalize(x.float())
+        out = self.net(xn[:, 0], xn[:, 1:], sample)
+        rec = ((out.x_hat.float() - xn[:, 1:]) ** 2).sum((1, 2)).mean()
+        kl = gaussian_kl(out.q_mu.float(), out.q_logvar.float(), out.p_mu.float(), out.p_logvar.float()
+                         ).sum((1, 2)).mean()
+        x_hat = self.net.denormalize(out.x_hat.float())
+        pred_pts = self.codec.points(x_hat, shape).points()
+        true_pts = self.codec.points(x[:, 1:].float(), shape).points()
+        reg = ((pred_pts - true_pts) ** 2).sum((1, 2, 3)).mean()
+        return ELBOTerms(rec, kl, reg), x_hat, out
+
+    def current_kl_weight(self) -> float:
+        return self.hparams.kl_weight * kl_anneal_weight(self.global_step, self._anneal_steps)
+
+    def on_train_start(self) -> None:
+        self._anneal_steps = anneal_steps_of(self.trainer, self.hparams.kl_anneal_steps, self.hparams.kl_anneal_epochs)
+
+    def training_step(self, batch, batch_idx):
+        keep = complete_windows(batch)
+        if not keep.any():
+            return None  # nothing to learn from: Lightning skips the step
+        x, shape = self.encode_batch(select(batch, keep))
+        terms, _, _ = self.elbo_terms(x, shape)
+        w = self.current_kl_weight()
+        loss = terms.rec + w * terms.kl + self.hparams.reg_weight * terms.reg
+        B = len(x)
+        self.log("train/loss", loss, prog_bar=True, batch_size=B)
+        self.log_dict({"train/rec": terms.rec, "train/kl": terms.kl, "train/reg": terms.reg}, batch_size=B)
+        self.log("train/kl_weight", w, batch_size=B)
+        return loss
+
+    # --- validation / test: the objective at the end of annealing, and the MPJPE of reconstructions ---
+
+    def _evaluate(self, batch, stage: str):
+        keep = complete_windows(batch)
+        if not keep.any():
+            return None
+        batch = select(batch, keep)
+        x, shape = self.encode_batch(batch)
+        terms, x_hat, _ = self.elbo_terms(x, shape, sample=False)
+        loss = terms.rec + self.hparams.kl_weight * terms.kl + self.hparams.reg_weight * terms.reg
+        B = len(x)
+        self.log(f"{stage}/loss", loss, prog_bar=True, batch_size=B)
+        self.log_dict({f"{stage}/rec": terms.rec, f"{stage}/kl": terms.kl, f"{stage}/reg": terms.reg}, batch_size=B)
+        truth = self.codec.points(x.float(), shape).joints                                  # (B, T+1, J, 3)
+        recon = torch.cat([truth[:, :1], self.codec.points(x_hat, shape).joints], dim=1)
+        metric = self.val_mpjpe if stage == "val" else self.test_mpjpe
+        metric(recon[:, 1:], truth[:, 1:])
+        self.log(f"{stage}/mpjpe_mm", metric, prog_bar=True, batch_size=B)
+        return truth, recon
+
+    def validation_step(self, batch, batch_idx):
+        res = self._evaluate(batch, "val")
+        if res is not None and batch_idx == 0:
+            self._figure_sample = (res[0][0], res[1][0])
+
+    def test_step(self, batch, batch_idx):
+        self._evaluate(batch, "test")
+
+    def on_validation_epoch_end(self):
+        if self.trainer.sanity_checking:
+            return
+        loss = self.trainer.callback_metrics.get("val/loss")
+        if loss is not None:
+            self.log("hp_metric", loss)
+        sample = getattr(self, "_figure_sample", None)
+        experiment = getattr(self.logger, "experiment", None)
+        n_val = getattr(self, "_n_val", 0)
+        self._n_val = n_val + 1
+        if sample is None or not hasattr(experiment, "add_figure") or n_val % max(1, self.hparams.figure_every_n_val):
+            return
+        from mocapfix.viz import window_figure
+        truth, recon = (t.detach().float().cpu().numpy() for t in sample)
+        fig = window_figure(truth, truth, truth[..., 0] == truth[..., 0], recon, self.skeleton.limbs,
+                            self.hparams.window_fps, title=f"Motion-DVAE reconstruction, step {self.global_step}")
+        experiment.add_figure("val/reconstruction_example", fig, self.global_step)

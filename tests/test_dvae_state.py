@@ -1,0 +1,122 @@
+"""The Motion-DVAE state: canonical first frame, continuous axis-angle, finite differences, and
+the way back to joint positions."""
+from __future__ import annotations
+
+import math
+
+import roma
+import torch
+
+from mocapfix.io.synthetic import generate_clips
+from mocapfix.kinematics import fk_axis_angle
+from mocapfix.models.body import SkeletonFK
+from mocapfix.models.dvae_state import (MotionState, finite_difference, heading_of_rotation, positions_state,
+                                        velocity_mask,
+                                        rotation_state, split_rotation_state, to_canonical, unwrap_rotvec)
+
+
+def _windows(B=3, T=30, seed=1):
+    clips = generate_clips(B, 2.0, 30.0, seed=seed)
+    rot = torch.stack([torch.from_numpy(c.rotations[5:5 + T]) for c in clips])
+    root = torch.stack([torch.from_numpy(c.root_translation[5:5 + T]) for c in clips])
+    pos = torch.stack([torch.from_numpy(c.positions[5:5 + T]) for c in clips])
+    off = torch.stack([torch.from_numpy(c.offsets) for c in clips])
+    return rot, root, pos, off, clips[0].skeleton
+
+
+def _turn(rot, root, pos, yaw, shift):
+    """The same windows turned about z by yaw (B,) and moved by shift (B, 3)."""
+    Rz = roma.rotvec_to_rotmat(torch.stack([torch.zeros_like(yaw), torch.zeros_like(yaw), yaw], -1))  # (B, 3, 3)
+    root2 = (Rz[:, None] @ root[..., None])[..., 0] + shift[:, None]
+    pos2 = (Rz[:, None, None] @ pos[..., None])[..., 0] + shift[:, None, None]
+    rot2 = rot.clone()
+    rot2[:, :, 0] = roma.rotmat_to_rotvec(Rz[:, None] @ roma.rotvec_to_rotmat(rot[:, :, 0]))
+    return rot2, root2, pos2
+
+
+def test_rotation_state_layout_and_canonical_first_frame():
+    rot, root, pos, off, skel = _windows()
+    x, canon = rotation_state(rot, root, 30.0)
+    J = skel.num_joints
+    assert x.shape == (3, 30, 6 * (J + 1))  # 138 for SMPL's 22 joints, as the paper's 46 x 3
+    r, phi, theta = split_rotation_state(x, J)
+    assert torch.allclose(r[:, 0, :2], torch.zeros(3, 2), atol=1e-6)            # xy translation zeroed
+    assert torch.allclose(r[:, 0, 2], root[:, 0, 2], atol=1e-6)                 # height kept
+    assert heading_of_rotation(phi[:, 0]).abs().max() < 1e-5                    # heading aligned
+    assert torch.allclose(theta, rot[:, :, 1:], atol=1e-6)                      # local rotations untouched
+    # the state gives back the canonicalised positions through the body model
+    pts = MotionState("rotations", skel.parents, skel.groups, 30.0, SkeletonFK(skel.parents)).points(x, off).joints
+    assert (pts - to_canonical(pos, canon)).abs().max() < 1e-5
+
+
+def test_canonical_state_ignores_where_and_which_way_the_window_starts():
+    rot, root, pos, off, skel = _windows()
+    yaw, shift = torch.tensor([0.5, -2.0, 3.0]), torch.tensor([[3.0, -1.0, 0.0], [-5.0, 2.0, 0.0], [0.1, 0.2, 0.0]])
+    rot2, root2, pos2 = _turn(rot, root, pos, yaw, shift)
+    x1, _ = rotation_state(rot, root, 30.0)
+    x2, _ = rotation_state(rot2, root2, 30.0)
+    assert (x1 - x2).abs().max() < 1e-3
+    p1, _ = positions_state(pos, skel.groups, 30.0)
+    p2, _ = positions_state(pos2, skel.groups, 30.0)
+    assert (p1 - p2).abs().max() < 1e-4
+    assert (pos - pos2).abs().max() > 1.0  # the move was real
+
+
+def test_unwrap_keeps_axis_angle_continuous_through_half_a_turn():
+    angle = torch.linspace(2.8, 3.6, 9)  # passes pi: a reader's shortest form jumps by 2 pi there
+    axis = torch.tensor([0.0, 0.6, 0.8])
+    shortest = roma.rotmat_to_rotvec(roma.rotvec_to_rotmat(angle[:, None] * axis))[None]  # (1, 9, 3)
+    assert (shortest[0, 1:] - shortest[0, :-1]).norm(dim=-1).max() > 5.0
+    out = unwrap_rotvec(shortest)
+    assert (out[0, 1:] - out[0, :-1]).norm(dim=-1).max() < 0.11
+    assert torch.allclose(roma.rotvec_to_rotmat(out), roma.rotvec_to_rotmat(shortest), atol=1e-5)
+    assert torch.allclose(out[0], angle[:, None] * axis, atol=1e-5)
+
+
+def test_finite_difference_is_exact_on_lines_and_per_second():
+    t = torch.arange(10.0) / 30.0
+    x = (2.0 * t - 1.0)[None, :, None].expand(2, 10, 3)
+    assert torch.allclose(finite_difference(x, 30.0), torch.full_like(x, 2.0), atol=1e-4)
+    q = (t ** 2)[None, :, None]
+    v = finite_difference(q, 30.0)[0, 1:-1, 0]
+    assert torch.allclose(v, 2 * t[1:-1], atol=1e-4)  # central differences inside
+
+
+def test_positions_state_and_its_points():
+    _, _, pos, _, skel = _windows()
+    codec = MotionState("positions", skel.parents, skel.groups, 30.0)
+    x, canon = codec.encode(pos)
+    assert x.shape == (3, 30, 6 * skel.num_joints)
+    pts = codec.points(x, None).joints
+    assert (pts - to_canonical(pos, canon)).abs().max() < 1e-5
+    assert pts[:, 0, 0, :2].abs().max() < 1e-6  # root of frame 0 at the xy origin
+    # heading: the left-right hip axis of frame 0 along +x
+    hips = pts[:, 0, skel.groups["left_leg"][0]] - pts[:, 0, skel.groups["right_leg"][0]]
+    assert hips[:, 1].abs().max() < 1e-5 and (hips[:, 0] > 0).all()
+
+
+def test_fk_of_state_matches_direct_fk_after_turning_back():
+    rot, root, pos, off, skel = _windows(B=2)
+    x, canon = rotation_state(rot, root, 30.0)
+    r, phi, theta = split_rotation_state(x, skel.num_joints)
+    direct = fk_axis_angle(torch.cat([phi[..., None, :], theta], -2), r, off[:, None], skel.parents)
+    c, s = math.cos, math.sin
+    for b in range(2):
+        yaw = float(canon.yaw[b])
+        Rz = torch.tensor([[c(yaw), -s(yaw), 0.0], [s(yaw), c(yaw), 0.0], [0.0, 0.0, 1.0]])
+        world = direct[b] @ Rz.T + canon.origin[b]
+        assert (world - pos[b]).abs().max() < 1e-5
+
+
+def test_velocity_mask_marks_the_finite_differences():
+    rot, root, pos, _, skel = _windows(B=1)
+    x, _ = rotation_state(rot, root, 30.0)
+    vel = velocity_mask("rotations", skel.num_joints)
+    assert int(vel.sum()) == 3 + 3 + 3 * (skel.num_joints - 1)
+    r, phi, theta = split_rotation_state(x, skel.num_joints)
+    want = torch.cat([finite_difference(r, 30.0), finite_difference(phi, 30.0),
+                      finite_difference(theta.flatten(-2), 30.0)], -1)
+    assert torch.equal(x[..., vel], want)
+    p, _ = positions_state(pos, skel.groups, 30.0)
+    pv = velocity_mask("positions", skel.num_joints)
+    assert torch.equal(p[..., pv], finite_difference(p[..., ~pv], 30.0))

@@ -1,0 +1,97 @@
+"""The Motion-DVAE prior through the product path: configs, KL annealing, TensorBoard, checkpoints,
+resume, and the positions state on data without rotations."""
+from __future__ import annotations
+
+import shutil
+from types import SimpleNamespace
+
+import pytest
+import torch
+from cli_utils import CONFIGS, QUIET, SMALL_DATA, run_cli
+
+from mocapfix.training.dvae_module import MotionDVAEModule, anneal_steps_of, kl_anneal_weight
+
+# Tiny networks: these tests exercise the loop, not the model size.
+TINY_DVAE = ["--model.init_args.lstm_hidden", "32", "--model.init_args.mlp_hidden", "32",
+             "--model.init_args.latent_dim", "8"]
+CPU = ["--trainer.accelerator", "cpu", "--trainer.precision", "32-true"]
+
+
+def bandai_subset(bandai_files, dest):
+    """Three Bandai clips, one per split (the full set takes ~20 s to parse)."""
+    dest.mkdir()
+    names = ["dataset-1_walk_normal_002.bvh", "dataset-1_bow_active_001.bvh", "dataset-1_run_normal_001.bvh"]
+    by_name = {f.name: f for f in bandai_files}
+    for n in names:
+        shutil.copy(by_name[n], dest / n)
+    return ["--data.path", dest, "--data.cache_dir", "null", "--data.val_patterns", f"[{names[1]}]",
+            "--data.test_patterns", f"[{names[2]}]", "--data.eval_batch_size", "8", "--data.batch_size", "4"]
+
+
+def test_fast_dev_run_motion_dvae_yaml(tmp_path):
+    assert run_cli(["fit", "--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU,
+                    "--trainer.fast_dev_run", "1"], tmp_path) == 0
+
+
+def test_fast_dev_run_motion_dvae_bvh_yaml(tmp_path, bandai_files):
+    assert run_cli(["fit", "--config", CONFIGS / "motion_dvae_bvh.yaml", *TINY_DVAE, *QUIET, *CPU,
+                    *bandai_subset(bandai_files, tmp_path / "bvh"), "--trainer.fast_dev_run", "1"], tmp_path) == 0
+
+
+def test_kl_anneal_schedule():
+    assert [kl_anneal_weight(s, 4) for s in (0, 1, 2, 4, 9)] == [0.0, 0.25, 0.5, 1.0, 1.0]
+    assert kl_anneal_weight(0, 0) == 1.0
+    trainer = SimpleNamespace(num_training_batches=10, accumulate_grad_batches=2)
+    assert anneal_steps_of(trainer, None, 3.0) == 15 and anneal_steps_of(trainer, 7, 3.0) == 7
+
+
+def _scalars(run_dir):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    ea = EventAccumulator(str(run_dir), size_guidance={"images": 0, "scalars": 0})
+    ea.Reload()
+    return ea
+
+
+def test_kl_weight_follows_the_schedule_across_resume_and_tensorboard_has_every_term(tmp_path):
+    common = ["fit", "--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU,
+              "--experiment", "kl", "--trainer.log_every_n_steps", "1", "--trainer.val_check_interval", "3",
+              "--model.init_args.kl_anneal_steps", "4", "--model.init_args.kl_weight", "0.5",
+              "--checkpoint_every_n_steps", "3"]
+    assert run_cli([*common, "--trainer.max_steps", "3"], tmp_path) == 0
+    assert run_cli([*common, "--trainer.max_steps", "6", "--ckpt_path", "last"], tmp_path) == 0
+    weights = {}
+    for version in ("version_0", "version_1"):
+        ea = _scalars(tmp_path / "logs" / "kl" / version)
+        weights.update({e.step: e.value for e in ea.Scalars("train/kl_weight")})
+    # logged at the step it was used: 0.5 * min(1, step / 4), continuing after the resume
+    assert sorted(weights) == list(range(6))
+    for step, w in weights.items():
+        assert w == pytest.approx(0.5 * min(1.0, step / 4)), (step, w)
+    ea = _scalars(tmp_path / "logs" / "kl" / "version_0")
+    for tag in ("train/loss", "train/rec", "train/kl", "train/reg", "train/kl_weight", "val/loss", "val/mpjpe_mm",
+                "val/rec", "val/kl", "val/reg", "lr-Adamax"):
+        assert tag in ea.Tags()["scalars"], tag
+    assert "val/reconstruction_example" in ea.Tags()["images"]
+
+    ckpt = torch.load(tmp_path / "checkpoints" / "kl" / "last.ckpt", map_location="cpu", weights_only=True)
+    assert ckpt["global_step"] == 6
+    assert {float(s["step"]) for s in ckpt["optimizer_states"][0]["state"].values()} == {6.0}
+    hp = ckpt["hyper_parameters"]
+    assert hp["window_frames"] == 30 and hp["skeleton"]["name"] == "smpl22" and hp["state"] == "rotations"
+    # the state statistics travel with the weights
+    std = ckpt["state_dict"]["net.x_std"]
+    assert std.shape == (138,) and not torch.allclose(std, torch.ones_like(std))
+    model = MotionDVAEModule.load_from_checkpoint(tmp_path / "checkpoints" / "kl" / "last.ckpt", map_location="cpu")
+    torch.testing.assert_close(model.net.x_std, std)
+
+
+def test_positions_state_trains_on_data_without_rotations(tmp_path):
+    assert run_cli(["fit", "--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU,
+                    "--model.init_args.state", "positions", "--data.with_rotations", "false",
+                    "--trainer.fast_dev_run", "1"], tmp_path) == 0
+
+
+def test_rotation_state_without_rotations_says_what_to_set(tmp_path):
+    with pytest.raises(ValueError, match="with_rotations"):
+        run_cli(["fit", "--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU,
+                 "--data.with_rotations", "false", "--trainer.fast_dev_run", "1"], tmp_path)
