@@ -39,6 +39,7 @@ from mocapfix.evaluation.tasks import write_eval_json
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
 from mocapfix.models.dvae_state import Canonical, from_canonical, velocity_mask
 from mocapfix.skeleton import Skeleton
+from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.dvae_module import (MotionDVAEModule, anneal_steps_of, complete_windows, kl_anneal_weight,
                                            select)
 
@@ -294,16 +295,10 @@ class DVAEDenoiseModule(L.LightningModule):
         if loss is not None:
             self.log("hp_metric", loss)
         sample = getattr(self, "_figure_sample", None)
-        experiment = getattr(self.logger, "experiment", None)
-        n_val = getattr(self, "_n_val", 0)
-        self._n_val = n_val + 1
-        if sample is None or not hasattr(experiment, "add_figure") or n_val % max(1, self.hparams.figure_every_n_val):
-            return
-        from mocapfix.viz import window_figure
-        truth, noisy, est = (t.detach().float().cpu().numpy() for t in sample)
-        fig = window_figure(truth, noisy, noisy[..., 0] == noisy[..., 0], est, self.skeleton.limbs, self.window_fps,
-                            title=f"denoising, sigma {self.hparams.val_sigma}, step {self.global_step}")
-        experiment.add_figure("val/denoise_example", fig, self.global_step)
+        if sample is not None:
+            truth, noisy, est = sample
+            log_validation_figure(self, "val/denoise_example", truth, noisy, None, est, self.window_fps,
+                                  f"denoising, sigma {self.hparams.val_sigma}, step {self.global_step}")
 
     # --- test: noisy / regression / optimisation for each sigma ---
 

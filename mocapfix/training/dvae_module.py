@@ -22,6 +22,7 @@ from mocapfix.models.body import build_body_model
 from mocapfix.models.dvae import MotionDVAE, gaussian_kl
 from mocapfix.models.dvae_state import MotionState
 from mocapfix.skeleton import Skeleton
+from mocapfix.training.figures import log_validation_figure
 
 STD_FLOOR = 0.05  # dimensions the data never moves (a joint axis the synthetic body never turns) stay finite
 
@@ -246,13 +247,7 @@ class MotionDVAEModule(L.LightningModule):
         if loss is not None:
             self.log("hp_metric", loss)
         sample = getattr(self, "_figure_sample", None)
-        experiment = getattr(self.logger, "experiment", None)
-        n_val = getattr(self, "_n_val", 0)
-        self._n_val = n_val + 1
-        if sample is None or not hasattr(experiment, "add_figure") or n_val % max(1, self.hparams.figure_every_n_val):
-            return
-        from mocapfix.viz import window_figure
-        truth, recon = (t.detach().float().cpu().numpy() for t in sample)
-        fig = window_figure(truth, truth, truth[..., 0] == truth[..., 0], recon, self.skeleton.limbs,
-                            self.hparams.window_fps, title=f"Motion-DVAE reconstruction, step {self.global_step}")
-        experiment.add_figure("val/reconstruction_example", fig, self.global_step)
+        if sample is not None:
+            truth, recon = sample
+            log_validation_figure(self, "val/reconstruction_example", truth, truth, None, recon,
+                                  self.hparams.window_fps, f"Motion-DVAE reconstruction, step {self.global_step}")

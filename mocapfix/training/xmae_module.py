@@ -21,6 +21,7 @@ from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_row
 from mocapfix.inference import xmae_reconstruct
 from mocapfix.models.xmae import XMAE
 from mocapfix.skeleton import Skeleton
+from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.schedules import warmup_cosine
 
 log = logging.getLogger(__name__)
@@ -179,16 +180,10 @@ class XMAEModule(L.LightningModule):
         if mpjpe is not None:
             self.log("hp_metric", mpjpe)
         sample = getattr(self, "_figure_sample", None)
-        experiment = getattr(self.logger, "experiment", None)
-        n_val = getattr(self, "_n_val", 0)
-        self._n_val = n_val + 1
-        if sample is None or not hasattr(experiment, "add_figure") or n_val % max(1, hp.figure_every_n_val):
-            return
-        from mocapfix.viz import window_figure
-        truth, given, observed, output = (t.detach().float().cpu().numpy() for t in sample)
-        fig = window_figure(truth, given, observed, output, self.skeleton.limbs, hp.window_fps,
-                            title=f"full-skeleton {hp.val_gap_s} s gap, step {self.global_step}")
-        experiment.add_figure("val/infill_example", fig, self.global_step)
+        if sample is not None:
+            truth, given, observed, output = sample
+            log_validation_figure(self, "val/infill_example", truth, given, observed, output, hp.window_fps,
+                                  f"full-skeleton {hp.val_gap_s} s gap, step {self.global_step}")
 
     # --- test: the paper's tables ---
 
