@@ -95,10 +95,11 @@ def main(argv: list[str] | None = None) -> int:
         if command in ("-h", "--help"):
             print("usage: mocapfix {fit,validate,test,predict} --config FILE [--key.path value ...]\n"
                   "       mocapfix inspect FILE... [--json]\n"
+                  "       mocapfix fix INPUT... --ckpt CKPT [-o OUT | --out-dir DIR] [--mode infill|denoise|both]\n"
                   "       mocapfix demo\n")
         _lightning_cli(argv)
         return 0
-    print(f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect or demo", file=sys.stderr)
+    print(f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect, fix or demo", file=sys.stderr)
     return 2
 
 

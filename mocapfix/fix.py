@@ -108,7 +108,7 @@ def model_kind(hparams: dict, state_dict: dict) -> str | None:
 
 
 # kind -> class with from_checkpoint(path, hparams, state_dict, device)
-FIXERS: dict[str, Callable] = {"xmae": XMAEFixer}
+FIXERS: dict[str, type] = {"xmae": XMAEFixer}
 
 
 def read_checkpoint(path) -> tuple[dict, dict]:
@@ -213,6 +213,37 @@ def window_layout(num_frames: int, window: int, overlap: float) -> tuple[np.ndar
     return starts, stride
 
 
+def windows_for(need: np.ndarray, window: int, overlap: float) -> tuple[np.ndarray, int]:
+    """Starts of the windows that cover the needed frames need (K,) bool, and the stride.
+
+    A run of needed frames no longer than three quarters of a window gets one window centred on
+    it: the paper evaluates with the gap in the middle of the window, where the model has
+    context on both sides. A longer run gets the regular grid of window_layout over the run and a quarter
+    window of context on each side. When that takes more windows than the plain grid (short runs
+    close together: scattered missing tokens), the grid's windows that hold a needed frame are
+    used instead. With every frame needed it is window_layout's grid."""
+    K = len(need)
+    stride = max(1, int(round(window * (1.0 - overlap))))
+    if K <= window:
+        return window_layout(K, window, overlap)
+    edges = np.diff(np.concatenate([[0], need.astype(np.int8), [0]]))
+    starts = []
+    for s, e in zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]):   # runs [s, e)
+        if e - s <= 3 * window // 4:
+            starts.append([min(max((s + e - window) // 2, 0), K - window)])
+        else:
+            lo, hi = max(0, s - window // 4), min(K, e + window // 4)
+            grid, _ = window_layout(hi - lo, window, overlap)
+            starts.append(np.clip(grid + lo, 0, K - window))
+    if not starts:
+        return np.zeros(0, dtype=np.int64), stride
+    starts = np.unique(np.concatenate(starts)).astype(np.int64)
+    # Many short runs close together (scattered missing tokens): the plain grid is cheaper.
+    grid, _ = window_layout(K, window, overlap)
+    grid = grid[[need[g:g + window].any() for g in grid]]
+    return (grid if len(grid) < len(starts) else starts), stride
+
+
 def blend_weights(window: int, stride: int) -> np.ndarray:
     """(W,) weights that rise over the overlap, stay 1 between, and fall over the overlap:
     sin^2 ramps, so two windows one stride apart sum to exactly 1 where they overlap (Hann for
@@ -301,7 +332,7 @@ def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: fl
     padded = np.concatenate(x_m + [np.full((1,) + x_m[0].shape[1:], np.nan, dtype=np.float32)])
     model_rows, lerp_rows, stride = [], [], W
     for k, xm in enumerate(x_m):
-        starts, stride = window_layout(len(xm), W, overlap)
+        starts, stride = windows_for(need_m[k], W, overlap)
         f = starts[:, None] + np.arange(W)[None]                                  # (n, W) clip frames
         valid = (f >= 0) & (f < len(xm))
         fc = np.clip(f, 0, len(xm) - 1)

@@ -15,7 +15,7 @@ from mocapfix.cli import main
 from mocapfix.clip import Clip, MotionFileError
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.fix import (blend_weights, fix_clips, load_fixer, map_joints, model_frames, resample_frames,
-                          window_layout, xmae_checkpoint)
+                          window_layout, windows_for, xmae_checkpoint)
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import write_bvh
 from mocapfix.io.positions import write_positions
@@ -183,7 +183,21 @@ def test_infill_runs_only_windows_near_missing_tokens(motion):
     assert report.windows == 0 and fixer.calls == 0  # nothing missing: nothing to run
     pos[60, 5] = np.nan
     _, report = fix_clips([clip.replace(positions=pos)], fixer, "infill")
-    assert report.windows == 3  # the windows holding frames 59-61: starts 30, 45, 60
+    assert report.windows == 1  # one window centred on frames 59-61 (the gap and its anchors)
+
+
+def test_windows_centre_short_gaps_and_grid_long_ones():
+    need = np.zeros(200, dtype=bool)
+    need[50:54] = True                                   # short: one window, the gap in its middle
+    starts, stride = windows_for(need, 30, 0.5)
+    assert starts.tolist() == [37] and stride == 15
+    need[3:5] = True                                     # near the clip start: clamped to 0
+    assert windows_for(need, 30, 0.5)[0].tolist() == [0, 37]
+    need[:] = False
+    need[100:160] = True                                 # long: the grid, a quarter window of context
+    starts = windows_for(need, 30, 0.5)[0]
+    assert starts[0] == 93 and starts[-1] + 30 == 167 and (np.diff(starts) <= 15).all()
+    assert windows_for(np.ones(200, dtype=bool), 30, 0.5)[0].tolist() == window_layout(200, 30, 0.5)[0].tolist()
 
 
 @pytest.mark.parametrize("frames", [1, 2, 7, 29, 30, 31])
