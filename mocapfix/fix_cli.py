@@ -19,7 +19,7 @@ import torch
 
 from mocapfix.clip import Clip, MotionFileError
 from mocapfix.fix import MODES, fix_clips, load_fixer
-from mocapfix.io import SOURCES, list_motion_files, read_motion
+from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.positions import UNITS, _atomic_write, load_npz, npz_array, to_z_up, write_clips, write_positions
 
 FIXED = ".fixed"          # default output: <stem>.fixed<ext> beside the input
@@ -216,11 +216,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true", help="one JSON object per file instead of the report line")
     ap.add_argument("--progress", default="auto", choices=("auto", "always", "never"),
                     help="auto: on a terminal, or for inputs over 10 minutes")
-    ap.add_argument("--source", default="auto", choices=SOURCES)
-    ap.add_argument("--unit", default="auto", help="override the file's unit: m, cm, mm")
-    ap.add_argument("--up-axis", default="auto", help="override the file's up axis: z, y")
-    ap.add_argument("--fps", type=float, default=None, help="frame rate for files that lack one")
-    ap.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
+    add_read_arguments(ap)
     args = ap.parse_args(argv)
     if args.out and (len(args.paths) > 1 or Path(args.paths[0]).is_dir()):
         ap.error("-o/--out takes one input file; use --out-dir for several")

@@ -14,7 +14,7 @@ import sys
 import numpy as np
 
 from mocapfix.clip import Clip
-from mocapfix.io import SOURCES, list_motion_files, read_motion
+from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 
 _HIP_NAMES = ("hips", "hip", "pelvis")
 
@@ -161,11 +161,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="mocapfix inspect", description=__doc__.split("\n")[0])
     ap.add_argument("paths", nargs="+", metavar="FILE", help="motion files or folders")
     ap.add_argument("--json", action="store_true", help="one JSON object per file per line")
-    ap.add_argument("--source", default="auto", choices=SOURCES)
-    ap.add_argument("--unit", default="auto", help="override the file's unit: m, cm, mm")
-    ap.add_argument("--up-axis", default="auto", help="override the file's up axis: z, y")
-    ap.add_argument("--fps", type=float, default=None, help="frame rate for files that lack one")
-    ap.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
+    add_read_arguments(ap)
     args = ap.parse_args(argv)
     return inspect_files(args.paths, args.json, source=args.source, unit=args.unit, up_axis=args.up_axis,
                          fps=args.fps, body_model_path=args.body_model)

@@ -12,6 +12,15 @@ from pathlib import Path
 from mocapfix.clip import Clip, MotionFileError
 
 SOURCES = ("auto", "bvh", "positions", "h36m", "amass")
+
+
+def add_read_arguments(parser) -> None:
+    """The reader options every file-taking command shares (inspect, fix): an argparse parser."""
+    parser.add_argument("--source", default="auto", choices=SOURCES)
+    parser.add_argument("--unit", default="auto", help="override the file's unit: m, cm, mm")
+    parser.add_argument("--up-axis", default="auto", help="override the file's up axis: z, y")
+    parser.add_argument("--fps", type=float, default=None, help="frame rate for files that lack one")
+    parser.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
 _EXTENSIONS = {"bvh": (".bvh",), "positions": (".npz", ".csv"), "h36m": (".npz",), "amass": (".npz",),
                "auto": (".bvh", ".csv", ".npz")}
 # AMASS folders keep each subject's betas in shape.npz beside the motions: not a motion.
