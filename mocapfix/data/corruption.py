@@ -78,6 +78,11 @@ def _pick_random(candidates: torch.Tensor, counts: torch.Tensor, generator, like
     return candidates & (rank < counts[:, None])
 
 
+def kept_count(num_tokens: int, mask_ratio: float) -> int:
+    """Tokens each sample keeps under mask_and_displace(fixed_kept_count=True) when it has data."""
+    return round((1.0 - mask_ratio) * num_tokens)
+
+
 def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displace_ratio: float = 0.05,
                       max_displacement_m: float = 1.0, fixed_kept_count: bool = True,
                       generator: torch.Generator | None = None) -> Corrupted:
@@ -106,7 +111,7 @@ def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displac
     disp_frac_of_kept = displace_ratio / keep_frac if keep_frac > 0 else 0.0
 
     if fixed_kept_count:
-        K, D = round(keep_frac * N), round(displace_ratio * N)
+        K, D = kept_count(N, mask_ratio), round(displace_ratio * N)
         observed = _pick_random(avail, torch.full((B,), K, device=avail.device), generator, positions)
         n_kept = observed.sum(dim=1)
         # == D when the sample could keep K tokens; scaled down only for samples short of data
@@ -126,18 +131,21 @@ def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displac
     return _pack(moved, observed, displaced)
 
 
-def kept_index(observed: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def kept_index(observed: torch.Tensor, count: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Index form of the observed tokens, for an encoder that should not see masked tokens.
 
-    observed: (B, T, J) bool -> idx (B, K) long, pad (B, K) bool, K = max observed count in the batch.
+    observed: (B, T, J) bool -> idx (B, K) long, pad (B, K) bool.
     idx[b] lists the flat indices (t * J + j) of sample b's observed tokens in increasing order,
     then padding: padded entries have pad=True and idx=0 (a valid index, so gathers stay safe).
-    K is 0 when nothing in the batch is observed.
+    K = count when given (no sample may have more observed tokens: training's fixed kept count),
+    else the largest observed count in the batch (0 when nothing is observed). Reading that
+    count from the data makes the host wait for the device; a given count keeps the training
+    step free of host-device synchronisation.
     """
     B = observed.shape[0]
     flat = observed.reshape(B, -1)
     counts = flat.sum(dim=1)
-    K = int(counts.max()) if flat.numel() else 0
+    K = count if count is not None else int(counts.max()) if flat.numel() else 0
     # stable sort of (not observed) puts observed tokens first, each group in index order
     order = torch.sort((~flat).to(torch.uint8), dim=1, stable=True).indices[:, :K]
     pad = torch.arange(K, device=observed.device)[None, :] >= counts[:, None]

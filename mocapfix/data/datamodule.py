@@ -51,8 +51,15 @@ class WindowDataset(Dataset):
     def __len__(self) -> int:
         return len(self.starts)
 
-    def __getitems__(self, indices: list[int]) -> dict[str, torch.Tensor]:
-        frames = self.starts[indices][:, None] + torch.arange(self.window)  # (B, T)
+    def to(self, device: torch.device) -> "WindowDataset":
+        """The same windows with every tensor on `device` (in place; returns self)."""
+        for name in ("positions", "rotations", "root_translation", "offsets", "starts", "clip_index"):
+            if hasattr(self, name):
+                setattr(self, name, getattr(self, name).to(device))
+        return self
+
+    def __getitems__(self, indices: list[int] | torch.Tensor) -> dict[str, torch.Tensor]:
+        frames = self.starts[indices][:, None] + torch.arange(self.window, device=self.starts.device)  # (B, T)
         batch = {"positions": self.positions[frames],  # (B, T, J, 3)
                  "clip_index": self.clip_index[indices]}
         if self.with_rotations:
@@ -63,6 +70,42 @@ class WindowDataset(Dataset):
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         return {k: v[0] for k, v in self.__getitems__([index]).items()}
+
+
+class DeviceBatches:
+    """Training batches cut on the accelerator from windows that live there: no loader workers,
+    no host-to-device copies and no host-device synchronisation per step (the host only queues
+    work), so a fast GPU never waits for data. A training set of even a few hours of motion is a
+    few hundred MB, small beside a GPU's memory.
+
+    Each epoch is a fresh permutation seeded by torch's initial seed (seed_everything) and the
+    epoch number, which Lightning hands over through set_epoch (so a resumed run continues the
+    same sequence of epochs); with several processes (DDP), rank r takes every world_size-th
+    window of the same permutation, so the ranks see disjoint windows. Incomplete last batches
+    are dropped, as the training loader does."""
+
+    def __init__(self, dataset: WindowDataset, batch_size: int, device: torch.device, rank: int = 0,
+                 world_size: int = 1):
+        self.dataset = dataset.to(device)
+        self.batch_size, self.device, self.rank, self.world_size = batch_size, device, rank, world_size
+        self.epoch = 0
+        self.sampler = self  # where Lightning looks for set_epoch
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        per_rank = len(self.dataset) // self.world_size
+        # one short batch when there are fewer windows than a batch, as the training loader does
+        return per_rank // self.batch_size if per_rank >= self.batch_size else min(per_rank, 1)
+
+    def __iter__(self):
+        # the same permutation on every rank: seeded by the epoch, not by the rank's RNG state
+        g = torch.Generator(device=self.device).manual_seed(torch.initial_seed() + self.epoch)
+        order = torch.randperm(len(self.dataset), generator=g, device=self.device)
+        order = order[self.rank::self.world_size][:len(self.dataset) // self.world_size]  # equal share per rank
+        for i in range(len(self)):
+            yield self.dataset.__getitems__(order[i * self.batch_size:(i + 1) * self.batch_size])
 
 
 def _keep_batch(batch):
@@ -101,6 +144,7 @@ class MotionDataModule(L.LightningDataModule):
         num_workers: int = 0,
         pin_memory: bool = False,
         persistent_workers: bool = False,
+        batches_on_device: bool = False,
         cache_dir: str | None = ".cache/mocapfix",
     ):
         """
@@ -119,6 +163,8 @@ class MotionDataModule(L.LightningDataModule):
             with_rotations: also deliver rotations / root translation / offsets (rotation data only).
             max_missing_fraction: windows with more missing tokens are skipped in training.
             cache_dir: where parsed clips are cached (None: no cache).
+            batches_on_device: keep the training windows on the training device and cut batches
+                there (DeviceBatches: for GPUs, where the loader would otherwise be the bottleneck).
         """
         super().__init__()
         if source not in SOURCES:
@@ -262,7 +308,12 @@ class MotionDataModule(L.LightningDataModule):
                           num_workers=hp.num_workers, pin_memory=hp.pin_memory,
                           persistent_workers=hp.persistent_workers and hp.num_workers > 0, collate_fn=_keep_batch)
 
-    def train_dataloader(self) -> DataLoader:
+    def train_dataloader(self) -> DataLoader | DeviceBatches:
+        if self.hparams.batches_on_device and self.trainer is not None:
+            self._loader("train", shuffle=True)  # the same checks and messages
+            t = self.trainer
+            return DeviceBatches(self.datasets["train"], self.hparams.batch_size, t.strategy.root_device,
+                                 t.global_rank, t.world_size)
         return self._loader("train", shuffle=True)
 
     def val_dataloader(self) -> DataLoader:

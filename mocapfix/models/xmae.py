@@ -174,13 +174,13 @@ class XMAE(nn.Module):
 
     def forward(self, tokens: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None = None) -> torch.Tensor:
         """tokens: (B, N, 3), N = T*J (t-major, joint fastest); kept: (B, K) observed token indices;
-        padding: (B, K) True where a sample has fewer than K observed tokens (None: all real).
+        padding: (B, K) True where a sample has fewer than K observed tokens (None: all real; pass
+        None when you know it, the attention then runs without a mask, on the fastest kernels).
         Returns every token's 3D position (B, N, 3)."""
-        if padding is not None and not padding.any():
-            padding = None  # fixed kept count: no mask lets the fast attention kernels run
         if padding is not None:
             # A sample with no observed token would attend to nothing (NaN): let it attend to one
             # zero-valued slot instead; its output is then the model's unconditional guess.
-            padding = padding.clone()
-            padding[padding.all(1), 0] = False
+            # (Elementwise, not padding[padding.all(1), 0] = False: boolean indexing waits for the device.)
+            first = torch.arange(padding.shape[1], device=padding.device) == 0             # (K,)
+            padding = padding & ~(padding.all(1, keepdim=True) & first)
         return self.decode(self.encode(tokens, kept, padding), kept, padding)
