@@ -78,3 +78,19 @@ def test_bf16_autocast_close_to_fp32():
     with torch.autocast("cpu", dtype=torch.bfloat16):
         low = net(x, kept).float()
     assert (low - ref).abs().mean() < 0.02 * ref.abs().mean() + 1e-3
+
+
+def test_bf16_autocast_keeps_coordinates_in_full_precision():
+    """Coordinates enter and leave the network in fp32 under autocast: bf16 would round a 1.5 m
+    coordinate to 6 mm steps (15 units of 0.1 m), and 1 mm would be invisible to the model."""
+    torch.manual_seed(0)
+    net = XMAE(22, 30, enc_dim=64, enc_depth=1, enc_mlp_dim=128, dec_dim=64, dec_depth=1, dec_mlp_dim=128).eval()
+    x = torch.full((1, 660, 3), 1.5)
+    moved = x.clone()
+    moved[0, 0, 0] += 0.001
+    kept = torch.arange(660)[None]
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        a, b = net.encode(x, kept, None), net.encode(moved, kept, None)
+        out = net(x, kept)
+    assert not torch.equal(a, b)
+    assert out.dtype == torch.float32

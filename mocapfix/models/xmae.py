@@ -75,6 +75,15 @@ class DecoderBlock(nn.Module):
         return q + self.mlp(self.norm3(q))
 
 
+def _full_precision(layer: nn.Linear, x: torch.Tensor) -> torch.Tensor:
+    """layer(x) outside autocast, in the layer's own dtype. For the layers that read and write 3D
+    coordinates: bf16 keeps 8 significant bits, which would round a 1.5 m coordinate to ~3 mm at
+    the input and at the output, a noise floor on every estimate (and jitter between frames).
+    Their cost is negligible (3 channels in or out)."""
+    with torch.autocast(x.device.type, enabled=False):
+        return layer(x.to(layer.weight.dtype))
+
+
 class XMAE(nn.Module):
     def __init__(
         self,
@@ -148,7 +157,7 @@ class XMAE(nn.Module):
         # kept: (B, K) indices of observed tokens; padding: (B, K) True where kept is padding
         x = torch.gather(tokens, 1, kept[..., None].expand(-1, -1, 3)) / self.position_unit_m  # (B, K, 3)
         pos = self._positions(self.enc_pos_joint, self.enc_pos_time)                       # (N, D)
-        x = self.embed(x) + pos[kept]                                                       # (B, K, D)
+        x = _full_precision(self.embed, x) + pos[kept]                                      # (B, K, D)
         for blk in self.encoder:
             x = blk(x, key_padding=padding)
         return self.enc_to_dec(self.enc_norm(x))                                            # (B, K, Dd)
@@ -170,7 +179,7 @@ class XMAE(nn.Module):
             x = x.scatter(1, index[..., None].expand(-1, -1, memory.shape[-1]), memory + pos[kept])[:, :-1]
             for blk in self.decoder:
                 x = blk(x)
-        return self.head(self.dec_norm(x)) * self.position_unit_m                          # (B, N, 3) metres
+        return _full_precision(self.head, self.dec_norm(x)) * self.position_unit_m         # (B, N, 3) metres
 
     def forward(self, tokens: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None = None) -> torch.Tensor:
         """tokens: (B, N, 3), N = T*J (t-major, joint fastest); kept: (B, K) observed token indices;
