@@ -1,0 +1,109 @@
+"""Benchmark 2: XMAE inference: windows/s batched (fully observed, and 10% of tokens missing at
+random), batch-1 latency, FLOPs per window and the achieved rate beside the device's measured
+matmul rate.
+
+The timed call is the product's reconstruction pass (mocapfix.inference.xmae_reconstruct:
+normalisation, observed-token index, encoder over observed tokens, cross-attention decoder over
+all tokens), the one `fix`, validation and `predict` use. Weights are cast to the run's dtype
+(bf16 on CUDA, fp32 on CPU by default). FLOPs are counted by torch.utils.flop_counter on one
+window (matmuls and attention, multiply-add = 2 FLOPs; elementwise work is not counted).
+
+    python bench/inference.py                       # CUDA: bf16, batch 1024
+    python bench/inference.py --device cpu --batch 16
+    python bench/inference.py --compile             # also torch.compile(mode="reduce-overhead") rows (CUDA graphs)
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+import torch
+from torch.nn.attention import SDPBackend, sdpa_kernel
+from torch.utils.flop_counter import FlopCounterMode
+
+from common import describe, matmul_tflops, pick_device, print_table, timed, write_result
+
+from mocapfix.inference import xmae_reconstruct  # noqa: E402
+from mocapfix.models.xmae import XMAE  # noqa: E402
+
+
+def make_windows(B: int, T: int, J: int, missing: float, device, dtype, seed: int = 0):
+    """Plausible-scale positions (metres, z up) and an observed mask with `missing` of the tokens
+    dropped at random. Speed does not depend on the values, only on the counts."""
+    g = torch.Generator().manual_seed(seed)
+    positions = (torch.randn(B, T, J, 3, generator=g) * 0.3 + torch.tensor([0.0, 0.0, 1.0])).to(device, dtype)
+    observed = (torch.rand(B, T, J, generator=g) >= missing).to(device)
+    return positions, observed
+
+
+def flops_per_window(net: XMAE, T: int, J: int, device, dtype) -> int:
+    positions, observed = make_windows(1, T, J, 0.0, device, dtype)
+    # The math backend spells attention out as matmuls, which the counter sees on every device
+    # (it has no formula for the CPU's fused attention kernel).
+    with FlopCounterMode(display=False) as counter, torch.inference_mode(), sdpa_kernel(SDPBackend.MATH):
+        xmae_reconstruct(net, positions, observed)
+    return counter.get_total_flops()
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+    ap.add_argument("--joints", type=int, default=22)
+    ap.add_argument("--fps", type=float, default=60.0)
+    ap.add_argument("--window-s", type=float, default=1.0)
+    ap.add_argument("--batch", type=int, default=None, help="windows per batch (default 1024 on CUDA, 16 on CPU)")
+    ap.add_argument("--dtype", default=None, choices=("bf16", "fp32"), help="default: bf16 on CUDA, fp32 on CPU")
+    ap.add_argument("--repeat", type=int, default=None)
+    ap.add_argument("--compile", action="store_true", help="add rows with torch.compile(mode='reduce-overhead')")
+    ap.add_argument("--json-out", default=None)
+    args = ap.parse_args(argv)
+    device = pick_device(args.device)
+    gpu = device.type == "cuda"
+    B = args.batch or (1024 if gpu else 16)
+    dtype = {"bf16": torch.bfloat16, "fp32": torch.float32}[args.dtype or ("bf16" if gpu else "fp32")]
+    repeat = args.repeat or (20 if gpu else 3)
+    T, J = int(round(args.fps * args.window_s)), args.joints
+
+    torch.manual_seed(0)
+    eager = XMAE(J, T).to(device, dtype).eval()  # paper sizes (Table 1)
+    params = sum(p.numel() for p in eager.parameters())
+    flops = flops_per_window(eager, T, J, device, dtype)
+    peak = matmul_tflops(device, dtype)
+    nets = {"eager": eager}
+    if args.compile:
+        compiled = XMAE(J, T).to(device, dtype).eval()
+        compiled.load_state_dict(eager.state_dict())
+        compiled.compile(mode="reduce-overhead" if gpu else "default")
+        nets["compiled"] = compiled
+
+    rows = []
+    for name, net in nets.items():
+        for case, missing, batch in (("full", 0.0, B), ("10% missing", 0.1, B), ("full, batch 1", 0.0, 1)):
+            positions, observed = make_windows(batch, T, J, missing, device, dtype)
+            with torch.inference_mode():
+                seconds = timed(lambda: xmae_reconstruct(net, positions, observed), device,
+                                repeat=repeat * (10 if batch == 1 else 1), warmup=3)
+            kept = observed.flatten(1).sum(1).float().mean().item()
+            row = {"net": name, "case": case, "batch": batch, "observed_tokens": round(kept, 1),
+                   "ms_per_batch": 1000 * seconds, "windows_per_s": batch / seconds}
+            if missing == 0.0:  # the counted FLOPs are those of a fully observed window
+                row["tflops"] = flops * batch / seconds / 1e12
+                row["of_matmul_peak"] = row["tflops"] / peak
+            rows.append(row)
+
+    result = {"benchmark": "xmae_inference", "env": describe(device), "command": " ".join(sys.argv),
+              "joints": J, "frames": T, "dtype": str(dtype).replace("torch.", ""), "parameters": params,
+              "gflop_per_window": flops / 1e9, "matmul_tflops_measured": peak, "rows": rows}
+    path = write_result("inference", result, args.json_out)
+    print_table(f"XMAE inference, {result['env'].get('gpu', result['env'].get('cpu'))}, {J} joints x {T} frames, "
+                f"{result['dtype']}, {params / 1e6:.2f} M parameters, {flops / 1e9:.1f} GFLOP per full window, "
+                f"measured {result['dtype']} matmul rate {peak:.1f} TFLOP/s",
+                rows, [("net", "net"), ("case", "case"), ("batch", "batch"), ("observed_tokens", "observed"),
+                       ("ms_per_batch", "ms/batch"), ("windows_per_s", "windows/s"), ("tflops", "TFLOP/s"),
+                       ("of_matmul_peak", "of matmul rate")])
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
