@@ -1,0 +1,82 @@
+#!/usr/bin/env bash
+# Everything a lent GPU session has to run, in three calls of under 10 minutes each
+# (device time is 30 minutes a session: make the calls back to back, the machine stays warm
+# only ~30 s between calls).
+#
+#   bash bench/gpu_session.sh xmae    # issue 3: XMAE on Bandai (fit + test), a small checkpoint back for fix (issue 5)
+#   bash bench/gpu_session.sh bench   # issue 6: inference, training throughput vs ref_xmae, data pipeline, fix speed
+#   bash bench/gpu_session.sh dvae    # issue 4: Motion-DVAE prior + denoising + test; issue 6: DVAE speed
+#
+# Needs, carried as git-ignored folders (the GPU image has torch and lightning but not these):
+#   .whl/          wheels: roma omegaconf antlr4-python3-runtime jsonargparse docstring-parser typeshed-client
+#   .device_data/  bandai_pos30.npz and bandai_rot30.npz (parsed Bandai), ref_xmae.py (../shared does not travel)
+# Make both here first: `PYTHON=.venv/bin/python bash bench/gpu_session.sh prepare` (then carry [".whl", ".device_data"]).
+# STEPS / MAX_TIME (xmae), PRIOR_TIME / DENOISE_TIME (dvae) trim the runs to the call's 10 minutes.
+# Results land in $OUT (the device tool brings them back): eval tables, bench JSON, a small checkpoint.
+set -euo pipefail
+PART=${1:?usage: gpu_session.sh prepare|xmae|bench|dvae}
+if [ "$PART" = prepare ]; then  # on this machine, before the calls: what they carry
+  mkdir -p .device_data .whl
+  cp ../shared/bench/ref_xmae.py .device_data/
+  python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+    --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 -d .whl \
+    roma==1.8.0 omegaconf==2.4.0 antlr4-python3-runtime==4.13.2 jsonargparse==4.53.0 docstring-parser typeshed-client
+  "${PYTHON:-.venv/bin/python}" - <<'PY'
+from pathlib import Path
+from mocapfix.data.datamodule import MotionDataModule
+from mocapfix.data.windows import save_clips
+clips = MotionDataModule(source="bvh", path="../shared/data/bandai-namco", drop_joints=["joint_Root"], fps=30).load_clips()
+save_clips(Path(".device_data/bandai_rot30.npz"), clips)
+save_clips(Path(".device_data/bandai_pos30.npz"),
+           [c.replace(rotations=None, root_translation=None, offsets=None) for c in clips])
+PY
+  ls -la .device_data .whl
+  exit 0
+fi
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT"
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl
+export PYTHONPATH=/tmp/site:. PYTHONUNBUFFERED=1
+nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
+COMMON=(--data.source archive --data.cache_dir null --trainer.enable_progress_bar false)
+
+case "$PART" in
+xmae)
+  # Bandai Namco, train split by file (seeded hash, 80/10/10), paper-sized XMAE, bf16, data on the GPU.
+  START=$(date +%s)
+  python3 -m mocapfix fit --config configs/xmae_bvh.yaml --experiment xmae_bandai_gpu "${COMMON[@]}" \
+    --data.path .device_data/bandai_pos30.npz --trainer.max_steps "${STEPS:-8000}" --model.init_args.total_steps "${STEPS:-8000}" \
+    --trainer.max_time "${MAX_TIME:-00:00:06:00}" --trainer.val_check_interval 1000 2>&1 | tail -n 30
+  FIT_END=$(date +%s)
+  BEST=$(ls checkpoints/xmae_bandai_gpu/best-*.ckpt 2>/dev/null | head -1 || true)
+  BEST=${BEST:-checkpoints/xmae_bandai_gpu/last.ckpt}
+  python3 -m mocapfix test --config configs/xmae_bvh.yaml --experiment xmae_bandai_gpu "${COMMON[@]}" \
+    --data.path .device_data/bandai_pos30.npz --ckpt_path "$BEST" 2>&1 | tail -n 60 | tee "$OUT/xmae_test.txt"
+  echo "fit wall time: $((FIT_END - START)) s" | tee -a "$OUT/xmae_test.txt"
+  cp "$(ls -t logs/xmae_bandai_gpu/version_*/eval.json | head -1)" "$OUT/xmae_eval.json"
+  python3 bench/shrink_checkpoint.py "$BEST" "$OUT/xmae_bandai.ckpt"
+  ;;
+bench)
+  python3 bench/inference.py --compile --json-out "$OUT/inference-cuda.json" 2>&1 | tail -n 12
+  python3 bench/train_throughput.py --ref .device_data/ref_xmae.py --json-out "$OUT/train_throughput-cuda.json" \
+    2>&1 | grep -v -e "^GPU available" -e "^TPU available" -e "LOCAL_RANK" -e "Tip:" | tail -n 20
+  cp "$OUT/train_throughput-cuda.json" bench/results/train_throughput-cuda.json
+  python3 bench/data_pipeline.py --bvh none --json-out "$OUT/data_pipeline-cuda.json" 2>&1 | tail -n 10
+  python3 bench/fix_speed.py --device cuda --batch-size 512 --json-out "$OUT/fix_speed-cuda.json" 2>&1 | tail -n 8
+  ;;
+dvae)
+  python3 -m mocapfix fit --config configs/motion_dvae_bvh.yaml "${COMMON[@]}" --data.path .device_data/bandai_rot30.npz \
+    --trainer.max_time "${PRIOR_TIME:-00:00:04:00}" 2>&1 | tail -n 20
+  python3 -m mocapfix fit --config configs/motion_dvae_denoise_bvh.yaml "${COMMON[@]}" \
+    --data.path .device_data/bandai_rot30.npz --model.init_args.prior_ckpt checkpoints/motion_dvae_bvh/last.ckpt \
+    --trainer.max_time "${DENOISE_TIME:-00:00:03:00}" 2>&1 | tail -n 20
+  python3 -m mocapfix test --config configs/motion_dvae_denoise_bvh.yaml "${COMMON[@]}" \
+    --data.path .device_data/bandai_rot30.npz --ckpt_path checkpoints/motion_dvae_denoise_bvh/last.ckpt \
+    2>&1 | tail -n 40 | tee "$OUT/dvae_test.txt"
+  cp "$(ls -t logs/motion_dvae_denoise_bvh/version_*/eval.json | head -1)" "$OUT/dvae_eval.json"
+  if [ -f bench/dvae_speed.py ]; then python3 bench/dvae_speed.py --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10; fi
+  ;;
+*)
+  echo "unknown part $PART (xmae | bench | dvae)" >&2; exit 2 ;;
+esac
+ls -la "$OUT"
