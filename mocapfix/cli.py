@@ -14,7 +14,7 @@ LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
 
 def _lightning_cli(args: list[str]):
     import torch
-    from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+    from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, ProgressBar, TQDMProgressBar
     from lightning.pytorch.cli import LightningCLI
     from lightning.pytorch.loggers import TensorBoardLogger
 
@@ -47,7 +47,15 @@ def _lightning_cli(args: list[str]):
             if kwargs.get("logger", trainer_cfg.get("logger")) not in (None, False):
                 extra.append(LearningRateMonitor(logging_interval="step"))
             configured = self.config_init[self.subcommand].trainer.get("callbacks") or []
-            kwargs["callbacks"] = list(configured if isinstance(configured, list) else [configured]) + extra
+            configured = list(configured if isinstance(configured, list) else [configured])
+            if trainer_cfg.get("enable_progress_bar", True) is not False and \
+                    not any(isinstance(cb, ProgressBar) for cb in configured):
+                # Each refresh reads the logged loss back from the GPU, which waits for the step to
+                # finish; Lightning's default refreshes every step, a stall on every step. On the
+                # CPU there is nothing to wait for, and a step can take a second.
+                on_cpu = trainer_cfg.get("accelerator") == "cpu" or not torch.cuda.is_available()
+                extra.append(TQDMProgressBar(refresh_rate=1 if on_cpu else 20))
+            kwargs["callbacks"] = configured + extra
             return super().instantiate_trainer(**kwargs)
 
         def after_fit(self):
