@@ -12,6 +12,10 @@ times -> merged with the input by mode:
 A Fixer turns a batch of windows into estimates; there is one per checkpoint kind and
 model_kind() picks it from the checkpoint's keys. Nothing here imports training code: a
 checkpoint holds everything fix needs (skeleton, fps, window, network sizes) as plain values.
+
+Fixers on positions (XMAE; Motion-DVAE on its positions state) take windows of joint positions.
+Motion-DVAE on its rotations state takes windows of joint rotations (BVH, AMASS input) and gives
+rotations back: those clips go through fix_rotation_clips, and a BVH input gets a BVH output.
 """
 from __future__ import annotations
 
@@ -22,12 +26,20 @@ from pathlib import Path
 from typing import Callable, Protocol
 
 import numpy as np
+import roma
 import torch
 
 from mocapfix.clip import Clip, MotionFileError
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.inference import xmae_reconstruct
+from mocapfix.io import read_motion
+from mocapfix.kinematics import fk_axis_angle
+from mocapfix.models.body import build_body_model
+from mocapfix.models.dvae import InitialStatePredictor, MotionDVAE, NoisePredictor
+from mocapfix.models.dvae_inference import (Observation, infer_posterior, point_estimate, rotation_estimate,
+                                            uses_noise_model)
+from mocapfix.models.dvae_state import STATES, MotionState, velocity_mask
 from mocapfix.models.xmae import XMAE
 from mocapfix.skeleton import Skeleton
 
@@ -37,14 +49,32 @@ MODES = ("infill", "denoise", "both")
 # --- fixers: one per checkpoint kind ---
 
 class Fixer(Protocol):
-    kind: str           # "xmae", ...
+    kind: str           # "xmae", "motion-dvae"
     skeleton: Skeleton  # the model's joints, in the model's order
     fps: float          # the model's frame rate
     window: int         # frames per window
+    # state: "positions" (estimate below; the default when a fixer has no state) or "rotations"
+    # (a RotationFixer: fix_clips hands it rotation windows instead)
 
     def estimate(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
         """positions: (B, W, J, 3) metres, z up, NaN or anything at unobserved tokens;
         observed: (B, W, J) bool -> every token's estimate (B, W, J, 3), float32 on the CPU."""
+        ...
+
+
+class RotationFixer(Protocol):
+    kind: str
+    skeleton: Skeleton
+    fps: float
+    window: int         # the longest window; a clip shorter than it is one window of its own length
+    state: str          # "rotations"
+    notes: list[str]    # said once per file in the report
+
+    def estimate_rotations(self, rotations: torch.Tensor, root_translation: torch.Tensor, offsets: torch.Tensor
+                           ) -> tuple[torch.Tensor, torch.Tensor]:
+        """rotations: (B, W, J, 3) local axis-angle (joint 0: root orientation), root_translation
+        (B, W, 3), offsets (B, J, 3) bone offsets, metres, z up -> estimated rotations (B, W, J, 3)
+        and root translation (B, W, 3), float32 on the CPU."""
         ...
 
 
@@ -53,6 +83,7 @@ class XMAEFixer:
     pass as infilling), the normalisation of mocapfix.inference."""
 
     kind = "xmae"
+    state = "positions"
 
     def __init__(self, net: XMAE, skeleton: Skeleton, fps: float, device: str | torch.device = "cpu"):
         self.net = net.to(device).eval()
@@ -84,6 +115,103 @@ class XMAEFixer:
         return out.float().cpu()
 
 
+class DVAEFixer:
+    """The Motion-DVAE denoising stage in regression mode (paper section 4.3), as its module's
+    test does: x_0 from the initial-state predictor's mean, z_1:T the encoder's means (one
+    forward pass), the decoder output, fused with the observation by eq. 18 when the checkpoint
+    uses the noise model (estimate "fusion", or "auto" with noise_lambda < 1e4).
+
+    positions state: windows of joint positions. The model has no notion of a missing joint:
+    missing tokens are filled by linear interpolation in time (Lerp) before it, and get the
+    decoder output (eq. 18 has no observation to fuse there).
+    rotations state: windows of joint rotations (estimate_rotations); the output is the
+    decoder's motion, as rotations (eq. 18 fuses 3D points, which would not be a pose)."""
+
+    kind = "motion-dvae"
+
+    def __init__(self, net: MotionDVAE, codec: MotionState, x0_pred: InitialStatePredictor, noise_pred: NoisePredictor,
+                 skeleton: Skeleton, fps: float, window: int, noise_lambda: float, fusion: bool,
+                 device: str | torch.device = "cpu"):
+        self.device = torch.device(device)
+        self.net, self.x0_pred, self.noise_pred = (m.to(self.device).eval() for m in (net, x0_pred, noise_pred))
+        if codec.body is not None:
+            codec.body.to(self.device)
+        self.codec, self.state = codec, codec.kind
+        self.skeleton, self.fps, self.window = skeleton, float(fps), int(window)
+        self.noise_lambda, self.fusion = float(noise_lambda), bool(fusion)
+        self.notes = ["eq. 18 fuses 3D points, not rotations: the decoder's motion is used"] \
+            if fusion and self.state == "rotations" else []
+
+    @classmethod
+    def from_checkpoint(cls, path, hparams: dict, state_dict: dict, device="cpu") -> "DVAEFixer":
+        """A DVAEDenoiseModule checkpoint: the prior's hyperparameters (prior_hparams) rebuild the
+        nets, the denoising stage's own (noise_lambda, estimate) choose the final estimate."""
+        ph = hparams.get("prior_hparams")
+        if not isinstance(ph, dict):
+            raise MotionFileError(path, "Motion-DVAE checkpoint lacks prior_hparams: cannot rebuild the networks")
+        skeleton, fps, frames = _window_hparams(path, ph)
+        missing = [k for k in ("state", "latent_dim", "lstm_hidden", "mlp_hidden", "norm_groups") if ph.get(k) is None]
+        missing += [k for k in ("noise_lambda", "estimate") if hparams.get(k) is None]
+        if missing:
+            raise MotionFileError(path, f"Motion-DVAE checkpoint lacks {', '.join(missing)}: "
+                                        "cannot rebuild the networks")
+        state = ph["state"]
+        if state not in STATES:
+            raise MotionFileError(path, f"Motion-DVAE checkpoint has an unknown state {state!r}")
+        body = None
+        if state == "rotations":
+            try:  # an SMPL body is rebuilt from the model file the checkpoint names (never stored in it)
+                body = build_body_model(ph.get("body_model", "skeleton"), skeleton.parents, ph.get("body_model_path"),
+                                        ph.get("gender", "neutral"), ph.get("model_type", "smplh"), ph.get("markers"))
+            except (ValueError, OSError) as e:
+                why = " ".join(str(e).split())
+                raise MotionFileError(path, f"cannot rebuild the checkpoint's body model ({why})") from None
+        try:
+            codec = MotionState(state, skeleton.parents, skeleton.groups, fps, body)
+            D, H, Hm, G = codec.dim, int(ph["lstm_hidden"]), int(ph["mlp_hidden"]), int(ph["norm_groups"])
+            num_points = codec.num_joints + (body.num_markers if body is not None else 0)
+            nets = {"net": MotionDVAE(D, int(ph["latent_dim"]), H, Hm, G),
+                    "x0_pred": InitialStatePredictor(D, H, Hm, G, velocity_mask(state, codec.num_joints)),
+                    "noise_pred": NoisePredictor(H, 3 * num_points, Hm, G)}
+        except (TypeError, ValueError) as e:
+            raise MotionFileError(path, f"bad Motion-DVAE sizes in the checkpoint ({e})") from None
+        for prefix, net in nets.items():
+            weights = {k[len(prefix) + 1:]: v for k, v in state_dict.items() if k.startswith(prefix + ".")}
+            try:
+                net.load_state_dict(weights)
+            except RuntimeError as e:
+                first = " ".join(str(e).split())[:200]
+                raise MotionFileError(path, "weights do not fit the network its hyperparameters describe "
+                                            f"({prefix}: {first})") from None
+        fusion = uses_noise_model(str(hparams["estimate"]), float(hparams["noise_lambda"]))
+        return cls(nets["net"], codec, nets["x0_pred"], nets["noise_pred"], skeleton, fps, frames,
+                   float(hparams["noise_lambda"]), fusion, device)
+
+    def _infer(self, obs: Observation):
+        return infer_posterior(self.net, self.codec, self.x0_pred, self.noise_pred, obs, sample=False)
+
+    @torch.inference_mode()
+    def estimate(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+        if self.state != "positions":
+            raise ValueError("this Motion-DVAE works on rotations: use estimate_rotations")
+        filled = lerp_infill(positions.double(), observed).float().to(self.device)    # (B, W, J, 3)
+        inf = self._infer(Observation(filled, None, None, None))
+        est = point_estimate(inf, self.codec, self.noise_lambda, self.fusion, observed.to(self.device))
+        return est.float().cpu()
+
+    @torch.inference_mode()
+    def estimate_rotations(self, rotations: torch.Tensor, root_translation: torch.Tensor, offsets: torch.Tensor
+                           ) -> tuple[torch.Tensor, torch.Tensor]:
+        if self.state != "rotations":
+            raise ValueError("this Motion-DVAE works on positions: use estimate")
+        rotations, root_translation, offsets = (t.float().to(self.device)
+                                                for t in (rotations, root_translation, offsets))
+        positions = fk_axis_angle(rotations, root_translation, offsets[:, None], self.codec.parents)
+        inf = self._infer(Observation(positions, rotations, root_translation, offsets))
+        rot, root = rotation_estimate(inf, self.codec)
+        return rot.float().cpu(), root.float().cpu()
+
+
 def _window_hparams(path, hp: dict) -> tuple[Skeleton, float, int]:
     missing = [k for k in ("skeleton", "window_fps", "window_frames") if hp.get(k) is None]
     if missing:
@@ -100,15 +228,24 @@ def _window_hparams(path, hp: dict) -> tuple[Skeleton, float, int]:
 
 def model_kind(hparams: dict, state_dict: dict) -> str | None:
     """Which fixer reads a checkpoint, from the keys its training module saves; None if unknown.
-    A new model kind adds its test here and its class to FIXERS (Motion-DVAE: its modules save
-    `net.*` weights of MotionDVAE and hparams such as latent_dim / prior_hparams)."""
+    A new model kind adds its test here and its class to FIXERS."""
     if "net.enc_pos_joint" in state_dict and "enc_dim" in hparams:  # training/xmae_module.py
         return "xmae"
+    if any(k.startswith("net.gen.") for k in state_dict):            # MotionDVAE weights
+        if any(k.startswith("x0_pred.") for k in state_dict):       # training/denoise_module.py
+            return "motion-dvae"
+        if "latent_dim" in hparams:                                  # training/dvae_module.py: the prior alone
+            return "motion-dvae-prior"
     return None
 
 
 # kind -> class with from_checkpoint(path, hparams, state_dict, device)
-FIXERS: dict[str, type] = {"xmae": XMAEFixer}
+FIXERS: dict[str, type] = {"xmae": XMAEFixer, "motion-dvae": DVAEFixer}
+# Checkpoints fix recognises but cannot use, and why. A prior alone has no initial-state
+# predictor, and the paper's "No noisy train" ablation (appendix, Tab. 2) shows that its
+# encoder, trained on clean motion only, denoises badly: the denoising stage is what fix runs.
+REFUSED = {"motion-dvae-prior": "a Motion-DVAE prior checkpoint; fix needs the denoising stage trained from it "
+                                "(configs/motion_dvae_denoise*.yaml with model.init_args.prior_ckpt set to this file)"}
 
 
 def read_checkpoint(path) -> tuple[dict, dict]:
@@ -131,9 +268,11 @@ def read_checkpoint(path) -> tuple[dict, dict]:
 
 
 def load_fixer(path, device: str | torch.device = "cpu") -> Fixer:
-    """The Fixer for a checkpoint file (XMAE now; other kinds as FIXERS grows)."""
+    """The Fixer for a checkpoint file (FIXERS: XMAE, the Motion-DVAE denoising stage)."""
     hparams, state_dict = read_checkpoint(path)
     kind = model_kind(hparams, state_dict)
+    if kind in REFUSED:
+        raise MotionFileError(path, REFUSED[kind])
     if kind not in FIXERS:
         raise MotionFileError(path, "not a mocapfix checkpoint of a model fix knows "
                                     f"({', '.join(FIXERS)}): no matching network weights")
@@ -275,13 +414,16 @@ def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: fl
               batch_size: int = 64, progress: Callable[[int, int], None] | None = None
               ) -> tuple[list[Clip], FixReport]:
     """Fix the clips of one file; each keeps its skeleton, frames and fps (positions only: no
-    rotations). progress(done, total) is called after each batch of windows."""
+    rotations; a rotation model's clips go to fix_rotation_clips and keep their rotations).
+    progress(done, total) is called after each batch of windows."""
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if not 0.0 <= overlap < 1.0:
         raise ValueError(f"overlap must be in [0, 1), got {overlap}")
     if not clips:
         raise ValueError("fix_clips needs at least one clip")
+    if getattr(fixer, "state", "positions") == "rotations":
+        return fix_rotation_clips(clips, fixer, mode, overlap, batch_size, progress)
     model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps
     source = clips[0].source or clips[0].name
     many = len(clips) > 1
@@ -444,3 +586,158 @@ def _joints_missing_for_a_window(x_m: list[np.ndarray], W: int, overlap: float) 
             if o.any() and (~o.any(0) & sometimes).any():
                 count += 1
     return count
+
+
+# --- rotation models: rotations in, rotations out ---
+
+def rotation_clips(path, clips: list[Clip], model: Skeleton, source: str = "auto", **read_options) -> list[Clip]:
+    """The clips of a file as a rotation model needs them. A BVH file is read again with only
+    the model's joints (read_bvh keep_joints), as the model was trained (configs drop Bandai
+    Namco's joint_Root): with a joint whose translation moves below the root, the whole tree has
+    no exact rotations, the model's joints do. Other formats come as they are."""
+    first = clips[0]
+    if first.meta.get("format") != "bvh":
+        return clips
+    index = map_joints(first.skeleton, model, path)
+    if first.has_rotations and len(index) == first.skeleton.num_joints:
+        return clips
+    keep = [first.skeleton.joint_names[i] for i in index]
+    return read_motion(path, "bvh" if source == "auto" else source, **read_options, keep_joints=keep)
+
+
+def resample_motion(rotations: np.ndarray, root: np.ndarray, src_fps: float, dst_fps: float, num: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """rotations (T, J, 3) axis-angle and root translation (T, 3) sampled at t = k / src_fps ->
+    (num, J, 3), (num, 3) at t = k / dst_fps: rotations by slerp, the root linearly. Shared
+    instants are copied exactly; times past the last frame hold it."""
+    T = rotations.shape[0]
+    f = np.arange(num) * (src_fps / dst_fps)
+    f = np.minimum(np.where(np.abs(f - np.round(f)) < 1e-6, np.round(f), f), T - 1)
+    i0 = np.floor(f).astype(np.int64)
+    i1 = np.minimum(i0 + 1, T - 1)
+    w = f - i0                                                                     # (num,)
+    r0, r1 = (roma.rotvec_to_rotmat(torch.from_numpy(rotations[i]).double()) for i in (i0, i1))  # (num, J, 3, 3)
+    step = roma.rotmat_to_rotvec(r0.transpose(-1, -2) @ r1) * torch.from_numpy(w)[:, None, None]
+    rot = roma.rotmat_to_rotvec(r0 @ roma.rotvec_to_rotmat(step)).numpy()        # slerp: R0 exp(w log(R0^T R1))
+    out_root = root[i0] * (1 - w[:, None]) + root[i1] * w[:, None]
+    exact = w == 0
+    rot[exact], out_root[exact] = rotations[i0[exact]], root[i0[exact]]
+    return rot.astype(rotations.dtype), out_root.astype(root.dtype)
+
+
+def fix_rotation_clips(clips: list[Clip], fixer: RotationFixer, mode: str = "denoise", overlap: float = 0.5,
+                       batch_size: int = 64, progress: Callable[[int, int], None] | None = None
+                       ) -> tuple[list[Clip], FixReport]:
+    """Fix clips with rotations through a rotation model (a RotationFixer); each keeps its
+    skeleton, frames and fps, and comes back with rotations, root translation and the positions
+    their forward kinematics gives.
+
+    Rotation data has no missing tokens, so `infill` leaves the clips as they are; `denoise` and
+    `both` replace every frame. The model's joints must hang as in the model (the input may have
+    more joints: they keep their rotations and move with their parents). Windows as for
+    positions (resampled to the model's fps by slerp, windows of the model's length, stride
+    window * (1 - overlap)); a clip shorter than a window is one window of its own length (the
+    model's networks are recurrent). Overlapping windows are blended with the same sin^2
+    weights: rotations as the normalised weighted sum of their quaternions (each turned to the
+    hemisphere of the input's, so q and -q agree), the root translation linearly."""
+    model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps
+    source = clips[0].source or clips[0].name
+    many = len(clips) > 1
+    notes = list(getattr(fixer, "notes", []))
+
+    def who(i: int) -> str:
+        return f"person {clips[i].meta.get('person_id', i)}: " if many else ""
+
+    index = []
+    for i, c in enumerate(clips):
+        idx = map_joints(c.skeleton, model, source)
+        if not c.has_rotations:
+            why = c.meta.get("no_rotations")
+            raise MotionFileError(source, f"{who(i)}the model ({fixer.kind}, rotations state) needs joint rotations; "
+                                          f"this input has none{f' ({why})' if why else ''}")
+        hangs = [c.skeleton.parents[idx[m]] == (idx[p] if p >= 0 else -1) for m, p in enumerate(model.parents)]
+        if not all(hangs):
+            bad = model.joint_names[hangs.index(False)]
+            raise MotionFileError(source, f"{who(i)}skeleton hierarchy differs from the model's ({model.name}): "
+                                          f"joint {bad} has another parent")
+        if not (np.isfinite(c.rotations).all() and np.isfinite(c.root_translation).all()):
+            raise MotionFileError(source, f"{who(i)}rotations are not finite")
+        index.append(idx)
+    sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
+    for c, idx in zip(clips, index):
+        sigma_before.update(torch.from_numpy(c.positions[:, idx])[None])
+    people = len(clips)
+    frames = sum(c.num_frames for c in clips) // people
+    if mode == "infill":
+        notes.append("rotation input has no missing tokens: nothing to fill (--mode denoise replaces them)")
+        before = float(sigma_before.compute())
+        return list(clips), FixReport(frames, people, 0, 0, before, before, 0, notes)
+
+    # Each clip at the model's fps; every window of every clip as (clip, start, length).
+    rot_m, root_m, windows = [], [], []
+    for k, (c, idx) in enumerate(zip(clips, index)):
+        K = model_frames(c.num_frames, c.fps, fps_m)
+        if K < 2:
+            raise MotionFileError(source, f"{who(k)}too short for the model: it needs 2 frames at {fps_m:g} fps")
+        r, t = resample_motion(c.rotations[:, idx], c.root_translation, c.fps, fps_m, K)
+        rot_m.append(r)
+        root_m.append(t)
+        length = min(W, K)
+        starts, _ = window_layout(K, length, overlap)
+        windows += [(k, int(s), length) for s in starts]
+    # Windows of one length run together (short clips make their own batches).
+    windows.sort(key=lambda w: w[2])
+    q_ref = [roma.rotvec_to_unitquat(torch.from_numpy(r).double()) for r in rot_m]  # (K, Jm, 4) the input's
+    q_acc = [torch.zeros_like(q) for q in q_ref]
+    t_acc = [torch.zeros(len(r), 3, dtype=torch.float64) for r in root_m]
+    w_acc = [torch.zeros(len(r), dtype=torch.float64) for r in root_m]
+    batches = [windows[i:i + batch_size] for i in range(0, len(windows), batch_size)]
+    batches = [[w for w in b if w[2] == length] for b in batches for length in sorted({w[2] for w in b})]
+    done = bad = 0
+    for batch in batches:
+        length = batch[0][2]
+        frames_of = [torch.arange(s, s + length) for _, s, _ in batch]
+        rot = torch.stack([torch.from_numpy(rot_m[k][s:s + length]) for k, s, _ in batch])       # (B, L, Jm, 3)
+        root = torch.stack([torch.from_numpy(root_m[k][s:s + length]) for k, s, _ in batch])     # (B, L, 3)
+        offs = torch.stack([torch.from_numpy(clips[k].offsets[index[k]]) for k, _, _ in batch])  # (B, Jm, 3)
+        est_rot, est_root = fixer.estimate_rotations(rot, root, offs)
+        ok = (torch.isfinite(est_rot).flatten(1).all(1) & torch.isfinite(est_root).flatten(1).all(1)).tolist()
+        stride = max(1, int(round(length * (1.0 - overlap))))
+        weights = torch.from_numpy(blend_weights(length, stride))                                 # (L,)
+        for b, (k, s, _) in enumerate(batch):
+            if not ok[b]:  # those frames keep the input unless another window covers them
+                bad += 1
+                continue
+            f = frames_of[b]
+            q = roma.rotvec_to_unitquat(est_rot[b].double())                                     # (L, Jm, 4)
+            q = torch.where((q * q_ref[k][f]).sum(-1, keepdim=True) < 0, -q, q)
+            q_acc[k].index_add_(0, f, q * weights[:, None, None])
+            t_acc[k].index_add_(0, f, est_root[b].double() * weights[:, None])
+            w_acc[k].index_add_(0, f, weights)
+        done += len(batch)
+        if progress is not None:
+            progress(done, len(windows))
+
+    out_clips, replaced = [], 0
+    for k, (c, idx) in enumerate(zip(clips, index)):
+        have = (w_acc[k] > 0)[:, None]
+        q = torch.where(have[..., None], q_acc[k], q_ref[k])
+        rot = roma.unitquat_to_rotvec(q / q.norm(dim=-1, keepdim=True)).numpy()                # (K, Jm, 3)
+        root = torch.where(have, t_acc[k] / w_acc[k].clamp_min(1e-12)[:, None],
+                           torch.from_numpy(root_m[k]).double()).numpy()                       # (K, 3)
+        rot, root = resample_motion(rot, root, fps_m, c.fps, c.num_frames)
+        rotations = c.rotations.astype(np.float64)
+        rotations[:, idx] = rot
+        positions = fk_axis_angle(torch.from_numpy(rotations), torch.from_numpy(root),
+                                  torch.from_numpy(c.offsets.astype(np.float64)), c.skeleton.parents).numpy()
+        if not (np.isfinite(positions).all() and np.isfinite(rotations).all()):  # a bug, never data
+            raise MotionFileError(source, f"{who(k)}the estimate is not finite; nothing written")
+        replaced += c.num_frames * len(idx)
+        sigma_after.update(torch.from_numpy(positions[:, idx])[None])
+        out_clips.append(c.replace(positions=positions.astype(np.float32), rotations=rotations.astype(np.float32),
+                                   root_translation=root.astype(np.float32)))
+    if bad:
+        notes.append(f"{bad} windows gave non-finite estimates: the input kept where no other window covers")
+    report = FixReport(frames, people, 0, replaced, float(sigma_before.compute()), float(sigma_after.compute()),
+                       len(windows), notes)
+    return out_clips, report

@@ -1,9 +1,10 @@
 """`mocapfix fix INPUT... --ckpt CKPT`: clean motion files with a trained checkpoint.
 
 Per file: read (any format the data module reads), fix (mocapfix.fix), write positions in the
-input's layout, one report line. A bad file is one error line and the others still run; the
-exit code is 1 when any file failed. Outputs are written to a temporary file and renamed:
-never half a file, never over the input, never over an existing file without --force.
+input's layout (a BVH in the input's hierarchy for a rotation model), one report line. A bad
+file is one error line and the others still run; the exit code is 1 when any file failed.
+Outputs are written to a temporary file and renamed: never half a file, never over the input,
+never over an existing file without --force.
 """
 from __future__ import annotations
 
@@ -18,23 +19,27 @@ import numpy as np
 import torch
 
 from mocapfix.clip import Clip, MotionFileError
-from mocapfix.fix import MODES, fix_clips, load_fixer
+from mocapfix.fix import MODES, fix_clips, load_fixer, map_joints, rotation_clips
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
+from mocapfix.io.bvh import write_bvh_like
 from mocapfix.io.positions import UNITS, _atomic_write, load_npz, npz_array, to_z_up, write_clips, write_positions
 
 FIXED = ".fixed"          # default output: <stem>.fixed<ext> beside the input
 LONG_INPUT_S = 600.0      # progress is shown for inputs this long even when stderr is not a terminal
 
 
-def output_suffix(clips: list[Clip], path: Path) -> str:
-    """Positions files keep their extension; BVH and AMASS (rotations in, positions out) and
-    Human3.6M become .npz."""
+def output_suffix(clips: list[Clip], path: Path, rotations: bool = False) -> str:
+    """Positions files keep their extension; BVH stays BVH with a rotation model (rotations:
+    True); otherwise BVH and AMASS (rotations in, positions out) and Human3.6M become .npz."""
     fmt = clips[0].meta.get("format", "")
+    if rotations and fmt == "bvh":
+        return ".bvh"
     return path.suffix.lower() if fmt in ("positions-npz", "positions-csv") else ".npz"
 
 
-def output_path(path: Path, clips: list[Clip], out: Path | None, out_dir: Path | None, rel: Path | None) -> Path:
-    suffix = output_suffix(clips, path)
+def output_path(path: Path, clips: list[Clip], out: Path | None, out_dir: Path | None, rel: Path | None,
+                rotations: bool = False) -> Path:
+    suffix = output_suffix(clips, path, rotations)
     if out is not None:
         target = out
     elif out_dir is not None:
@@ -43,18 +48,25 @@ def output_path(path: Path, clips: list[Clip], out: Path | None, out_dir: Path |
         target = path.with_name(path.stem + FIXED + suffix)
     fmt = clips[0].meta.get("format", "")
     ext = target.suffix.lower()
+    if ext == ".bvh" and rotations and fmt == "bvh":
+        return target
     if ext == ".bvh":
-        raise MotionFileError(path, f"cannot write {target.name}: the model gives positions, not rotations; "
-                                    "write .npz or .csv")
+        why = "the model gives positions, not rotations" if not rotations else "a BVH output needs a BVH input"
+        raise MotionFileError(path, f"cannot write {target.name}: {why}; write .npz or .csv")
     if ext not in (".npz", ".csv") or (fmt == "h36m" and ext != ".npz"):
         raise MotionFileError(path, f"cannot write {target.name}: outputs are "
                                     f"{'.npz' if fmt == 'h36m' else '.npz or .csv'}")
     return target
 
 
-def write_output(target: Path, clips: list[Clip], inputs: list[Clip]) -> None:
+def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path | None = None) -> None:
     """Positions in the input's layout (people, unit, up axis, csv columns); Human3.6M as its
-    own {subject: {action: (T, 17, 3)}} npz. inputs: the clips as read, for exact copies."""
+    own {subject: {action: (T, 17, 3)}} npz; a .bvh target: the input BVH file `path` with the
+    clip's motion (write_bvh_like). inputs: the clips as read, for exact copies."""
+    if target.suffix.lower() == ".bvh":
+        write_bvh_like(target, clips[0], path)
+        return
+    clips = _onto(clips, inputs)
     fmt = clips[0].meta.get("format")
     if fmt == "h36m":
         tree: dict = {}
@@ -76,6 +88,20 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip]) -> None:
                         m.get("up_axis", "z"), squeeze=m.get("squeeze"))
         return
     write_clips(target, clips)
+
+
+def _onto(fixed: list[Clip], inputs: list[Clip]) -> list[Clip]:
+    """Fixed clips on the input's joints: a rotation model fixes a BVH read with its joints only;
+    the file's other joints pass through, as with any model."""
+    out = []
+    for f, c in zip(fixed, inputs):
+        if f.skeleton.joint_names == c.skeleton.joint_names:
+            out.append(f)
+            continue
+        positions = c.positions.copy()
+        positions[:, map_joints(c.skeleton, f.skeleton, c.source)] = f.positions
+        out.append(c.replace(positions=positions, rotations=None, root_translation=None, offsets=None))
+    return out
 
 
 class Progress:
@@ -150,7 +176,9 @@ def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str 
             clips = read_motion(path, source, **read_options)
             if not clips:
                 raise MotionFileError(path, "no motion in the file")
-            target = output_path(path, clips, Path(out) if out else None, Path(out_dir) if out_dir else None, rel)
+            rotations = getattr(fixer, "state", "positions") == "rotations"
+            target = output_path(path, clips, Path(out) if out else None, Path(out_dir) if out_dir else None, rel,
+                                 rotations)
             resolved = target.resolve()
             if resolved == path.resolve():
                 raise MotionFileError(path, f"output {target} is the input; fix never overwrites its input")
@@ -161,8 +189,9 @@ def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str 
             seconds = sum(c.duration_s for c in clips)
             show = progress == "always" or (progress == "auto" and (
                 getattr(err, "isatty", lambda: False)() or seconds >= LONG_INPUT_S))
-            fixed, report = fix_clips(clips, fixer, mode, overlap, batch_size, Progress(str(path), show, err))
-            write_output(target, fixed, clips)
+            work = rotation_clips(path, clips, fixer.skeleton, source, **read_options) if rotations else clips
+            fixed, report = fix_clips(work, fixer, mode, overlap, batch_size, Progress(str(path), show, err))
+            write_output(target, fixed, clips, path)
             written[resolved] = path
         except Exception as e:  # one bad file must not stop the others
             print(f"error: {_one_line(path, e)}", file=err, flush=True)
@@ -170,8 +199,9 @@ def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str 
             continue
         elapsed = time.perf_counter() - t0
         notes = list(report.notes)
-        if clips[0].meta.get("format") in ("bvh", "amass"):
-            notes.insert(0, f"positions .npz/.csv: {fixer.kind.upper()} gives positions, not rotations")
+        if clips[0].meta.get("format") in ("bvh", "amass") and target.suffix.lower() != ".bvh":
+            notes.insert(0, "positions .npz/.csv: rotations are written to .bvh, from a BVH input" if rotations else
+                         f"positions .npz/.csv: {fixer.kind.upper()} gives positions, not rotations")
         kind = "sequences" if clips[0].meta.get("format") == "h36m" else \
             "person" if report.people == 1 else "people"
         if as_json:
@@ -203,7 +233,7 @@ def _device(name: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="mocapfix fix", description=__doc__.split("\n")[0])
     ap.add_argument("paths", nargs="+", metavar="INPUT", help="motion files or folders")
-    ap.add_argument("--ckpt", required=True, help="a mocapfix checkpoint (XMAE)")
+    ap.add_argument("--ckpt", required=True, help="a mocapfix checkpoint (XMAE, or Motion-DVAE's denoising stage)")
     where = ap.add_mutually_exclusive_group()
     where.add_argument("-o", "--out", default=None, help="output file (one input file only)")
     where.add_argument("--out-dir", default=None, help="folder for the outputs (default: <input>.fixed.<ext>)")

@@ -54,17 +54,7 @@ def read_bvh(path, unit: str = "auto", up_axis: str = "auto", groups: dict | Non
     names, parents, offsets, channels, data, frame_time = _parse(path)
     T, J = data.shape[0], len(names)
 
-    # Local transforms in the file's units and axes, every frame. float64 throughout: the
-    # Bandai files have translations of metres in cm, and we promise 1e-5 m.
-    local_t = np.broadcast_to(offsets, (T, J, 3)).copy()   # (T, J, 3)
-    local_r = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy()  # (T, J, 3, 3)
-    for j, chans in enumerate(channels):
-        for col, (axis, kind) in chans:
-            if kind == "position":
-                local_t[:, j, "xyz".index(axis)] = data[:, col]
-            else:
-                local_r[:, j] = local_r[:, j] @ _axis_rotation(axis, np.deg2rad(data[:, col]))
-
+    local_r, local_t = _local_transforms(offsets, channels, data)
     pos = _forward_kinematics(local_r, local_t, parents)  # (T, J, 3) file units, file axes
 
     unit = _guess_unit(path, names, parents, local_t) if unit == "auto" else unit
@@ -205,6 +195,96 @@ def write_bvh(path, clip: Clip, template: str | Path | None = None) -> None:
     body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in frames.tolist())
     text = "\n".join(lines) + "\n" + body + "\n"
 
+    _write_text(path, text)
+
+
+def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
+    """Write a clip with rotations into the hierarchy of the BVH file it was read from, atomically.
+
+    The template's HIERARCHY text is copied as it is (joints, offsets, End Sites, channel layout,
+    unit, up axis). The clip covers some or all of its joints, by name (a clip read with
+    drop_joints / keep_joints) and has the template's frames. The channels of the clip's joints
+    are recomputed from the clip: each joint's rotation relative to its parent in the template, in
+    the joint's own Euler order, and its translation where it has position channels; so a joint
+    the clip dropped above its root (Bandai Namco's joint_Root) keeps its channels and still
+    carries the root. Every other channel keeps its values (written to 6 decimals, as write_bvh).
+    The result is checked: FK of the written channels gives the clip's positions to 1e-4 m, or
+    nothing is written.
+    """
+    path, template = Path(path), Path(template)
+    if not clip.has_rotations:
+        raise MotionFileError(path, f"clip {clip.name!r} has no rotations; only rotation clips can be written as BVH")
+    names, parents, offsets, channels, data, frame_time = _parse(template)
+    T, J = data.shape[0], len(names)
+    if clip.num_frames != T or abs(clip.fps * frame_time - 1.0) > 1e-4:
+        raise MotionFileError(path, f"the clip has {clip.num_frames} frames at {clip.fps:g} fps, {template.name} "
+                                    f"{T} at {1.0 / frame_time:g} fps: write_bvh_like keeps the template's frames")
+    unit, up_axis = clip.meta.get("unit", "m"), clip.meta.get("up_axis", "z")
+    if unit not in UNITS or up_axis not in AXES:
+        raise MotionFileError(path, f"cannot write unit {unit!r} / up axis {up_axis!r}")
+    scale, C = UNITS[unit], AXES[up_axis]
+    where = {n: j for j, n in enumerate(names)}
+    unknown = [n for n in clip.skeleton.joint_names if n not in where]
+    if unknown:
+        raise MotionFileError(path, f"joints {', '.join(unknown)} are not in {template.name}")
+    of_clip = {where[n]: k for k, n in enumerate(clip.skeleton.joint_names)}  # template joint -> clip joint
+
+    # The clip in the file's units and axes (R_file = C^T R C, t_file = C^T t / s), posed by FK.
+    Tc, Jc = clip.rotations.shape[:2]
+    R = Rotation.from_rotvec(clip.rotations.reshape(-1, 3).astype(np.float64)).as_matrix().reshape(Tc, Jc, 3, 3)
+    R = C.T @ R @ C
+    clip_t = np.broadcast_to(clip.offsets.astype(np.float64) @ C / scale, (T, Jc, 3)).copy()   # (T, Jc, 3)
+    clip_t[:, 0] = clip.root_translation.astype(np.float64) @ C / scale
+    clip_pos, clip_glob = _forward_kinematics(R, clip_t, clip.skeleton.parents, with_rotations=True)
+
+    # Global transforms of every template joint, parents first: the clip's where it has the
+    # joint, the template's own local transform under its (new) parent otherwise.
+    local_r, local_t = _local_transforms(offsets, channels, data)
+    G, P = np.empty_like(local_r), np.empty_like(local_t)   # (T, J, 3, 3), (T, J, 3)
+    for j in range(J):
+        p = parents[j]
+        if j in of_clip:
+            G[:, j], P[:, j] = clip_glob[:, of_clip[j]], clip_pos[:, of_clip[j]]
+        elif p < 0:
+            G[:, j], P[:, j] = local_r[:, j], local_t[:, j]
+        else:
+            G[:, j] = G[:, p] @ local_r[:, j]
+            P[:, j] = P[:, p] + (G[:, p] @ local_t[:, j, :, None])[..., 0]
+
+    out = data.copy()
+    for j in of_clip:
+        p = parents[j]
+        Gp_T = np.swapaxes(G[:, p], -1, -2) if p >= 0 else np.eye(3)
+        local = Gp_T @ G[:, j]                                                      # (T, 3, 3)
+        trans = (Gp_T @ (P[:, j] - (P[:, p] if p >= 0 else 0.0))[..., None])[..., 0]  # (T, 3)
+        rot = [(col, axis) for col, (axis, kind) in channels[j] if kind == "rotation"]
+        if len(rot) != 3:
+            raise MotionFileError(path, f"joint {names[j]!r} of {template.name} has {len(rot)} rotation channels; "
+                                        "a rotation needs 3")
+        with warnings.catch_warnings():  # gimbal lock still gives angles that rebuild the same matrix
+            warnings.simplefilter("ignore", UserWarning)
+            euler = Rotation.from_matrix(local).as_euler("".join(a for _, a in rot).upper(), degrees=True)
+        for i, (col, _) in enumerate(rot):
+            out[:, col] = euler[:, i]
+        for col, (axis, kind) in channels[j]:
+            if kind == "position":
+                out[:, col] = trans[:, "xyz".index(axis)]
+
+    # A clip joint whose translation the template has no channel for keeps the template's offset:
+    # right only if the clip's bone is that long.
+    check = _forward_kinematics(*_local_transforms(offsets, channels, out), parents)[:, list(of_clip)]
+    err = np.linalg.norm(check - clip_pos[:, list(of_clip.values())], axis=-1).max(axis=0) * scale  # (Jc,) metres
+    if not np.all(err < FK_TOLERANCE_M):
+        worst = list(of_clip)[int(np.nanargmax(np.nan_to_num(err, nan=np.inf)))]
+        raise MotionFileError(path, f"cannot write the motion in {template.name}'s hierarchy: joint {names[worst]!r} "
+                                    f"would be {np.nanmax(err):.3g} m off (its translation has no channels?)")
+    hierarchy = _sections(template)[0]
+    body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in out.tolist())
+    _write_text(path, f"HIERARCHY{hierarchy}MOTION\nFrames: {T}\nFrame Time: {frame_time:.8g}\n{body}\n")
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Write to a temporary file beside path and rename: never half a file."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "w") as f:
@@ -374,8 +454,25 @@ def _parse(path: Path):
     return names, parents, offsets, channels, data, frame_time
 
 
-def _forward_kinematics(local_r: np.ndarray, local_t: np.ndarray, parents) -> np.ndarray:
-    """local_r: (T, J, 3, 3), local_t: (T, J, 3) (row 0: the root's position) -> positions (T, J, 3).
+def _local_transforms(offsets: np.ndarray, channels, data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The file's channels -> local rotations (T, J, 3, 3) and translations (T, J, 3), every frame,
+    in the file's units and axes. float64 throughout: the Bandai files have translations of
+    metres in cm, and we promise 1e-5 m."""
+    T, J = data.shape[0], len(channels)
+    local_t = np.broadcast_to(offsets, (T, J, 3)).copy()
+    local_r = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy()
+    for j, chans in enumerate(channels):
+        for col, (axis, kind) in chans:
+            if kind == "position":
+                local_t[:, j, "xyz".index(axis)] = data[:, col]
+            else:
+                local_r[:, j] = local_r[:, j] @ _axis_rotation(axis, np.deg2rad(data[:, col]))
+    return local_r, local_t
+
+
+def _forward_kinematics(local_r: np.ndarray, local_t: np.ndarray, parents, with_rotations: bool = False):
+    """local_r: (T, J, 3, 3), local_t: (T, J, 3) (row 0: the root's position) -> positions (T, J, 3)
+    (and global rotations (T, J, 3, 3) with with_rotations).
 
     The numpy twin of kinematics.forward_kinematics: reading a file should not import torch.
     """
@@ -385,7 +482,7 @@ def _forward_kinematics(local_r: np.ndarray, local_t: np.ndarray, parents) -> np
         p = parents[j]
         pos[:, j] = pos[:, p] + (glob[:, p] @ local_t[:, j, :, None])[..., 0]
         glob[:, j] = glob[:, p] @ local_r[:, j]
-    return pos
+    return (pos, glob) if with_rotations else pos
 
 
 def _axis_rotation(axis: str, angle: np.ndarray) -> np.ndarray:

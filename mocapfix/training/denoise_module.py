@@ -27,7 +27,6 @@ import contextvars
 import math
 import time
 from pathlib import Path
-from typing import NamedTuple
 
 import lightning as L
 import torch
@@ -37,36 +36,16 @@ from mocapfix.data.corruption import gaussian_noise, rotation_noise
 from mocapfix.evaluation.metrics import MPJPE, JointAcceleration
 from mocapfix.evaluation.tasks import write_eval_json
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
-from mocapfix.models.dvae_state import Canonical, from_canonical, velocity_mask
+# the posterior pass is shared with `mocapfix fix`, which must not import training code
+from mocapfix.models.dvae_inference import (GAUSSIAN_LAMBDA, Inference, Observation, infer_posterior,  # noqa: F401
+                                            point_estimate, uses_noise_model)
+from mocapfix.models.dvae_state import velocity_mask
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.dvae_module import (MotionDVAEModule, anneal_steps_of, complete_windows, kl_anneal_weight,
                                            select)
 
 METHODS = ("noisy", "dvae_regression", "dvae_optimisation")
-GAUSSIAN_LAMBDA = 1e4  # from here on the IG prior is the paper's Gaussian setting: final estimate = decoder output
-
-
-class Observation(NamedTuple):
-    """What the denoiser may see of a window: noisy data and the known shape."""
-    positions: torch.Tensor                # (B, T+1, J, 3) noisy joint positions, world
-    rotations: torch.Tensor | None         # (B, T+1, J, 3) noisy local axis-angle (rotation noise only)
-    root_translation: torch.Tensor | None  # (B, T+1, 3) observed root translation (the protocol keeps it)
-    offsets: torch.Tensor | None           # (B, J, 3) bone offsets: the shape, observed (q(beta | y) of the paper)
-
-
-class Inference(NamedTuple):
-    canon: Canonical
-    y3d: torch.Tensor       # (B, T+1, K, 3) observed points, canonical frame, metres
-    m: torch.Tensor         # (B, T+1, K, 3) predicted points M(x_0), M(x_hat_t)
-    x0_mu: torch.Tensor     # (B, D) standardised
-    x0_logvar: torch.Tensor
-    q_mu: torch.Tensor      # (B, T, L)
-    q_logvar: torch.Tensor
-    p_mu: torch.Tensor
-    p_logvar: torch.Tensor
-    a: torch.Tensor         # (B, T+1, 3K) alpha = lambda/2 e^a
-    b: torch.Tensor         # (B, T+1, 3K) beta = lambda/2 e^b
 
 
 class DVAEDenoiseModule(L.LightningModule):
@@ -189,18 +168,7 @@ class DVAEDenoiseModule(L.LightningModule):
     # --- inference and the ELBO ---
 
     def infer(self, obs: Observation, sample: bool) -> Inference:
-        codec, net = self.codec, self.net
-        y, canon = codec.encode(obs.positions, obs.rotations, obs.root_translation)  # (B, T+1, D) raw state
-        shape = codec.shape(obs.offsets)
-        y3d = codec.points(y, shape).points()                                          # (B, T+1, K, 3)
-        yn = net.normalize(y)
-        x0_mu, x0_logvar = self.x0_pred(yn)
-        x0 = x0_mu + torch.randn_like(x0_mu) * (0.5 * x0_logvar).exp() if sample else x0_mu
-        out = net(x0, yn[:, 1:], sample)  # encoder on the noisy states, frozen prior and decoder
-        x_all = net.denormalize(torch.cat([x0[:, None], out.x_hat], dim=1).float())   # (B, T+1, D)
-        m = codec.points(x_all, shape).points()
-        a, b = self.noise_pred(out.h, y3d.flatten(-2))
-        return Inference(canon, y3d, m, x0_mu, x0_logvar, out.q_mu, out.q_logvar, out.p_mu, out.p_logvar, a, b)
+        return infer_posterior(self.net, self.codec, self.x0_pred, self.noise_pred, obs, sample)
 
     def elbo_terms(self, inf: Inference) -> dict[str, torch.Tensor]:
         hp = self.hparams
@@ -220,25 +188,12 @@ class DVAEDenoiseModule(L.LightningModule):
         return terms["data"] + kl_weight * terms["kl_z"] + terms["kl_v"], terms
 
     def uses_noise_model(self) -> bool:
-        if self.hparams.estimate == "auto":
-            return self.hparams.noise_lambda < GAUSSIAN_LAMBDA
-        return self.hparams.estimate == "fusion"
+        return uses_noise_model(self.hparams.estimate, self.hparams.noise_lambda)
 
     def estimate(self, obs: Observation) -> torch.Tensor:
-        """Denoised joint positions (B, T+1, J, 3), world frame (section 4.3): x_0 from the
-        initial-state predictor's mean (eq. 16), then the decoder output on the posterior-mean
-        path, fused with the observation by eq. 18 when the noise model is used."""
-        inf = self.infer(obs, sample=False)
-        est = inf.m
-        if self.uses_noise_model():
-            c = self.hparams.noise_lambda / 2.0
-            alpha, beta = c * inf.a.exp(), c * inf.b.exp()
-            v = torch.where(alpha > 1, beta / (alpha - 1).clamp_min(1e-6), beta / (alpha + 1))  # E[v], else the mode
-            v = v.reshape(est.shape).to(est.dtype)
-            fused = (v * est + inf.y3d) / (v + 1)
-            est = torch.cat([est[:, :1], fused[:, 1:]], dim=1)  # x_0 stays eq. 16
-        joints = est[:, :, :self.codec.num_joints]
-        return from_canonical(joints, inf.canon)
+        """Denoised joint positions (B, T+1, J, 3), world frame (section 4.3; models/dvae_inference.py)."""
+        return point_estimate(self.infer(obs, sample=False), self.codec, self.hparams.noise_lambda,
+                              self.uses_noise_model())
 
     # --- training ---
 
