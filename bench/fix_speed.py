@@ -5,7 +5,7 @@ checkpoint of the shape fix reads. Each case times the whole file path: read, fi
 
     python bench/fix_speed.py                     # CPU, the default cases
     python bench/fix_speed.py --device cuda --batch-size 256
-    python bench/fix_speed.py --json-out fix_speed.json
+    python bench/fix_speed.py --precision fp32      # without bf16 matmuls
 
 Cases:
     denoise        --mode both on a clean clip: the model runs on every window
@@ -30,7 +30,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mocapfix.fix import xmae_checkpoint  # noqa: E402
+from mocapfix.fix import resolve_precision, xmae_checkpoint  # noqa: E402
 from mocapfix.fix_cli import fix_files  # noqa: E402
 from mocapfix.io.positions import write_positions  # noqa: E402
 from mocapfix.io.synthetic import generate_clips  # noqa: E402
@@ -67,8 +67,9 @@ def main(argv=None) -> int:
     ap.add_argument("--cases", default=",".join(CASES))
     ap.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     ap.add_argument("--batch-size", type=int, default=64)
+    ap.add_argument("--precision", default="auto", choices=("auto", "fp32", "bf16"), help="fix --precision")
     ap.add_argument("--repeat", type=int, default=1, help="timed runs per case (the best is reported)")
-    ap.add_argument("--json-out", default=None, help="also write the results here")
+    ap.add_argument("--json-out", default=None, help="where to write the results (default bench/results/fix_speed-<device>.json)")
     args = ap.parse_args(argv)
 
     torch.manual_seed(0)
@@ -83,7 +84,8 @@ def main(argv=None) -> int:
         inputs = make_inputs(tmp, args.seconds, args.fps)
         # warm-up: first calls pay for thread pools and kernel selection
         fix_files([str(inputs["denoise"])], str(ckpt), out=str(tmp / "warm.npz"), mode="both", device=args.device,
-                  batch_size=args.batch_size, force=True, progress="never", stdout=io.StringIO())
+                  batch_size=args.batch_size, force=True, progress="never", stdout=io.StringIO(),
+                  precision=args.precision)
         for case in args.cases.split(","):
             mode = "both" if case == "denoise" else "infill"
             for overlap in (float(o) for o in args.overlaps.split(",")):
@@ -93,7 +95,7 @@ def main(argv=None) -> int:
                     t0 = time.perf_counter()
                     rc = fix_files([str(inputs[case])], str(ckpt), out=str(tmp / "out.npz"), mode=mode,
                                    device=args.device, batch_size=args.batch_size, overlap=overlap, force=True,
-                                   progress="never", as_json=True, stdout=out)
+                                   progress="never", as_json=True, stdout=out, precision=args.precision)
                     elapsed = time.perf_counter() - t0
                     if rc != 0:
                         raise SystemExit(f"fix failed on {case}")
@@ -104,19 +106,21 @@ def main(argv=None) -> int:
                              "ms_per_window": round(1000 * best / max(report["windows"], 1), 1)})
     result = {"clip_s": args.seconds, "fps": args.fps, "joints": 22, "window_frames": frames,
               "model": "XMAE paper size (random init)", "parameters": params, "device": args.device,
+              "precision": resolve_precision(args.precision, torch.device(args.device)),
               "torch": torch.__version__, "threads": torch.get_num_threads(), "cpus": os.cpu_count(),
               "machine": platform.processor() or platform.machine(), "batch_size": args.batch_size, "rows": rows}
 
     head = f"{'case':<14} {'mode':<7} {'overlap':>7} {'windows':>7} {'seconds':>8} {'x realtime':>10} {'ms/window':>9}"
     print(f"mocapfix fix: {args.seconds:g} s clip, 22 joints, {args.fps:g} fps, XMAE paper size ({params / 1e6:.1f} M "
-          f"parameters), {args.device}, {torch.get_num_threads()} threads")
+          f"parameters), {args.device}, {result['precision']}, {torch.get_num_threads()} threads")
     print(head)
     for r in rows:
         print(f"{r['case']:<14} {r['mode']:<7} {r['overlap']:>7.2f} {r['windows']:>7d} {r['seconds']:>8.2f} "
               f"{r['realtime_x']:>10.1f} {r['ms_per_window']:>9.1f}")
-    print(json.dumps(result))
-    if args.json_out:
-        Path(args.json_out).write_text(json.dumps(result, indent=2) + "\n")
+    out = Path(args.json_out) if args.json_out else Path(__file__).resolve().parent / "results" / f"fix_speed-{args.device}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {out}")
     return 0
 
 

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from mocapfix.clip import Clip, MotionFileError
-from mocapfix.fix import MODES, fix_clips, load_fixer, map_joints, rotation_clips
+from mocapfix.fix import MODES, PRECISIONS, fix_clips, load_fixer, map_joints, rotation_clips
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import write_bvh_like
 from mocapfix.io.positions import UNITS, _atomic_write, load_npz, npz_array, to_z_up, write_clips, write_positions
@@ -160,11 +160,11 @@ def _inputs(paths: list[str], source: str, err) -> tuple[list[tuple[Path, Path |
 def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str | None = None,
               mode: str = "infill", device: str = "auto", batch_size: int = 64, overlap: float = 0.5,
               force: bool = False, source: str = "auto", progress: str = "auto", as_json: bool = False,
-              stdout=None, stderr=None, **read_options) -> int:
+              stdout=None, stderr=None, precision: str = "fp32", **read_options) -> int:
     """Fix every file; -> exit code (0 all written, 1 some failed). read_options go to read_motion."""
     out_stream, err = stdout or sys.stdout, stderr or sys.stderr
     try:
-        fixer = load_fixer(ckpt, device)
+        fixer = load_fixer(ckpt, device, precision)
     except Exception as e:
         print(f"error: {_one_line(ckpt, e)}", file=err)
         return 1
@@ -241,6 +241,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="infill: fill missing tokens only; denoise: replace observed tokens; both: both")
     ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
     ap.add_argument("--batch-size", type=int, default=64, help="windows per model call")
+    ap.add_argument("--precision", default="auto", choices=PRECISIONS,
+                    help="XMAE's matmuls: auto = bf16 on GPUs and CPUs with native bf16, else fp32")
     ap.add_argument("--overlap", type=float, default=0.5, help="fraction of a window shared by neighbours, [0, 1)")
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
     ap.add_argument("--json", action="store_true", help="one JSON object per file instead of the report line")
@@ -259,7 +261,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return fix_files(args.paths, args.ckpt, args.out, args.out_dir, args.mode, _device(args.device),
                          args.batch_size, args.overlap, args.force, args.source, args.progress, args.json,
-                         unit=args.unit, up_axis=args.up_axis, fps=args.fps, body_model_path=args.body_model)
+                         precision=args.precision, unit=args.unit, up_axis=args.up_axis, fps=args.fps,
+                         body_model_path=args.body_model)
     except KeyboardInterrupt:  # outputs are renamed into place whole: nothing half-written is left
         print("mocapfix fix: interrupted", file=sys.stderr)
         return 130

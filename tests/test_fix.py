@@ -15,7 +15,7 @@ from mocapfix.cli import main
 from mocapfix.clip import Clip, MotionFileError
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.fix import (blend_weights, fix_clips, load_fixer, map_joints, model_frames, resample_frames,
-                          window_layout, windows_for, xmae_checkpoint)
+                          resolve_precision, window_layout, windows_for, xmae_checkpoint)
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import write_bvh
 from mocapfix.io.positions import write_positions
@@ -599,3 +599,25 @@ def test_trained_xmae_beats_lerp(tmp_path, capsys):
         ratios.append(acc[border].mean() / acc[inside].mean())
     assert np.mean(ratios) <= 1.1, ratios
 
+
+
+def test_bf16_precision_stays_close_to_fp32_and_keeps_observed_tokens(ckpt, motion):
+    pos = motion[0].copy()
+    pos[50:60, 4] = np.nan
+    clip = Clip(pos, 30.0, SMPL, name="m", source="m")
+    fp32 = fix_clips([clip], load_fixer(ckpt, precision="fp32"), "both")[0][0].positions
+    bf16_fixer = load_fixer(ckpt, precision="bf16")
+    assert bf16_fixer.precision == "bf16"
+    bf16 = fix_clips([clip], bf16_fixer, "both")[0][0].positions
+    assert not np.array_equal(bf16, fp32)  # the bf16 path really ran
+    assert np.abs(bf16 - fp32).mean() < 2e-3  # metres; coordinates stay fp32 at the network's ends
+    infill = fix_clips([clip], bf16_fixer, "infill")[0][0].positions
+    seen = ~np.isnan(pos).any(-1)
+    assert np.array_equal(infill[seen], pos[seen]) and np.isfinite(infill).all()
+
+
+def test_precision_auto_and_bad_values():
+    assert resolve_precision("fp32", torch.device("cpu")) == "fp32"
+    assert resolve_precision("auto", torch.device("cpu")) in ("fp32", "bf16")
+    with pytest.raises(ValueError):
+        resolve_precision("fp16", torch.device("cpu"))

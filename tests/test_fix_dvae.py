@@ -287,3 +287,11 @@ def test_python_m_mocapfix_fix_with_a_dvae_checkpoint(tmp_path, bandai_file, rot
     rec = json.loads(proc.stdout)
     assert rec["model"] == "motion-dvae" and rec["output"].endswith(".bvh") and rec["replaced"] > 0
     assert read_bvh(rec["output"])[0].skeleton.joint_names == read_bvh(bandai_file)[0].skeleton.joint_names
+
+
+def test_bf16_is_refused_for_a_dvae_checkpoint(positions_ckpt, capsys):
+    from mocapfix.cli import main
+    capsys.readouterr()
+    assert main(["fix", str(positions_ckpt), "--ckpt", str(positions_ckpt), "--precision", "bf16"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "bf16" in err
