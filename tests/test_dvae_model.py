@@ -48,14 +48,15 @@ def test_prior_elbo_terms_match_a_direct_computation():
         x, shape = m.encode_batch(batch)
         terms, x_hat, out = m.elbo_terms(x, shape, sample=False)
         xn = (x - m.net.x_mean) / m.net.x_std
+        xe = xn * (~velocity_mask("rotations", skel.num_joints)).float()  # the encoder reads the poses only
         B, L = x.shape[0], 4
         # inference model, one step at a time: backward data LSTM, then the latent recursion
         h, c = torch.zeros(B, 16), torch.zeros(B, 16)
         h_data = [None] * (T - 1)
         for t in reversed(range(T - 1)):
-            h, c = _lstm_step(e.e_data, xn[:, 1 + t], h, c)
+            h, c = _lstm_step(e.e_data, xe[:, 1 + t], h, c)
             h_data[t] = h
-        h, c = e.e_ini(xn[:, 0])
+        h, c = e.e_ini(xe[:, 0])
         q_mu, q_logvar = [], []
         for t in range(T - 1):
             mu, logvar = e.e_glob(torch.cat([h, h_data[t]], -1)).chunk(2, -1)
@@ -151,3 +152,88 @@ def test_denoising_data_term_is_the_expectation_over_the_noise_posterior():
         mc = 0.5 * (sq / v + v.log()).mean(0).sum() / 2
     assert abs(float(terms["data"]) - float(mc)) < 0.02 * abs(float(mc))
     assert terms["kl_v"] > 0 and terms["kl_z"] > 0
+
+
+def _velocity_noise(xn: torch.Tensor, vel: torch.Tensor, scale: float = 30.0) -> torch.Tensor:
+    """xn with its velocity entries moved by `scale` standard deviations (noisy finite differences)."""
+    g = torch.Generator().manual_seed(3)
+    return xn + scale * torch.randn(xn.shape, generator=g) * vel.float()
+
+
+def test_encoder_and_initial_state_predictor_read_poses_only():
+    """Issue 4: Gaussian noise of 0.1 rad on the joint rotations puts the finite-difference
+    velocities of the observed state 10-40 data standard deviations off. An encoder that reads
+    them starts the denoising stage far outside its training distribution (its estimate was
+    worse than the noisy input). The encoder and q_omega read the poses; the decoder still
+    outputs the whole state."""
+    batch, skel = _batch()
+    m = _tiny(skel)
+    vel = velocity_mask("rotations", skel.num_joints)
+    torch.testing.assert_close(m.net.enc_keep, (~vel).float())
+    with torch.no_grad():
+        x, _ = m.encode_batch(batch)
+        xn = m.net.normalize(x)
+        noisy = _velocity_noise(xn, vel)
+        out = m.net(xn[:, 0], xn[:, 1:], sample=False)
+        out2 = m.net(noisy[:, 0], noisy[:, 1:], sample=False)
+        torch.testing.assert_close(out2.q_mu, out.q_mu)
+        # the decoder starts from the whole x_0 (d_ini), so with the same x_0 the same motion
+        torch.testing.assert_close(m.net(xn[:, 0], noisy[:, 1:], sample=False).x_hat, out.x_hat)
+        assert out.x_hat.shape[-1] == m.codec.dim  # the decoder still gives poses and velocities
+        # ... and so does the initial-state predictor of the denoising stage
+        dn = DVAEDenoiseModule(prior_hparams=dict(m.hparams), noise_lambda=4.0)
+        torch.nn.init.normal_(dn.x0_pred.e_ini.net[-1].weight, std=0.1)  # a predictor that reads its input
+        mu, logvar = dn.x0_pred(xn)
+        mu2, logvar2 = dn.x0_pred(noisy)
+        torch.testing.assert_close(mu2, mu)
+        torch.testing.assert_close(logvar2, logvar)
+        # a pose change does reach both
+        moved = xn + 0.5 * (~vel).float()
+        assert not torch.allclose(m.net(moved[:, 0], moved[:, 1:], sample=False).q_mu, out.q_mu)
+        assert not torch.allclose(dn.x0_pred(moved)[0], mu)
+
+
+def test_encoder_velocities_option_and_old_checkpoints_read_the_whole_state():
+    batch, skel = _batch()
+    m = _tiny(skel, encoder_velocities=True)
+    assert torch.equal(m.net.enc_keep, torch.ones(m.codec.dim))
+    with torch.no_grad():
+        xn = m.net.normalize(m.encode_batch(batch)[0])
+        noisy = _velocity_noise(xn, velocity_mask("rotations", skel.num_joints))
+        assert not torch.allclose(m.net(noisy[:, 0], noisy[:, 1:], sample=False).q_mu,
+                                  m.net(xn[:, 0], xn[:, 1:], sample=False).q_mu)
+    # a state dict saved before enc_keep existed loads as an encoder reading everything
+    old = {k: v for k, v in _tiny(skel).net.state_dict().items() if k != "enc_keep"}
+    fresh = _tiny(skel).net
+    fresh.load_state_dict(old)
+    assert torch.equal(fresh.enc_keep, torch.ones(m.codec.dim))
+
+
+def test_estimate_is_in_the_world_frame_and_starts_at_the_observed_pose():
+    """The denoised estimate goes back from the window's canonical frame to the world: on a
+    clean observation its first frame (x_0 = the observed pose) is the data's, and its error is
+    the same as the canonical-frame error of the decoded points."""
+    from mocapfix.models.dvae_state import to_canonical
+    batch, skel = _batch()
+    turn = torch.tensor([0.0, 0.0, 1.2])  # a heading and an xy offset the canonical frame takes away
+    import roma
+    R = roma.rotvec_to_rotmat(turn)
+    batch["positions"] = batch["positions"] @ R.T + torch.tensor([3.0, -2.0, 0.0])
+    batch["root_translation"] = batch["root_translation"] @ R.T + torch.tensor([3.0, -2.0, 0.0])
+    root = roma.rotvec_to_rotmat(batch["rotations"][:, :, 0])
+    batch["rotations"][:, :, 0] = roma.rotmat_to_rotvec(R @ root)
+    prior = _tiny(skel)
+    dn = DVAEDenoiseModule(prior_hparams=dict(prior.hparams))
+    dn.load_state_dict(prior.state_dict(), strict=False)
+    clean = dict(batch, noisy_positions=batch["positions"], noisy_rotations=batch["rotations"])
+    with torch.no_grad():
+        obs = dn.observation(clean)
+        est = dn.estimate(obs)
+        inf = dn.infer(obs, sample=False)
+    truth = batch["positions"].float()
+    torch.testing.assert_close(est[:, 0], truth[:, 0], atol=1e-4, rtol=0)
+    torch.testing.assert_close(inf.y3d, to_canonical(truth, inf.canon), atol=1e-4, rtol=0)
+    world = (est - truth).norm(dim=-1).mean()
+    canonical = (inf.m - to_canonical(truth, inf.canon)).norm(dim=-1).mean()
+    torch.testing.assert_close(world, canonical, atol=1e-5, rtol=1e-4)
+    assert world > 1e-3  # an untrained decoder: the comparison is not between zeros

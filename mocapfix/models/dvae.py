@@ -119,16 +119,34 @@ class DVAEOutput(NamedTuple):
 class MotionDVAE(nn.Module):
     """The generative and inference models. They work on the standardised state
     (x - x_mean) / x_std; the statistics are buffers set from the training data, so they travel
-    with the weights (and stay fixed, like the prior, in the denoising stage)."""
+    with the weights (and stay fixed, like the prior, in the denoising stage).
+
+    The encoder reads the state times `enc_keep` (a buffer, saved with the weights): with
+    `velocity` given, the velocity entries are zeroed (their standardised mean) and the encoder
+    reads poses only. On clean data the velocities are finite differences of the poses the
+    encoder reads anyway (x_t:T and, through z_<t, x_t-1); on noisy data they are the noise
+    amplified by the frame rate: Gaussian noise of 0.1 rad on the joint rotations puts the
+    standardised velocities 10-40 data standard deviations off, far outside anything the encoder
+    was trained on, and the denoising stage then starts from a useless encoder (issue 4)."""
 
     def __init__(self, x_dim: int, latent_dim: int = 48, lstm_hidden: int = 1024, mlp_hidden: int = 1024,
-                 groups: int = 16):
+                 groups: int = 16, velocity: torch.Tensor | None = None):
+        """velocity: (x_dim,) bool, True at the state's velocity entries, which the encoder then
+        does not read; None: the encoder reads the whole state (the paper's wording)."""
         super().__init__()
         self.x_dim, self.latent_dim = x_dim, latent_dim
         self.gen = Generative(x_dim, latent_dim, lstm_hidden, mlp_hidden, groups)
         self.enc = Encoder(x_dim, latent_dim, lstm_hidden, mlp_hidden, groups)
         self.register_buffer("x_mean", torch.zeros(x_dim))
         self.register_buffer("x_std", torch.ones(x_dim))
+        keep = torch.ones(x_dim) if velocity is None else (~velocity.bool()).float()
+        self.register_buffer("enc_keep", keep)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # checkpoints from before enc_keep existed: their encoder read the whole state
+        if prefix + "x_mean" in state_dict and prefix + "enc_keep" not in state_dict:
+            state_dict[prefix + "enc_keep"] = torch.ones_like(state_dict[prefix + "x_mean"])
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def normalize(self, x: torch.Tensor) -> torch.Tensor:
         return (x - self.x_mean) / self.x_std
@@ -138,7 +156,7 @@ class MotionDVAE(nn.Module):
 
     def forward(self, x0: torch.Tensor, x: torch.Tensor, sample: bool = True) -> DVAEOutput:
         """x0 (B, D) first frame, x (B, T, D) the frames after it; standardised states."""
-        z, q_mu, q_logvar = self.enc(x0, x, sample)
+        z, q_mu, q_logvar = self.enc(x0 * self.enc_keep, x * self.enc_keep, sample)
         x_hat, p_mu, p_logvar, h = self.gen(x0, z)
         return DVAEOutput(x_hat, z, q_mu, q_logvar, p_mu, p_logvar, h)
 
@@ -147,7 +165,8 @@ class InitialStatePredictor(nn.Module):
     """q_omega(x_0 | y_0:T) = N(mu, diag exp(logvar)) (paper E.1): an anti-causal LSTM over the
     observed (standardised) states, its state at t = 0 through an MLP. The mean is predicted as a
     correction of the observed first pose with mean velocities: finite differences of noisy
-    observations are mostly noise, so the predictor starts from the pose alone."""
+    observations are mostly noise, so the predictor starts from the pose alone, and its LSTM
+    reads the observed poses only (velocity entries zeroed), as the encoder does (MotionDVAE)."""
 
     def __init__(self, x_dim: int, lstm_hidden: int, mlp_hidden: int, groups: int, velocity: torch.Tensor):
         """velocity: (x_dim,) bool, True at the state's velocity entries."""
@@ -160,7 +179,7 @@ class InitialStatePredictor(nn.Module):
 
     def forward(self, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """y (B, T+1, D) observed states y_0..y_T -> mu, logvar (B, D)."""
-        h = self.r_h(y.flip(1))[0][:, -1]  # after reading y_T .. y_0
+        h = self.r_h((y * self.pose).flip(1))[0][:, -1]  # after reading the poses y_T .. y_0
         delta, logvar = self.e_ini(h).chunk(2, dim=-1)
         return y[:, 0] * self.pose + delta, logvar - 8.0  # starts at a small spread: std e^-4 ~ 0.02
 

@@ -20,7 +20,7 @@ import torch
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.models.body import build_body_model
 from mocapfix.models.dvae import MotionDVAE, gaussian_kl
-from mocapfix.models.dvae_state import MotionState
+from mocapfix.models.dvae_state import MotionState, velocity_mask
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.figures import log_validation_figure
 
@@ -92,6 +92,7 @@ class MotionDVAEModule(L.LightningModule):
         reg_weight: float = 1.0,
         kl_weight: float = 1.0,
         normalize: bool = True,
+        encoder_velocities: bool = False,
         lr: float = 1e-3,
         betas: tuple[float, float] = (0.9, 0.999),
         lr_milestones: list[int] | None = None,
@@ -114,6 +115,8 @@ class MotionDVAEModule(L.LightningModule):
             reg_weight: weight of the body-model regulariser (1 in the paper).
             kl_weight: the KL weight annealing ends at (1: the ELBO).
             normalize: standardise the state with training-set statistics (saved in the checkpoint).
+            encoder_velocities: the encoder also reads the state's velocity entries (False: poses
+                only; velocities of noisy observations are amplified noise, see MotionDVAE).
             lr, betas: Adamax. lr_milestones: optimiser steps where lr is multiplied by lr_decay.
             kl_anneal_epochs / kl_anneal_steps: linear KL annealing length (steps win when given).
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
@@ -137,7 +140,8 @@ class MotionDVAEModule(L.LightningModule):
         self.body = build_body_model(hp.body_model, skel.parents, hp.body_model_path, hp.gender, hp.model_type,
                                      hp.markers) if hp.state == "rotations" else None
         self.codec = MotionState(hp.state, skel.parents, skel.groups, hp.window_fps, self.body)
-        self.net = MotionDVAE(self.codec.dim, hp.latent_dim, hp.lstm_hidden, hp.mlp_hidden, hp.norm_groups)
+        velocity = None if hp.get("encoder_velocities", False) else velocity_mask(hp.state, skel.num_joints)
+        self.net = MotionDVAE(self.codec.dim, hp.latent_dim, hp.lstm_hidden, hp.mlp_hidden, hp.norm_groups, velocity)
         self.val_mpjpe, self.test_mpjpe = MPJPE(), MPJPE()
 
     def setup(self, stage: str) -> None:
