@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import lightning as L
 import torch
 
 REPO = Path(__file__).resolve().parents[1]
@@ -85,3 +86,28 @@ def print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) ->
     print("  ".join(h.ljust(w) for (_, h), w in zip(columns, widths)))
     for c in cells:
         print("  ".join(v.ljust(w) for v, w in zip(c, widths)))
+
+
+class StepClock(L.Callback):
+    """Wall time of the optimiser steps after `warmup`, and the host time spent between steps
+    (fetching the next batch plus the loop's own bookkeeping)."""
+
+    def __init__(self, warmup: int):
+        self.warmup, self.t0, self.t1, self.steps = warmup, None, None, 0
+        self.between, self._last_end = 0.0, None
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx):
+        if trainer.global_step == self.warmup and self.t0 is None:
+            sync(pl_module.device)
+            self.t0 = time.perf_counter()
+        elif self.t0 is not None and self._last_end is not None:
+            self.between += time.perf_counter() - self._last_end
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+        if self.t0 is not None:
+            self.steps += 1
+            self._last_end = time.perf_counter()
+
+    def on_train_end(self, trainer, pl_module):
+        sync(pl_module.device)
+        self.t1 = time.perf_counter()

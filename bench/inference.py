@@ -4,8 +4,8 @@ matmul rate.
 
 The timed call is the product's reconstruction pass (mocapfix.inference.xmae_reconstruct:
 normalisation, observed-token index, encoder over observed tokens, cross-attention decoder over
-all tokens), the one `fix`, validation and `predict` use. Weights are cast to the run's dtype
-(bf16 on CUDA, fp32 on CPU by default). FLOPs are counted by torch.utils.flop_counter on one
+all tokens), the one `fix`, validation and `predict` use, in the precision `fix --precision`
+gives it: fp32 weights, bf16 autocast for the matmuls (default on CUDA), or fp32 throughout. FLOPs are counted by torch.utils.flop_counter on one
 window (matmuls and attention, multiply-add = 2 FLOPs; elementwise work is not counted).
 
     python bench/inference.py                       # CUDA: bf16, batch 1024
@@ -27,17 +27,17 @@ from mocapfix.inference import xmae_reconstruct  # noqa: E402
 from mocapfix.models.xmae import XMAE  # noqa: E402
 
 
-def make_windows(B: int, T: int, J: int, missing: float, device, dtype, seed: int = 0):
+def make_windows(B: int, T: int, J: int, missing: float, device, seed: int = 0):
     """Plausible-scale positions (metres, z up) and an observed mask with `missing` of the tokens
     dropped at random. Speed does not depend on the values, only on the counts."""
     g = torch.Generator().manual_seed(seed)
-    positions = (torch.randn(B, T, J, 3, generator=g) * 0.3 + torch.tensor([0.0, 0.0, 1.0])).to(device, dtype)
+    positions = (torch.randn(B, T, J, 3, generator=g) * 0.3 + torch.tensor([0.0, 0.0, 1.0])).to(device)
     observed = (torch.rand(B, T, J, generator=g) >= missing).to(device)
     return positions, observed
 
 
-def flops_per_window(net: XMAE, T: int, J: int, device, dtype) -> int:
-    positions, observed = make_windows(1, T, J, 0.0, device, dtype)
+def flops_per_window(net: XMAE, T: int, J: int, device) -> int:
+    positions, observed = make_windows(1, T, J, 0.0, device)
     # The math backend spells attention out as matmuls, which the counter sees on every device
     # (it has no formula for the CPU's fused attention kernel).
     with FlopCounterMode(display=False) as counter, torch.inference_mode(), sdpa_kernel(SDPBackend.MATH):
@@ -60,18 +60,19 @@ def main(argv=None) -> int:
     device = pick_device(args.device)
     gpu = device.type == "cuda"
     B = args.batch or (1024 if gpu else 16)
-    dtype = {"bf16": torch.bfloat16, "fp32": torch.float32}[args.dtype or ("bf16" if gpu else "fp32")]
+    bf16 = (args.dtype or ("bf16" if gpu else "fp32")) == "bf16"
+    dtype = torch.bfloat16 if bf16 else torch.float32
     repeat = args.repeat or (20 if gpu else 3)
     T, J = int(round(args.fps * args.window_s)), args.joints
 
     torch.manual_seed(0)
-    eager = XMAE(J, T).to(device, dtype).eval()  # paper sizes (Table 1)
+    eager = XMAE(J, T).to(device).eval()  # paper sizes (Table 1)
     params = sum(p.numel() for p in eager.parameters())
-    flops = flops_per_window(eager, T, J, device, dtype)
+    flops = flops_per_window(eager, T, J, device)
     peak = matmul_tflops(device, dtype)
     nets = {"eager": eager}
     if args.compile:
-        compiled = XMAE(J, T).to(device, dtype).eval()
+        compiled = XMAE(J, T).to(device).eval()
         compiled.load_state_dict(eager.state_dict())
         compiled.compile(mode="reduce-overhead" if gpu else "default")
         nets["compiled"] = compiled
@@ -79,8 +80,8 @@ def main(argv=None) -> int:
     rows = []
     for name, net in nets.items():
         for case, missing, batch in (("full", 0.0, B), ("10% missing", 0.1, B), ("full, batch 1", 0.0, 1)):
-            positions, observed = make_windows(batch, T, J, missing, device, dtype)
-            with torch.inference_mode():
+            positions, observed = make_windows(batch, T, J, missing, device)
+            with torch.inference_mode(), torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
                 seconds = timed(lambda: xmae_reconstruct(net, positions, observed), device,
                                 repeat=repeat * (10 if batch == 1 else 1), warmup=3)
             kept = observed.flatten(1).sum(1).float().mean().item()
@@ -92,12 +93,12 @@ def main(argv=None) -> int:
             rows.append(row)
 
     result = {"benchmark": "xmae_inference", "env": describe(device), "command": " ".join(sys.argv),
-              "joints": J, "frames": T, "dtype": str(dtype).replace("torch.", ""), "parameters": params,
+              "joints": J, "frames": T, "dtype": "bf16 autocast" if bf16 else "fp32", "parameters": params,
               "gflop_per_window": flops / 1e9, "matmul_tflops_measured": peak, "rows": rows}
     path = write_result("inference", result, args.json_out)
     print_table(f"XMAE inference, {result['env'].get('gpu', result['env'].get('cpu'))}, {J} joints x {T} frames, "
                 f"{result['dtype']}, {params / 1e6:.2f} M parameters, {flops / 1e9:.1f} GFLOP per full window, "
-                f"measured {result['dtype']} matmul rate {peak:.1f} TFLOP/s",
+                f"measured {str(dtype).replace('torch.', '')} matmul rate {peak:.1f} TFLOP/s",
                 rows, [("net", "net"), ("case", "case"), ("batch", "batch"), ("observed_tokens", "observed"),
                        ("ms_per_batch", "ms/batch"), ("windows_per_s", "windows/s"), ("tflops", "TFLOP/s"),
                        ("of_matmul_peak", "of matmul rate")])

@@ -25,12 +25,11 @@ import itertools
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import torch
 
-from common import describe, pick_device, print_table, sync, write_result
+from common import StepClock, describe, pick_device, print_table, sync, write_result
 
 import lightning as L  # noqa: E402
 
@@ -39,31 +38,6 @@ from mocapfix.training.xmae_module import XMAEModule  # noqa: E402
 
 ROWS = ("loader", "device", "device+compile", "constant")
 DEFAULT_REF = Path(__file__).resolve().parents[2] / "shared" / "bench" / "ref_xmae.py"
-
-
-class StepClock(L.Callback):
-    """Wall time of the optimiser steps after `warmup`, and the host time spent between steps
-    (fetching the next batch plus the loop's own bookkeeping)."""
-
-    def __init__(self, warmup: int):
-        self.warmup, self.t0, self.t1, self.steps = warmup, None, None, 0
-        self.between, self._last_end = 0.0, None
-
-    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx):
-        if trainer.global_step == self.warmup and self.t0 is None:
-            sync(pl_module.device)
-            self.t0 = time.perf_counter()
-        elif self.t0 is not None and self._last_end is not None:
-            self.between += time.perf_counter() - self._last_end
-
-    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
-        if self.t0 is not None:
-            self.steps += 1
-            self._last_end = time.perf_counter()
-
-    def on_train_end(self, trainer, pl_module):
-        sync(pl_module.device)
-        self.t1 = time.perf_counter()
 
 
 class RepeatBatch:
@@ -120,7 +94,8 @@ def run_reference(ref: Path, J: int, T: int, B: int) -> list[dict]:
         if m:
             rows.append({"row": f"ref {m[1]}", "joints": J, "frames": T, "batch": B,
                          "precision": "32-true" if m[1] == "naive" else "bf16 autocast",
-                         "ms_per_step": float(m[2]), "seq_per_s": float(m[3]), "params_m": float(m[4])})
+                         # from ms/step: the printed seq/s is rounded to a whole number
+                         "ms_per_step": float(m[2]), "seq_per_s": B / (float(m[2]) / 1000), "params_m": float(m[4])})
     if len(rows) != 2:
         raise SystemExit(f"could not read ref_xmae.py's output:\n{out}")
     return rows

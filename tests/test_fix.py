@@ -14,6 +14,7 @@ from cli_utils import CONFIGS, QUIET, TINY, run_cli
 from mocapfix.cli import main
 from mocapfix.clip import Clip, MotionFileError
 from mocapfix.evaluation.baselines import lerp_infill
+from mocapfix.evaluation.recording import corrupt_recording
 from mocapfix.fix import (blend_weights, fix_clips, load_fixer, map_joints, model_frames, resample_frames,
                           resolve_precision, window_layout, windows_for, xmae_checkpoint)
 from mocapfix.io import read_motion
@@ -522,33 +523,12 @@ def _train(tmp_path, steps: int):
     return tmp_path / "checkpoints" / "fix" / "last.ckpt"
 
 
-def _corrupt(x: np.ndarray, fps: float, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Gaps of 0.1-0.9 s (full skeleton or one limb) set to NaN; 2% of the other tokens displaced
-    by up to 1 m. -> corrupted (T, J, 3), gap (T, J), displaced (T, J)."""
-    T, J, _ = x.shape
-    parts = [None] + [list(v) for v in SMPL.groups.values()]
-    gap = np.zeros((T, J), dtype=bool)
-    t = int(0.5 * fps)
-    while t < T - fps:
-        n = int(round(rng.uniform(0.1, 0.9) * fps))
-        joints = parts[rng.integers(len(parts))]
-        gap[t:t + n, slice(None) if joints is None else joints] = True
-        t += n + int(rng.integers(int(0.7 * fps), int(1.3 * fps)))
-    displaced = ~gap & (rng.random((T, J)) < 0.02)
-    d = rng.normal(size=(T, J, 3))
-    d *= (rng.random((T, J, 1)) ** (1 / 3)) / np.linalg.norm(d, axis=-1, keepdims=True)
-    y = x.copy()
-    y[gap] = np.nan
-    y[displaced] += d[displaced].astype(np.float32)
-    return y, gap, displaced
-
-
 def _evaluate(ckpt, tmp_path, capsys) -> dict:
     """Fix corrupted held-out clips through the CLI (--mode both) -> errors in mm and limb sigma."""
     clips = generate_clips(4, 10.0, fps=30, seed=1234)  # other seed than training
     rng = np.random.default_rng(0)
     truth = np.stack([c.positions for c in clips])
-    bad, gap, disp = zip(*(_corrupt(c.positions, 30.0, rng) for c in clips))
+    bad, gap, disp = zip(*(corrupt_recording(c.positions, 30.0, SMPL.groups, rng) for c in clips))
     bad, gap, disp = np.stack(bad), np.stack(gap), np.stack(disp)
     write_positions(tmp_path / "bad.npz", bad, 30, SMPL)
     rc, out, err = fix([tmp_path / "bad.npz", "--ckpt", ckpt, "--mode", "both", "--json"], capsys)
