@@ -55,6 +55,9 @@ xmae)
   echo "fit wall time: $((FIT_END - START)) s" | tee -a "$OUT/xmae_test.txt"
   cp "$(ls -t logs/xmae_bandai_gpu/version_*/eval.json | head -1)" "$OUT/xmae_eval.json"
   python3 bench/shrink_checkpoint.py "$BEST" "$OUT/xmae_bandai.ckpt"
+  # issue 5 on the same model: fix --mode both on the corrupted Bandai test clips vs Lerp
+  python3 bench/fix_bandai.py --ckpt "$BEST" --source archive --path .device_data/bandai_pos30.npz \
+    --json-out "$OUT/fix_bandai-cuda.json" 2>&1 | tail -n 10
   ;;
 bench)
   python3 bench/inference.py --compile --json-out "$OUT/inference-cuda.json" 2>&1 | tail -n 12
