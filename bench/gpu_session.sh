@@ -35,52 +35,62 @@ PY
 fi
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl
-export PYTHONPATH=/tmp/site:. PYTHONUNBUFFERED=1
-nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.txt"
-COMMON=(--data.source archive --data.cache_dir null --trainer.enable_progress_bar false)
+PY=${PYTHON:-python3}
+if [ -z "${PYTHON:-}" ]; then  # the GPU image: add what it lacks
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl
+  export PYTHONPATH=/tmp/site:.
+fi
+export PYTHONUNBUFFERED=1
+nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.txt" || true
+# EXTRA: more CLI settings for every fit/test; FIT_EXTRA: for the first fit only (model sizes).
+# A CPU smoke run of the plumbing: PYTHON=.venv/bin/python EXTRA="--trainer.accelerator cpu ..."
+read -ra EXTRA_ARGS <<< "${EXTRA:-}"
+read -ra FIT_ARGS <<< "${FIT_EXTRA:-}"
+COMMON=(--data.source archive --data.cache_dir null --trainer.enable_progress_bar false "${EXTRA_ARGS[@]}")
 
 case "$PART" in
 xmae)
   # Bandai Namco, train split by file (seeded hash, 80/10/10), paper-sized XMAE, bf16, data on the GPU.
   START=$(date +%s)
-  python3 -m mocapfix fit --config configs/xmae_bvh.yaml --experiment xmae_bandai_gpu "${COMMON[@]}" \
+  $PY -m mocapfix fit --config configs/xmae_bvh.yaml --experiment xmae_bandai_gpu "${COMMON[@]}" "${FIT_ARGS[@]}" \
     --data.path .device_data/bandai_pos30.npz --trainer.max_steps "${STEPS:-8000}" --model.init_args.total_steps "${STEPS:-8000}" \
     --trainer.max_time "${MAX_TIME:-00:00:06:00}" --trainer.val_check_interval 1000 2>&1 | tail -n 30
   FIT_END=$(date +%s)
   BEST=$(ls checkpoints/xmae_bandai_gpu/best-*.ckpt 2>/dev/null | head -1 || true)
   BEST=${BEST:-checkpoints/xmae_bandai_gpu/last.ckpt}
-  python3 -m mocapfix test --config configs/xmae_bvh.yaml --experiment xmae_bandai_gpu "${COMMON[@]}" \
-    --data.path .device_data/bandai_pos30.npz --ckpt_path "$BEST" 2>&1 | tail -n 60 | tee "$OUT/xmae_test.txt"
-  echo "fit wall time: $((FIT_END - START)) s" | tee -a "$OUT/xmae_test.txt"
+  $PY -m mocapfix test --config configs/xmae_bvh.yaml --experiment xmae_bandai_gpu "${COMMON[@]}" \
+    --data.path .device_data/bandai_pos30.npz --ckpt_path "$BEST" 2>&1 | tee "$OUT/xmae_test.txt" | grep -v "test/" | tail -n 60
+  echo "fit wall time: $((FIT_END - START)) s; tested: $BEST; last step: $($PY -c "import torch, sys; \
+print(torch.load(sys.argv[1], map_location='cpu', weights_only=True)['global_step'])" checkpoints/xmae_bandai_gpu/last.ckpt)" \
+    | tee -a "$OUT/xmae_test.txt"
   cp "$(ls -t logs/xmae_bandai_gpu/version_*/eval.json | head -1)" "$OUT/xmae_eval.json"
-  python3 bench/shrink_checkpoint.py "$BEST" "$OUT/xmae_bandai.ckpt"
+  $PY bench/shrink_checkpoint.py "$BEST" "$OUT/xmae_bandai.ckpt"
   # issue 5 on the same model: fix --mode both on the corrupted Bandai test clips vs Lerp
-  python3 bench/fix_bandai.py --ckpt "$BEST" --source archive --path .device_data/bandai_pos30.npz \
+  $PY bench/fix_bandai.py --ckpt "$BEST" --source archive --path .device_data/bandai_pos30.npz \
     --json-out "$OUT/fix_bandai-cuda.json" 2>&1 | tail -n 10
   ;;
 bench)
-  python3 bench/inference.py --compile --json-out "$OUT/inference-cuda.json" 2>&1 | tail -n 12
-  python3 bench/train_throughput.py --ref .device_data/ref_xmae.py --json-out "$OUT/train_throughput-cuda.json" \
+  $PY bench/inference.py --compile --json-out "$OUT/inference-cuda.json" 2>&1 | tail -n 12
+  $PY bench/train_throughput.py --ref .device_data/ref_xmae.py --json-out "$OUT/train_throughput-cuda.json" \
     2>&1 | grep -v -e "^GPU available" -e "^TPU available" -e "LOCAL_RANK" -e "Tip:" | tail -n 20
-  cp "$OUT/train_throughput-cuda.json" bench/results/train_throughput-cuda.json
-  python3 bench/data_pipeline.py --bvh none --json-out "$OUT/data_pipeline-cuda.json" 2>&1 | tail -n 10
-  python3 bench/fix_speed.py --device cuda --batch-size 512 --json-out "$OUT/fix_speed-cuda.json" 2>&1 | tail -n 8
-  python3 bench/dvae_speed.py --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
+  cp "$OUT/train_throughput-cuda.json" bench/results/  # data_pipeline compares against it
+  $PY bench/data_pipeline.py --bvh none --json-out "$OUT/data_pipeline-cuda.json" 2>&1 | tail -n 10
+  $PY bench/fix_speed.py --device cuda --batch-size 512 --json-out "$OUT/fix_speed-cuda.json" 2>&1 | tail -n 8
+  $PY bench/dvae_speed.py --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
   ;;
 dvae)
   # One call: the prior checkpoint (~360 MB) cannot travel to a later call. The prior's own test
   # MPJPE on clean windows is the floor of the denoiser: read it first (docs/STATUS.md).
   C=("${COMMON[@]}" --data.path .device_data/bandai_rot30.npz)
-  python3 -m mocapfix fit --config configs/motion_dvae_bvh.yaml "${C[@]}" \
+  $PY -m mocapfix fit --config configs/motion_dvae_bvh.yaml "${C[@]}" "${FIT_ARGS[@]}" \
     --trainer.max_time "${PRIOR_TIME:-00:00:04:45}" 2>&1 | tail -n 5
-  python3 -m mocapfix test --config configs/motion_dvae_bvh.yaml "${C[@]}" \
-    --ckpt_path checkpoints/motion_dvae_bvh/last.ckpt 2>&1 | tail -n 15 | tee "$OUT/dvae_prior_test.txt"
-  python3 -m mocapfix fit --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" \
+  $PY -m mocapfix test --config configs/motion_dvae_bvh.yaml "${C[@]}" \
+    --ckpt_path checkpoints/motion_dvae_bvh/last.ckpt 2>&1 | tee "$OUT/dvae_prior_test.txt" | tail -n 15
+  $PY -m mocapfix fit --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" \
     --model.init_args.prior_ckpt checkpoints/motion_dvae_bvh/last.ckpt \
     --trainer.max_time "${DENOISE_TIME:-00:00:02:30}" 2>&1 | tail -n 5
-  python3 -m mocapfix test --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" \
-    --ckpt_path checkpoints/motion_dvae_denoise_bvh/last.ckpt 2>&1 | tail -n 40 | tee "$OUT/dvae_test.txt"
+  $PY -m mocapfix test --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" \
+    --ckpt_path checkpoints/motion_dvae_denoise_bvh/last.ckpt 2>&1 | tee "$OUT/dvae_test.txt" | grep -v "test/" | tail -n 40
   cp "$(ls -t logs/motion_dvae_denoise_bvh/version_*/eval.json | head -1)" "$OUT/dvae_eval.json"
   ;;
 *)
