@@ -30,7 +30,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mocapfix.fix import resolve_precision, xmae_checkpoint  # noqa: E402
+from mocapfix.fixers import resolve_precision, xmae_checkpoint  # noqa: E402
 from mocapfix.fix_cli import fix_files  # noqa: E402
 from mocapfix.io.positions import write_positions  # noqa: E402
 from mocapfix.io.synthetic import generate_clips  # noqa: E402

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import torch
 
-from common import StepClock, describe, pick_device, print_table, sync, write_result
+from common import StepClock, describe, pick_device, print_table, write_result
 
 import lightning as L  # noqa: E402
 

@@ -9,9 +9,8 @@ times -> merged with the input by mode:
     denoise  observed tokens get the estimate; missing tokens stay missing.
     both     every token gets the estimate (denoised and filled).
 
-A Fixer turns a batch of windows into estimates; there is one per checkpoint kind and
-model_kind() picks it from the checkpoint's keys. Nothing here imports training code: a
-checkpoint holds everything fix needs (skeleton, fps, window, network sizes) as plain values.
+A Fixer (mocapfix.fixers) turns a batch of windows into estimates; there is one per checkpoint
+kind. Nothing here imports training code.
 
 Fixers on positions (XMAE; Motion-DVAE on its positions state) take windows of joint positions.
 Motion-DVAE on its rotations state takes windows of joint rotations (BVH, AMASS input) and gives
@@ -19,11 +18,9 @@ rotations back: those clips go through fix_rotation_clips, and a BVH input gets 
 """
 from __future__ import annotations
 
-import inspect
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Callable, Protocol
+from typing import Callable
 
 import numpy as np
 import roma
@@ -32,288 +29,12 @@ import torch
 from mocapfix.clip import Clip, MotionFileError
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.metrics import LimbSigma
-from mocapfix.inference import xmae_reconstruct
+from mocapfix.fixers import Fixer, RotationFixer
 from mocapfix.io import read_motion
 from mocapfix.kinematics import fk_axis_angle
-from mocapfix.models.body import build_body_model
-from mocapfix.models.dvae import InitialStatePredictor, MotionDVAE, NoisePredictor
-from mocapfix.models.dvae_inference import (Observation, infer_posterior, point_estimate, rotation_estimate,
-                                            uses_noise_model)
-from mocapfix.models.dvae_state import STATES, MotionState, velocity_mask
-from mocapfix.models.xmae import XMAE
 from mocapfix.skeleton import Skeleton
 
 MODES = ("infill", "denoise", "both")
-
-
-# --- fixers: one per checkpoint kind ---
-
-class Fixer(Protocol):
-    kind: str           # "xmae", "motion-dvae"
-    skeleton: Skeleton  # the model's joints, in the model's order
-    fps: float          # the model's frame rate
-    window: int         # frames per window
-    # state: "positions" (estimate below; the default when a fixer has no state) or "rotations"
-    # (a RotationFixer: fix_clips hands it rotation windows instead)
-
-    def estimate(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
-        """positions: (B, W, J, 3) metres, z up, NaN or anything at unobserved tokens;
-        observed: (B, W, J) bool -> every token's estimate (B, W, J, 3), float32 on the CPU."""
-        ...
-
-
-class RotationFixer(Protocol):
-    kind: str
-    skeleton: Skeleton
-    fps: float
-    window: int         # the longest window; a clip shorter than it is one window of its own length
-    state: str          # "rotations"
-    notes: list[str]    # said once per file in the report
-
-    def estimate_rotations(self, rotations: torch.Tensor, root_translation: torch.Tensor, offsets: torch.Tensor
-                           ) -> tuple[torch.Tensor, torch.Tensor]:
-        """rotations: (B, W, J, 3) local axis-angle (joint 0: root orientation), root_translation
-        (B, W, 3), offsets (B, J, 3) bone offsets, metres, z up -> estimated rotations (B, W, J, 3)
-        and root translation (B, W, 3), float32 on the CPU."""
-        ...
-
-
-class XMAEFixer:
-    """XMAE applied as the paper does: every available token observed (denoising is the same
-    pass as infilling), the normalisation of mocapfix.inference."""
-
-    kind = "xmae"
-    state = "positions"
-
-    def __init__(self, net: XMAE, skeleton: Skeleton, fps: float, device: str | torch.device = "cpu",
-                 precision: str = "fp32"):
-        self.net = net.to(device).eval()
-        self.skeleton, self.fps, self.window = skeleton, float(fps), int(net.num_frames)
-        self.device = torch.device(device)
-        # bf16 matmuls (coordinates stay fp32 at the network's ends: models/xmae.py)
-        self.precision = resolve_precision(precision, self.device)
-
-    @classmethod
-    def from_checkpoint(cls, path, hparams: dict, state_dict: dict, device="cpu", precision: str = "fp32"
-                        ) -> "XMAEFixer":
-        skeleton, fps, frames = _window_hparams(path, hparams)
-        # Network sizes the checkpoint names; XMAE's defaults for any it lacks.
-        sizes = {k: hparams[k] for k in inspect.signature(XMAE).parameters
-                 if k in hparams and k not in ("num_joints", "num_frames")}
-        try:
-            net = XMAE(skeleton.num_joints, frames, **sizes)
-        except (TypeError, ValueError, AssertionError) as e:
-            raise MotionFileError(path, f"bad XMAE sizes in the checkpoint ({e})") from None
-        weights = {k[len("net."):]: v for k, v in state_dict.items() if k.startswith("net.")}
-        try:
-            net.load_state_dict(weights)
-        except RuntimeError as e:
-            first = " ".join(str(e).split())[:200]
-            raise MotionFileError(path, f"weights do not fit the network its hyperparameters describe ({first})") \
-                from None
-        return cls(net, skeleton, fps, device, precision)
-
-    @torch.inference_mode()
-    def estimate(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
-        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
-            out = xmae_reconstruct(self.net, positions.to(self.device), observed.to(self.device))
-        return out.float().cpu()
-
-
-PRECISIONS = ("auto", "fp32", "bf16")
-
-
-def resolve_precision(precision: str, device: torch.device) -> str:
-    """auto -> bf16 where the hardware multiplies bf16 natively (CUDA GPUs since Ampere, CPUs
-    with AVX512-BF16 or AMX: 1.5-2x faster here), else fp32."""
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
-    if precision != "auto":
-        return precision
-    if device.type == "cuda":
-        return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
-    native = [getattr(torch.cpu, f, lambda: False) for f in ("_is_avx512_bf16_supported", "_is_amx_tile_supported")]
-    return "bf16" if device.type == "cpu" and any(f() for f in native) else "fp32"
-
-
-class DVAEFixer:
-    """The Motion-DVAE denoising stage in regression mode (paper section 4.3), as its module's
-    test does: x_0 from the initial-state predictor's mean, z_1:T the encoder's means (one
-    forward pass), the decoder output, fused with the observation by eq. 18 when the checkpoint
-    uses the noise model (estimate "fusion", or "auto" with noise_lambda < 1e4).
-
-    positions state: windows of joint positions. The model has no notion of a missing joint:
-    missing tokens are filled by linear interpolation in time (Lerp) before it, and get the
-    decoder output (eq. 18 has no observation to fuse there).
-    rotations state: windows of joint rotations (estimate_rotations); the output is the
-    decoder's motion, as rotations (eq. 18 fuses 3D points, which would not be a pose)."""
-
-    kind = "motion-dvae"
-
-    def __init__(self, net: MotionDVAE, codec: MotionState, x0_pred: InitialStatePredictor, noise_pred: NoisePredictor,
-                 skeleton: Skeleton, fps: float, window: int, noise_lambda: float, fusion: bool,
-                 device: str | torch.device = "cpu"):
-        self.device = torch.device(device)
-        self.net, self.x0_pred, self.noise_pred = (m.to(self.device).eval() for m in (net, x0_pred, noise_pred))
-        if codec.body is not None:
-            codec.body.to(self.device)
-        self.codec, self.state = codec, codec.kind
-        self.skeleton, self.fps, self.window = skeleton, float(fps), int(window)
-        self.noise_lambda, self.fusion = float(noise_lambda), bool(fusion)
-        self.notes = ["eq. 18 fuses 3D points, not rotations: the decoder's motion is used"] \
-            if fusion and self.state == "rotations" else []
-
-    @classmethod
-    def from_checkpoint(cls, path, hparams: dict, state_dict: dict, device="cpu", precision: str = "fp32"
-                        ) -> "DVAEFixer":
-        """A DVAEDenoiseModule checkpoint: the prior's hyperparameters (prior_hparams) rebuild the
-        nets, the denoising stage's own (noise_lambda, estimate) choose the final estimate.
-        precision: fp32 always (auto included): the recurrent state would carry bf16's rounding
-        from frame to frame, and the LSTMs are cheap (1e-3 s per frame on a CPU core)."""
-        if precision == "bf16":
-            raise ValueError("--precision bf16 is for XMAE checkpoints; Motion-DVAE runs in fp32")
-        ph = hparams.get("prior_hparams")
-        if not isinstance(ph, dict):
-            raise MotionFileError(path, "Motion-DVAE checkpoint lacks prior_hparams: cannot rebuild the networks")
-        skeleton, fps, frames = _window_hparams(path, ph)
-        missing = [k for k in ("state", "latent_dim", "lstm_hidden", "mlp_hidden", "norm_groups") if ph.get(k) is None]
-        missing += [k for k in ("noise_lambda", "estimate") if hparams.get(k) is None]
-        if missing:
-            raise MotionFileError(path, f"Motion-DVAE checkpoint lacks {', '.join(missing)}: "
-                                        "cannot rebuild the networks")
-        state = ph["state"]
-        if state not in STATES:
-            raise MotionFileError(path, f"Motion-DVAE checkpoint has an unknown state {state!r}")
-        body = None
-        if state == "rotations":
-            try:  # an SMPL body is rebuilt from the model file the checkpoint names (never stored in it)
-                body = build_body_model(ph.get("body_model", "skeleton"), skeleton.parents, ph.get("body_model_path"),
-                                        ph.get("gender", "neutral"), ph.get("model_type", "smplh"), ph.get("markers"))
-            except (ValueError, OSError) as e:
-                why = " ".join(str(e).split())
-                raise MotionFileError(path, f"cannot rebuild the checkpoint's body model ({why})") from None
-        try:
-            codec = MotionState(state, skeleton.parents, skeleton.groups, fps, body)
-            D, H, Hm, G = codec.dim, int(ph["lstm_hidden"]), int(ph["mlp_hidden"]), int(ph["norm_groups"])
-            num_points = codec.num_joints + (body.num_markers if body is not None else 0)
-            nets = {"net": MotionDVAE(D, int(ph["latent_dim"]), H, Hm, G),
-                    "x0_pred": InitialStatePredictor(D, H, Hm, G, velocity_mask(state, codec.num_joints)),
-                    "noise_pred": NoisePredictor(H, 3 * num_points, Hm, G)}
-        except (TypeError, ValueError) as e:
-            raise MotionFileError(path, f"bad Motion-DVAE sizes in the checkpoint ({e})") from None
-        for prefix, net in nets.items():
-            weights = {k[len(prefix) + 1:]: v for k, v in state_dict.items() if k.startswith(prefix + ".")}
-            try:
-                net.load_state_dict(weights)
-            except RuntimeError as e:
-                first = " ".join(str(e).split())[:200]
-                raise MotionFileError(path, "weights do not fit the network its hyperparameters describe "
-                                            f"({prefix}: {first})") from None
-        fusion = uses_noise_model(str(hparams["estimate"]), float(hparams["noise_lambda"]))
-        return cls(nets["net"], codec, nets["x0_pred"], nets["noise_pred"], skeleton, fps, frames,
-                   float(hparams["noise_lambda"]), fusion, device)
-
-    def _infer(self, obs: Observation):
-        return infer_posterior(self.net, self.codec, self.x0_pred, self.noise_pred, obs, sample=False)
-
-    @torch.inference_mode()
-    def estimate(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
-        if self.state != "positions":
-            raise ValueError("this Motion-DVAE works on rotations: use estimate_rotations")
-        filled = lerp_infill(positions.double(), observed).float().to(self.device)    # (B, W, J, 3)
-        inf = self._infer(Observation(filled, None, None, None))
-        est = point_estimate(inf, self.codec, self.noise_lambda, self.fusion, observed.to(self.device))
-        return est.float().cpu()
-
-    @torch.inference_mode()
-    def estimate_rotations(self, rotations: torch.Tensor, root_translation: torch.Tensor, offsets: torch.Tensor
-                           ) -> tuple[torch.Tensor, torch.Tensor]:
-        if self.state != "rotations":
-            raise ValueError("this Motion-DVAE works on positions: use estimate")
-        rotations, root_translation, offsets = (t.float().to(self.device)
-                                                for t in (rotations, root_translation, offsets))
-        positions = fk_axis_angle(rotations, root_translation, offsets[:, None], self.codec.parents)
-        inf = self._infer(Observation(positions, rotations, root_translation, offsets))
-        rot, root = rotation_estimate(inf, self.codec)
-        return rot.float().cpu(), root.float().cpu()
-
-
-def _window_hparams(path, hp: dict) -> tuple[Skeleton, float, int]:
-    missing = [k for k in ("skeleton", "window_fps", "window_frames") if hp.get(k) is None]
-    if missing:
-        raise MotionFileError(path, f"checkpoint lacks {', '.join(missing)} (saved before training set it up?)")
-    try:
-        skeleton = Skeleton.from_dict(hp["skeleton"])
-        fps, frames = float(hp["window_fps"]), int(hp["window_frames"])
-    except (KeyError, TypeError, ValueError) as e:
-        raise MotionFileError(path, f"checkpoint's skeleton or window is malformed ({e})") from None
-    if not (fps > 0 and frames > 0):
-        raise MotionFileError(path, f"checkpoint's window is {frames} frames at {fps} fps")
-    return skeleton, fps, frames
-
-
-def model_kind(hparams: dict, state_dict: dict) -> str | None:
-    """Which fixer reads a checkpoint, from the keys its training module saves; None if unknown.
-    A new model kind adds its test here and its class to FIXERS."""
-    if "net.enc_pos_joint" in state_dict and "enc_dim" in hparams:  # training/xmae_module.py
-        return "xmae"
-    if any(k.startswith("net.gen.") for k in state_dict):            # MotionDVAE weights
-        if any(k.startswith("x0_pred.") for k in state_dict):       # training/denoise_module.py
-            return "motion-dvae"
-        if "latent_dim" in hparams:                                  # training/dvae_module.py: the prior alone
-            return "motion-dvae-prior"
-    return None
-
-
-# kind -> class with from_checkpoint(path, hparams, state_dict, device)
-FIXERS: dict[str, type] = {"xmae": XMAEFixer, "motion-dvae": DVAEFixer}
-# Checkpoints fix recognises but cannot use, and why. A prior alone has no initial-state
-# predictor, and the paper's "No noisy train" ablation (appendix, Tab. 2) shows that its
-# encoder, trained on clean motion only, denoises badly: the denoising stage is what fix runs.
-REFUSED = {"motion-dvae-prior": "a Motion-DVAE prior checkpoint; fix needs the denoising stage trained from it "
-                                "(configs/motion_dvae_denoise*.yaml with model.init_args.prior_ckpt set to this file)"}
-
-
-def read_checkpoint(path) -> tuple[dict, dict]:
-    """A checkpoint -> (hyper_parameters, state_dict), loaded with weights_only=True (plain
-    values only: a checkpoint can never run code here). Anything else is a MotionFileError."""
-    path = Path(path)
-    if not path.is_file():
-        raise MotionFileError(path, "no such checkpoint file" if not path.exists() else "is not a file")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # not a zip/pickle, truncated, or objects that are not plain values
-        text = " ".join(str(e).split())
-        reason = "holds objects that are not plain values" if "weights_only" in text.lower() or \
-            "unpickl" in text.lower() else f"not a PyTorch checkpoint ({type(e).__name__})"
-        raise MotionFileError(path, f"not a mocapfix checkpoint: {reason}") from None
-    if not isinstance(ckpt, dict) or not isinstance(ckpt.get("hyper_parameters"), dict) \
-            or not isinstance(ckpt.get("state_dict"), dict):
-        raise MotionFileError(path, "not a mocapfix checkpoint: no hyper_parameters and state_dict")
-    return ckpt["hyper_parameters"], ckpt["state_dict"]
-
-
-def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32") -> Fixer:
-    """The Fixer for a checkpoint file (FIXERS: XMAE, the Motion-DVAE denoising stage).
-    precision: fp32, bf16 or auto (resolve_precision; XMAE only)."""
-    hparams, state_dict = read_checkpoint(path)
-    kind = model_kind(hparams, state_dict)
-    if kind in REFUSED:
-        raise MotionFileError(path, REFUSED[kind])
-    if kind not in FIXERS:
-        raise MotionFileError(path, "not a mocapfix checkpoint of a model fix knows "
-                                    f"({', '.join(FIXERS)}): no matching network weights")
-    return FIXERS[kind].from_checkpoint(path, hparams, state_dict, device, precision)
-
-
-def xmae_checkpoint(net: XMAE, skeleton: Skeleton, fps: float, **sizes) -> dict:
-    """The smallest checkpoint load_fixer reads for an XMAE (what XMAEModule saves, minus the
-    training state): for benchmarks and tests that need a model without training one."""
-    hp = {"skeleton": skeleton.to_dict(), "window_fps": float(fps), "window_frames": int(net.num_frames),
-          "enc_dim": net.embed.out_features, "decoder": net.decoder_type, **sizes}
-    if hasattr(net, "position_unit_m"):
-        hp["position_unit_m"] = float(net.position_unit_m)
-    return {"hyper_parameters": hp, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}
 
 
 # --- joints and frame times ---

@@ -19,7 +19,8 @@ import numpy as np
 import torch
 
 from mocapfix.clip import Clip, MotionFileError
-from mocapfix.fix import MODES, PRECISIONS, fix_clips, load_fixer, map_joints, rotation_clips
+from mocapfix.fix import MODES, fix_clips, map_joints, rotation_clips
+from mocapfix.fixers import PRECISIONS, load_fixer
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import write_bvh_like
 from mocapfix.io.positions import UNITS, _atomic_write, load_npz, npz_array, to_z_up, write_clips, write_positions

@@ -49,7 +49,7 @@ def test_prior_elbo_terms_match_a_direct_computation():
         terms, x_hat, out = m.elbo_terms(x, shape, sample=False)
         xn = (x - m.net.x_mean) / m.net.x_std
         xe = xn * (~velocity_mask("rotations", skel.num_joints)).float()  # the encoder reads the poses only
-        B, L = x.shape[0], 4
+        B = x.shape[0]
         # inference model, one step at a time: backward data LSTM, then the latent recursion
         h, c = torch.zeros(B, 16), torch.zeros(B, 16)
         h_data = [None] * (T - 1)

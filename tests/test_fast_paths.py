@@ -9,7 +9,7 @@ import torch
 
 from cli_utils import QUIET, SMALL_DATA, TINY, run_cli, CONFIGS
 from mocapfix.data.corruption import kept_count, kept_index, mask_and_displace
-from mocapfix.data.datamodule import DeviceBatches, MotionDataModule, WindowDataset
+from mocapfix.data.datamodule import DeviceBatches, WindowDataset
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.models.xmae import XMAE
 from mocapfix.training.xmae_module import XMAEModule

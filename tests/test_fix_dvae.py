@@ -17,7 +17,8 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from mocapfix.cli import main
 from mocapfix.clip import MotionFileError
-from mocapfix.fix import DVAEFixer, fix_clips, load_fixer, model_kind, read_checkpoint, resample_motion
+from mocapfix.fix import fix_clips, resample_motion
+from mocapfix.fixers import DVAEFixer, load_fixer, model_kind, read_checkpoint
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import read_bvh
 from mocapfix.io.positions import write_positions

@@ -37,8 +37,8 @@ from mocapfix.evaluation.metrics import MPJPE, JointAcceleration
 from mocapfix.evaluation.tasks import write_eval_json
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
 # the posterior pass is shared with `mocapfix fix`, which must not import training code
-from mocapfix.models.dvae_inference import (GAUSSIAN_LAMBDA, Inference, Observation, infer_posterior,  # noqa: F401
-                                            point_estimate, uses_noise_model)
+from mocapfix.models.dvae_inference import (Inference, Observation, infer_posterior, point_estimate,
+                                            uses_noise_model)
 from mocapfix.models.dvae_state import velocity_mask
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.figures import log_validation_figure
