@@ -53,7 +53,7 @@ xmae)
   # Bandai Namco, train split by file (seeded hash, 80/10/10), paper-sized XMAE, bf16, data on the GPU.
   START=$(date +%s)
   $PY -m mocapfix fit --config configs/xmae_bvh.yaml --experiment xmae_bandai_gpu "${COMMON[@]}" "${FIT_ARGS[@]}" \
-    --data.path .device_data/bandai_pos30.npz --trainer.max_steps "${STEPS:-8000}" --model.init_args.total_steps "${STEPS:-8000}" \
+    --data.path .device_data/bandai_pos30.npz --trainer.max_steps "${STEPS:-15000}" --model.init_args.total_steps "${STEPS:-15000}" \
     --trainer.max_time "${MAX_TIME:-00:00:06:00}" --trainer.val_check_interval 1000 2>&1 | tail -n 30
   FIT_END=$(date +%s)
   BEST=$(ls checkpoints/xmae_bandai_gpu/best-*.ckpt 2>/dev/null | head -1 || true)
