@@ -1,0 +1,85 @@
+"""The benchmark scripts run end to end (tiny sizes, CPU) and write their JSON: a GPU session is
+too scarce to find out there that a script broke. Nothing here asserts a speed."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from mocapfix.fixers import xmae_checkpoint
+from mocapfix.models.xmae import XMAE
+
+REPO = Path(__file__).resolve().parents[1]
+REF = REPO.parent / "shared" / "bench" / "ref_xmae.py"
+
+
+def bench(script: str, *args, tmp_path: Path) -> dict:
+    out = tmp_path / f"{script}.json"
+    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
+    run = subprocess.run([sys.executable, str(REPO / "bench" / f"{script}.py"), *map(str, args), "--json-out", str(out)],
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    return json.loads(out.read_text())
+
+
+def test_train_throughput(tmp_path):
+    ref = REF if REF.exists() else "none"
+    r = bench("train_throughput", "--device", "cpu", "--fps", "10", "--batch", "2", "--steps", "1", "--warmup", "1",
+              "--synthetic-clips", "4", "--rows", "device,constant", "--ref", ref, tmp_path=tmp_path)
+    rows = {x["row"]: x for x in r["rows"]}
+    assert {"device", "constant"} <= set(rows) and rows["device"]["seq_per_s"] > 0
+    assert rows["device"]["frames"] == 10 and rows["device"]["joints"] == 22
+    if ref != "none":  # the reference ran on the same shapes, and the ratios are against it
+        assert rows["ref fast"]["frames"] == 10 and rows["device"]["x_ref_fast"] > 0
+
+
+def test_inference(tmp_path):
+    r = bench("inference", "--device", "cpu", "--fps", "10", "--batch", "2", "--repeat", "1", tmp_path=tmp_path)
+    assert [x["case"] for x in r["rows"]] == ["full", "10% missing", "full, batch 1"]
+    # 22 joints x 10 frames: the counted work is the paper's architecture at 220 tokens
+    assert 0.5 < r["gflop_per_window"] < 5 and r["rows"][0]["tflops"] > 0
+
+
+def test_data_pipeline(tmp_path):
+    r = bench("data_pipeline", "--device", "cpu", "--bvh", "none", "--fps", "10", "--batch", "4", "--batches", "2",
+              "--workers", "0", tmp_path=tmp_path)
+    assert [x["row"] for x in r["rows"]] == ["loader", "device"] and all(x["windows_per_s"] > 0 for x in r["rows"])
+
+
+def test_dvae_speed(tmp_path):
+    r = bench("dvae_speed", "--device", "cpu", "--batch", "4", "--steps", "1", "--warmup", "0", "--eval-batch", "2",
+              "--opt-iterations", "1", tmp_path=tmp_path)
+    assert [x["row"] for x in r["rows"]][:2] == ["prior training", "regression"]
+    assert all(x.get("s_per_frame", 1) > 0 for x in r["rows"])
+
+
+def test_fix_speed(tmp_path):
+    r = bench("fix_speed", "--seconds", "2", "--overlaps", "0.5", "--cases", "denoise,infill-gaps", tmp_path=tmp_path)
+    assert [x["case"] for x in r["rows"]] == ["denoise", "infill-gaps"] and r["rows"][0]["windows"] >= 2
+
+
+def test_fix_bandai(tmp_path, bandai_dir):
+    """The issue-5 scoring on Bandai's test split, with an untrained tiny model for Bandai's joints."""
+    from mocapfix.data.datamodule import MotionDataModule
+    dm = MotionDataModule(source="bvh", path=str(bandai_dir), drop_joints=["joint_Root"], fps=30,
+                          cache_dir=str(tmp_path / "cache"))
+    skeleton = dm.load_clips()[0].skeleton
+    sizes = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16)
+    torch.save(xmae_checkpoint(XMAE(skeleton.num_joints, 30, **sizes), skeleton, 30.0, **sizes), tmp_path / "m.ckpt")
+    r = bench("fix_bandai", "--ckpt", tmp_path / "m.ckpt", "--path", bandai_dir, "--device", "cpu", tmp_path=tmp_path)
+    assert r["clips"] > 10 and r["nan_left"] == 0
+    rows = {x["tokens"]: x for x in r["rows"]}
+    # Lerp fills holes well and cannot see displaced tokens: the scoring separates the two
+    assert rows["holes"]["lerp_mm"] < 200 < rows["displaced"]["lerp_mm"]
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_inference_cuda_graphs(tmp_path):
+    r = bench("inference", "--device", "cuda", "--fps", "10", "--batch", "8", "--repeat", "2", "--compile",
+              tmp_path=tmp_path)
+    assert {x["net"] for x in r["rows"]} == {"eager", "compiled"}
