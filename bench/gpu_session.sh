@@ -70,13 +70,14 @@ print(torch.load(sys.argv[1], map_location='cpu', weights_only=True)['global_ste
     --json-out "$OUT/fix_bandai-cuda.json" 2>&1 | tail -n 10
   ;;
 bench)
-  $PY bench/inference.py --compile --json-out "$OUT/inference-cuda.json" 2>&1 | tail -n 12
+  # most important first: a call cut at 10 minutes keeps what ran
   $PY bench/train_throughput.py --ref .device_data/ref_xmae.py --json-out "$OUT/train_throughput-cuda.json" \
     2>&1 | grep -v -e "^GPU available" -e "^TPU available" -e "LOCAL_RANK" -e "Tip:" | tail -n 20
   cp "$OUT/train_throughput-cuda.json" bench/results/  # data_pipeline compares against it
+  $PY bench/inference.py --compile --json-out "$OUT/inference-cuda.json" 2>&1 | tail -n 12
   $PY bench/data_pipeline.py --bvh none --json-out "$OUT/data_pipeline-cuda.json" 2>&1 | tail -n 10
-  $PY bench/fix_speed.py --device cuda --batch-size 512 --json-out "$OUT/fix_speed-cuda.json" 2>&1 | tail -n 8
   $PY bench/dvae_speed.py --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
+  $PY bench/fix_speed.py --device cuda --batch-size 512 --json-out "$OUT/fix_speed-cuda.json" 2>&1 | tail -n 8
   ;;
 dvae)
   # One call: the prior checkpoint (~360 MB) cannot travel to a later call. The prior's own test
