@@ -123,9 +123,8 @@ def main(argv=None) -> int:
     args.precision = args.precision or ("bf16-mixed" if gpu else "32-true")
     args.warmup = args.warmup if args.warmup is not None else (30 if gpu else 2)
     args.steps = args.steps or (300 if gpu else 5)
-    if gpu:
-        torch.backends.cuda.matmul.allow_tf32 = True  # fp32 matmuls of the reference's naive mode too
-        torch.backends.cudnn.allow_tf32 = True
+    # as `python -m mocapfix fit` sets it; ref_xmae.py runs in its own process, as written
+    torch.set_float32_matmul_precision("high")
 
     rows = [run_trainer(r, args, device) for r in args.rows.split(",") if r]
     if args.ref != "none":

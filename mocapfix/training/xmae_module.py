@@ -67,7 +67,8 @@ class XMAEModule(L.LightningModule):
             mask_ratio, displace_ratio: fractions of all J*T tokens masked / displaced in training.
             max_displacement_m: radius of the ball displacement offsets are drawn from.
             clean_loss_ratio: fraction of all tokens kept clean AND put in the loss ("BERT masking": 0.05).
-            fixed_kept_count: every sample keeps the same number of tokens (no padding in the encoder).
+            fixed_kept_count: every sample keeps the same number of tokens, known from mask_ratio
+                without reading the batch (no host-device sync); only samples short of data are padded.
             rotate_augment: random rotation about z after normalisation.
             compile_model: torch.compile the network (faster GPU steps after a minute of compiling;
                 checkpoints are the same either way).
