@@ -24,20 +24,15 @@ import torch
 
 from common import RESULTS, describe, pick_device, print_table, sync, write_result
 
-from mocapfix.data.corruption import kept_count, kept_index, mask_and_displace, normalize, random_z_rotation  # noqa: E402
+from mocapfix.data.corruption import xmae_training_input  # noqa: E402
 from mocapfix.data.datamodule import DeviceBatches, MotionDataModule  # noqa: E402
 
 DEFAULT_BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"
 
 
 def corrupt(positions: torch.Tensor) -> torch.Tensor:
-    """XMAE's training corruption (as XMAEModule.training_step applies it), paper ratios."""
-    B, T, J, _ = positions.shape
-    c = mask_and_displace(positions, 0.85, 0.05, 1.0)
-    x, _ = normalize(c.positions, c.observed)
-    x, _ = random_z_rotation(x)
-    kept, _ = kept_index(c.observed, kept_count(T * J, 0.85))
-    return x.reshape(B, T * J, 3).gather(1, kept[..., None].expand(-1, -1, 3))
+    """XMAE's training corruption (the one XMAEModule.training_step applies), paper ratios."""
+    return xmae_training_input(positions, 0.85, 0.05, 1.0).tokens
 
 
 def windows_per_s(batches, device: torch.device, n: int, non_blocking: bool) -> float:

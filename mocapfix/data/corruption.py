@@ -131,6 +131,32 @@ def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displac
     return _pack(moved, observed, displaced)
 
 
+class TrainingInput(NamedTuple):
+    tokens: torch.Tensor     # (B, N, 3) the model's input: normalised (and rotated) corrupted positions
+    target: torch.Tensor     # (B, T, J, 3) the clean positions in the same frame (NaN where the data has none)
+    corrupted: Corrupted     # which tokens are observed / displaced
+    offset: torch.Tensor     # (B, 1, 1, 3) the normalisation offset
+    kept: torch.Tensor       # (B, K) observed token indices
+    padding: torch.Tensor    # (B, K) True where a sample kept fewer than K tokens
+
+
+def xmae_training_input(positions: torch.Tensor, mask_ratio: float, displace_ratio: float,
+                        max_displacement_m: float, fixed_kept_count: bool = True, rotate: bool = True,
+                        generator: torch.Generator | None = None) -> TrainingInput:
+    """XMAE's training corruption of a batch (B, T, J, 3), all on the batch's device: mask and
+    displace, normalise, rotate about z (rotate=True), index the observed tokens. With a fixed
+    kept count, K is known without reading the data: no host-device sync."""
+    B, T, J, _ = positions.shape
+    c = mask_and_displace(positions, mask_ratio, displace_ratio, max_displacement_m, fixed_kept_count, generator)
+    x, offset = normalize(c.positions, c.observed)
+    target = positions - offset
+    if rotate:
+        x, angle = random_z_rotation(x, generator)
+        target = rotate_z(target, angle)
+    kept, padding = kept_index(c.observed, kept_count(T * J, mask_ratio) if fixed_kept_count else None)
+    return TrainingInput(x.reshape(B, T * J, 3), target, c, offset, kept, padding)
+
+
 def kept_index(observed: torch.Tensor, count: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Index form of the observed tokens, for an encoder that should not see masked tokens.
 

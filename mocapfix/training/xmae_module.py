@@ -14,7 +14,7 @@ import lightning as L
 import torch
 import torch.nn as nn
 
-from mocapfix.data.corruption import kept_count, kept_index, mask_and_displace, normalize, random_z_rotation, rotate_z
+from mocapfix.data.corruption import xmae_training_input
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows, write_eval_json
@@ -132,17 +132,10 @@ class XMAEModule(L.LightningModule):
         Returns loss, prediction and target (both normalised), and the corruption."""
         hp = self.hparams
         B, T, J, _ = positions.shape
-        c = mask_and_displace(positions, hp.mask_ratio, hp.displace_ratio, hp.max_displacement_m,
-                              hp.fixed_kept_count, generator)
-        x, offset = normalize(c.positions, c.observed)
-        target = positions - offset
-        if hp.rotate_augment and self.training:
-            x, angle = random_z_rotation(x, generator)
-            target = rotate_z(target, angle)
-        # A fixed kept count is known without looking at the data: no host-device sync here.
-        count = kept_count(T * J, hp.mask_ratio) if hp.fixed_kept_count else None
-        kept, padding = kept_index(c.observed, count)
-        pred = self.net(x.reshape(B, T * J, 3), kept, padding).reshape(B, T, J, 3)
+        x, target, c, offset, kept, padding = xmae_training_input(
+            positions, hp.mask_ratio, hp.displace_ratio, hp.max_displacement_m, hp.fixed_kept_count,
+            hp.rotate_augment and self.training, generator)
+        pred = self.net(x, kept, padding).reshape(B, T, J, 3)
         has_truth = ~torch.isnan(target).any(-1)
         in_loss = (~c.observed | c.displaced) & has_truth
         if hp.clean_loss_ratio > 0:  # BERT masking: some clean observed tokens are scored too
