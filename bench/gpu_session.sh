@@ -6,6 +6,15 @@
 #   bash bench/gpu_session.sh xmae    # issue 3: XMAE on Bandai (fit + test), a small checkpoint back for fix (issue 5)
 #   bash bench/gpu_session.sh bench   # issue 6: inference, training vs ref_xmae, data pipeline, fix and DVAE speed
 #   bash bench/gpu_session.sh dvae    # issue 4: Motion-DVAE prior (+ its test) + denoising + test
+#   bash bench/gpu_session.sh dvae-prior     # issue 4 over several calls: the prior only (RESUME=1 goes on)
+#   bash bench/gpu_session.sh dvae-denoise   # ... then its test, the denoising stage and its test
+#
+# A run longer than one call: the machine keeps checkpoints/ while it stays warm (~30 s between
+# calls), so back-to-back calls with RESUME=1 continue last.ckpt. MAX_TIME / PRIOR_TIME count the
+# whole run (Lightning's Timer state is in the checkpoint), so raise them by one call each time.
+# FIT_ONLY=1 (xmae): fit only, no test/fix, for the calls before the last. COMPILE=1 (xmae):
+# model.compile_model (34 instead of 42 ms a step on the H100, docs/performance.md); give it on
+# the first call: a resumed run takes the checkpoint's hyperparameters over the command line.
 #
 # Needs, carried as git-ignored folders (the GPU image has torch and lightning but not these):
 #   .whl/          wheels: roma omegaconf antlr4-python3-runtime jsonargparse docstring-parser typeshed-client
@@ -14,7 +23,7 @@
 # STEPS / MAX_TIME (xmae), PRIOR_TIME / DENOISE_TIME (dvae) trim the runs to the call's 10 minutes.
 # Results land in $OUT (the device tool brings them back): eval tables, bench JSON, a small checkpoint.
 set -euo pipefail
-PART=${1:?usage: gpu_session.sh prepare|xmae|bench|dvae}
+PART=${1:?usage: gpu_session.sh prepare|xmae|bench|dvae|dvae-prior|dvae-denoise}
 if [ "$PART" = prepare ]; then  # on this machine, before the calls: what they carry
   mkdir -p .device_data .whl
   cp ../shared/bench/ref_xmae.py .device_data/
@@ -52,10 +61,14 @@ case "$PART" in
 xmae)
   # Bandai Namco, train split by file (seeded hash, 80/10/10), paper-sized XMAE, bf16, data on the GPU.
   START=$(date +%s)
+  RUN_ARGS=()
+  if [ -n "${RESUME:-}" ]; then RUN_ARGS+=(--ckpt_path checkpoints/xmae_bandai_gpu/last.ckpt); fi
+  if [ -n "${COMPILE:-}" ]; then RUN_ARGS+=(--model.init_args.compile_model true); fi
   $PY -m mocapfix fit --config configs/xmae_bvh.yaml --experiment xmae_bandai_gpu "${COMMON[@]}" "${FIT_ARGS[@]}" \
     --data.path .device_data/bandai_pos30.npz --trainer.max_steps "${STEPS:-15000}" --model.init_args.total_steps "${STEPS:-15000}" \
-    --trainer.max_time "${MAX_TIME:-00:00:06:00}" --trainer.val_check_interval 1000 2>&1 | tail -n 30
+    --trainer.max_time "${MAX_TIME:-00:00:06:00}" --trainer.val_check_interval 1000 "${RUN_ARGS[@]}" 2>&1 | tail -n 30
   FIT_END=$(date +%s)
+  if [ -n "${FIT_ONLY:-}" ]; then ls -la checkpoints/xmae_bandai_gpu; exit 0; fi
   BEST=$(ls checkpoints/xmae_bandai_gpu/best-*.ckpt 2>/dev/null | head -1 || true)
   BEST=${BEST:-checkpoints/xmae_bandai_gpu/last.ckpt}
   $PY -m mocapfix test --config configs/xmae_bvh.yaml --experiment xmae_bandai_gpu "${COMMON[@]}" \
@@ -79,22 +92,29 @@ bench)
   $PY bench/dvae_speed.py --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
   $PY bench/fix_speed.py --device cuda --batch-size 512 --json-out "$OUT/fix_speed-cuda.json" 2>&1 | tail -n 8
   ;;
-dvae)
-  # One call: the prior checkpoint (~360 MB) cannot travel to a later call. The prior's own test
-  # MPJPE on clean windows is the floor of the denoiser: read it first (docs/STATUS.md).
+dvae|dvae-prior|dvae-denoise)
+  # The prior checkpoint (~360 MB) does not come back: prior and denoising run on one warm
+  # machine, in one call (dvae) or in back-to-back calls (dvae-prior [RESUME=1] ..., dvae-denoise).
+  # The prior's own test MPJPE on clean windows is the floor of the denoiser: read it first.
   C=("${COMMON[@]}" --data.path .device_data/bandai_rot30.npz)
-  $PY -m mocapfix fit --config configs/motion_dvae_bvh.yaml "${C[@]}" "${FIT_ARGS[@]}" \
-    --trainer.max_time "${PRIOR_TIME:-00:00:04:45}" 2>&1 | tail -n 5
-  $PY -m mocapfix test --config configs/motion_dvae_bvh.yaml "${C[@]}" \
-    --ckpt_path checkpoints/motion_dvae_bvh/last.ckpt 2>&1 | tee "$OUT/dvae_prior_test.txt" | tail -n 15
-  $PY -m mocapfix fit --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" \
-    --model.init_args.prior_ckpt checkpoints/motion_dvae_bvh/last.ckpt \
-    --trainer.max_time "${DENOISE_TIME:-00:00:02:30}" 2>&1 | tail -n 5
-  $PY -m mocapfix test --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" \
-    --ckpt_path checkpoints/motion_dvae_denoise_bvh/last.ckpt 2>&1 | tee "$OUT/dvae_test.txt" | grep -v "test/" | tail -n 40
-  cp "$(ls -t logs/motion_dvae_denoise_bvh/version_*/eval.json | head -1)" "$OUT/dvae_eval.json"
+  if [ "$PART" != dvae-denoise ]; then
+    PRIOR_ARGS=()
+    if [ -n "${RESUME:-}" ]; then PRIOR_ARGS+=(--ckpt_path checkpoints/motion_dvae_bvh/last.ckpt); fi
+    $PY -m mocapfix fit --config configs/motion_dvae_bvh.yaml "${C[@]}" "${FIT_ARGS[@]}" \
+      --trainer.max_time "${PRIOR_TIME:-00:00:04:45}" "${PRIOR_ARGS[@]}" 2>&1 | tail -n 5
+  fi
+  if [ "$PART" != dvae-prior ]; then
+    $PY -m mocapfix test --config configs/motion_dvae_bvh.yaml "${C[@]}" \
+      --ckpt_path checkpoints/motion_dvae_bvh/last.ckpt 2>&1 | tee "$OUT/dvae_prior_test.txt" | tail -n 15
+    $PY -m mocapfix fit --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" \
+      --model.init_args.prior_ckpt checkpoints/motion_dvae_bvh/last.ckpt \
+      --trainer.max_time "${DENOISE_TIME:-00:00:02:30}" 2>&1 | tail -n 5
+    $PY -m mocapfix test --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" \
+      --ckpt_path checkpoints/motion_dvae_denoise_bvh/last.ckpt 2>&1 | tee "$OUT/dvae_test.txt" | grep -v "test/" | tail -n 40
+    cp "$(ls -t logs/motion_dvae_denoise_bvh/version_*/eval.json | head -1)" "$OUT/dvae_eval.json"
+  fi
   ;;
 *)
-  echo "unknown part $PART (xmae | bench | dvae)" >&2; exit 2 ;;
+  echo "unknown part $PART (xmae | bench | dvae | dvae-prior | dvae-denoise)" >&2; exit 2 ;;
 esac
 ls -la "$OUT"
