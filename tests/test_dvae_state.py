@@ -73,6 +73,40 @@ def test_unwrap_keeps_axis_angle_continuous_through_half_a_turn():
     assert torch.allclose(out[0], angle[:, None] * axis, atol=1e-5)
 
 
+def test_unwrap_follows_a_spin_of_several_turns_and_a_pass_through_identity():
+    axis = torch.tensor([0.48, -0.6, 0.64])
+    spin = torch.linspace(0.5, 9.0, 40)            # about 1.4 turns, 0.22 rad a frame
+    through_zero = torch.linspace(0.6, -0.6, 13)   # the shortest form's axis flips at the identity
+    for angle in (spin, through_zero):
+        shortest = roma.rotmat_to_rotvec(roma.rotvec_to_rotmat(angle[:, None] * axis))[None]
+        assert torch.allclose(unwrap_rotvec(shortest)[0], angle[:, None] * axis, atol=1e-4)
+
+
+def _unwrap_frame_by_frame(rotvec):
+    """The definition unwrap_rotvec vectorises: each frame takes the 2 pi k nearest the previous output."""
+    theta = rotvec.norm(dim=-1, keepdim=True)
+    axis = rotvec / theta.clamp_min(1e-8)
+    out = [rotvec[:, 0]]
+    for t in range(1, rotvec.shape[1]):
+        k = torch.round(((axis[:, t] * out[-1]).sum(-1, keepdim=True) - theta[:, t]) / (2 * math.pi))
+        out.append(axis[:, t] * (theta[:, t] + 2 * math.pi * torch.where(theta[:, t] > 1e-6, k, 0.0)))
+    return torch.stack(out, dim=1)
+
+
+def test_unwrap_matches_the_frame_by_frame_definition_on_smooth_random_motion():
+    g = torch.Generator().manual_seed(0)
+    # (16 windows, 30 frames, 5 joints): smooth paths that wander through half turns and back
+    start = torch.randn(16, 1, 5, 3, generator=g) * 2.0
+    velocity = torch.randn(16, 1, 5, 3, generator=g) * 0.05
+    wobble = 0.02 * torch.randn(16, 30, 5, 3, generator=g).cumsum(1)
+    path = start + velocity * torch.arange(30.0)[None, :, None, None] + wobble
+    shortest = roma.rotmat_to_rotvec(roma.rotvec_to_rotmat(path))
+    assert (shortest[:, 1:] - shortest[:, :-1]).norm(dim=-1).max() > 5.0  # there are jumps to remove
+    out = unwrap_rotvec(shortest)
+    assert torch.allclose(out, _unwrap_frame_by_frame(shortest), atol=1e-4)
+    assert (out[:, 1:] - out[:, :-1]).norm(dim=-1).max() < 1.0
+
+
 def test_finite_difference_is_exact_on_lines_and_per_second():
     t = torch.arange(10.0) / 30.0
     x = (2.0 * t - 1.0)[None, :, None].expand(2, 10, 3)
