@@ -9,6 +9,7 @@ regression 1e-3 s/frame on a GTX 1070.
 
     python bench/dvae_speed.py                      # CUDA when there is one
     python bench/dvae_speed.py --device cpu --threads 1
+    python bench/dvae_speed.py --compile            # also the prior's step with compile_model
 """
 from __future__ import annotations
 
@@ -37,6 +38,7 @@ def main(argv=None) -> int:
     ap.add_argument("--warmup", type=int, default=None)
     ap.add_argument("--steps", type=int, default=None, help="timed training steps (default 100 CUDA, 3 CPU)")
     ap.add_argument("--opt-iterations", type=int, default=50)
+    ap.add_argument("--compile", action="store_true", help="add a training row with compile_model (torch.compile)")
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
     device = pick_device(args.device)
@@ -51,15 +53,23 @@ def main(argv=None) -> int:
     dm = MotionDataModule(source="synthetic", with_rotations=True, fps=30, window_s=1.0, stride_s=1 / 30,
                           synthetic_clips=48, batch_size=args.batch, cache_dir=None, val_fraction=0.0,
                           test_fraction=0.0)
-    prior = MotionDVAEModule(state="rotations", body_model="skeleton", kl_anneal_steps=10)
-    clock = StepClock(warmup)
-    trainer = L.Trainer(accelerator=device.type, devices=1, precision="32-true", max_steps=warmup + steps,
-                        logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                        enable_model_summary=False, limit_val_batches=0, num_sanity_val_steps=0, callbacks=[clock])
-    trainer.fit(prior, datamodule=dm)
-    seconds = clock.t1 - clock.t0
-    rows = [{"row": "prior training", "batch": args.batch, "steps": clock.steps,
-             "ms_per_call": 1000 * seconds / clock.steps, "seq_per_s": clock.steps * args.batch / seconds}]
+
+    def train(compile_model: bool):
+        prior = MotionDVAEModule(state="rotations", body_model="skeleton", kl_anneal_steps=10, compile_model=compile_model)
+        clock = StepClock(warmup)
+        trainer = L.Trainer(accelerator=device.type, devices=1, precision="32-true", max_steps=warmup + steps,
+                            logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                            enable_model_summary=False, limit_val_batches=0, num_sanity_val_steps=0, callbacks=[clock])
+        trainer.fit(prior, datamodule=dm)
+        seconds = clock.t1 - clock.t0
+        return prior, trainer, {"row": "prior training" + (", compiled" if compile_model else ""), "batch": args.batch,
+                                "steps": clock.steps, "ms_per_call": 1000 * seconds / clock.steps,
+                                "seq_per_s": clock.steps * args.batch / seconds}
+
+    prior, trainer, row = train(False)
+    rows = [row]
+    if args.compile:  # the warm-up steps take the compilation
+        rows.append(train(True)[2])
 
     with tempfile.TemporaryDirectory() as tmp:
         ckpt = Path(tmp) / "prior.ckpt"

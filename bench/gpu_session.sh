@@ -8,11 +8,12 @@
 #   bash bench/gpu_session.sh dvae    # issue 4: Motion-DVAE prior (+ its test) + denoising + test
 #   bash bench/gpu_session.sh dvae-prior     # issue 4 over several calls: the prior only (RESUME=1 goes on)
 #   bash bench/gpu_session.sh dvae-denoise   # ... then its test, the denoising stage and its test
+#   bash bench/gpu_session.sh dvae-speed     # the prior's training step eager vs compiled (minutes)
 #
 # A run longer than one call: the machine keeps checkpoints/ while it stays warm (~30 s between
 # calls), so back-to-back calls with RESUME=1 continue last.ckpt. MAX_TIME / PRIOR_TIME count the
 # whole run (Lightning's Timer state is in the checkpoint), so raise them by one call each time.
-# FIT_ONLY=1 (xmae): fit only, no test/fix, for the calls before the last. COMPILE=1 (xmae):
+# FIT_ONLY=1 (xmae): fit only, no test/fix, for the calls before the last. COMPILE=1 (xmae, dvae*):
 # model.compile_model (34 instead of 42 ms a step on the H100, docs/performance.md); give it on
 # the first call: a resumed run takes the checkpoint's hyperparameters over the command line.
 #
@@ -23,7 +24,7 @@
 # STEPS / MAX_TIME (xmae), PRIOR_TIME / DENOISE_TIME (dvae) trim the runs to the call's 10 minutes.
 # Results land in $OUT (the device tool brings them back): eval tables, bench JSON, a small checkpoint.
 set -euo pipefail
-PART=${1:?usage: gpu_session.sh prepare|xmae|bench|dvae|dvae-prior|dvae-denoise}
+PART=${1:?usage: gpu_session.sh prepare|xmae|bench|dvae|dvae-prior|dvae-denoise|dvae-speed}
 if [ "$PART" = prepare ]; then  # on this machine, before the calls: what they carry
   mkdir -p .device_data .whl
   cp ../shared/bench/ref_xmae.py .device_data/
@@ -89,8 +90,12 @@ bench)
   cp "$OUT/train_throughput-cuda.json" bench/results/  # data_pipeline compares against it
   $PY bench/inference.py --compile --json-out "$OUT/inference-cuda.json" 2>&1 | tail -n 12
   $PY bench/data_pipeline.py --bvh none --json-out "$OUT/data_pipeline-cuda.json" 2>&1 | tail -n 10
-  $PY bench/dvae_speed.py --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
+  $PY bench/dvae_speed.py --compile --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
   $PY bench/fix_speed.py --device cuda --batch-size 512 --json-out "$OUT/fix_speed-cuda.json" 2>&1 | tail -n 8
+  ;;
+dvae-speed)
+  # a few minutes: is the prior's step faster compiled? (decides COMPILE=1 for dvae-prior)
+  $PY bench/dvae_speed.py --compile --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
   ;;
 dvae|dvae-prior|dvae-denoise)
   # The prior checkpoint (~360 MB) does not come back: prior and denoising run on one warm
@@ -100,6 +105,7 @@ dvae|dvae-prior|dvae-denoise)
   if [ "$PART" != dvae-denoise ]; then
     PRIOR_ARGS=()
     if [ -n "${RESUME:-}" ]; then PRIOR_ARGS+=(--ckpt_path checkpoints/motion_dvae_bvh/last.ckpt); fi
+    if [ -n "${COMPILE:-}" ]; then PRIOR_ARGS+=(--model.init_args.compile_model true); fi
     $PY -m mocapfix fit --config configs/motion_dvae_bvh.yaml "${C[@]}" "${FIT_ARGS[@]}" \
       --trainer.max_time "${PRIOR_TIME:-00:00:04:45}" "${PRIOR_ARGS[@]}" 2>&1 | tail -n 5
   fi
@@ -115,6 +121,6 @@ dvae|dvae-prior|dvae-denoise)
   fi
   ;;
 *)
-  echo "unknown part $PART (xmae | bench | dvae | dvae-prior | dvae-denoise)" >&2; exit 2 ;;
+  echo "unknown part $PART (xmae | bench | dvae | dvae-prior | dvae-denoise | dvae-speed)" >&2; exit 2 ;;
 esac
 ls -la "$OUT"

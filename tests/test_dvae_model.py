@@ -3,6 +3,9 @@
 the inverse-gamma KL and expectations of the denoising ELBO."""
 from __future__ import annotations
 
+import shutil
+
+import pytest
 import torch
 from torch.distributions import Gamma, InverseGamma, Normal, kl_divergence
 
@@ -237,3 +240,21 @@ def test_estimate_is_in_the_world_frame_and_starts_at_the_observed_pose():
     canonical = (inf.m - to_canonical(truth, inf.canon)).norm(dim=-1).mean()
     torch.testing.assert_close(world, canonical, atol=1e-5, rtol=1e-4)
     assert world > 1e-3  # an untrained decoder: the comparison is not between zeros
+
+
+@pytest.mark.skipif(not (shutil.which("cc") or shutil.which("gcc")), reason="torch.compile on CPU needs a C compiler")
+def test_compiled_prior_gives_the_eager_elbo_and_gradients_and_the_same_checkpoint_names():
+    batch, skel = _batch()
+    eager, compiled = _tiny(skel), _tiny(skel, compile_model=True)
+    assert compiled.net._compiled_call_impl is not None and eager.net._compiled_call_impl is None
+    assert list(eager.state_dict()) == list(compiled.state_dict())
+    compiled.load_state_dict(eager.state_dict())  # a checkpoint of either loads into the other
+    results = []
+    for m in (eager, compiled):
+        x, shape = m.encode_batch(batch)
+        terms, _, _ = m.elbo_terms(x, shape, sample=False)  # the posterior-mean path: no random draws to match
+        loss = terms.rec + terms.kl + terms.reg
+        loss.backward()
+        results.append((loss.detach(), m.net.enc.e_glob.net[0].weight.grad.clone()))
+    torch.testing.assert_close(results[0][0], results[1][0], atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(results[0][1], results[1][1], atol=1e-4, rtol=1e-3)

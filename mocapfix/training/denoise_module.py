@@ -68,6 +68,7 @@ class DVAEDenoiseModule(L.LightningModule):
         opt_lr: float | None = 1e-4,
         eval_seed: int = 0,
         figure_every_n_val: int = 1,
+        compile_model: bool = False,
         prior_hparams: dict | None = None,
     ):
         """
@@ -83,6 +84,8 @@ class DVAEDenoiseModule(L.LightningModule):
             lr, betas: Adamax. kl_weight, kl_anneal_*: KL(q_phi || p_theta) annealing, as the prior's.
             opt_iterations, opt_lr: optimisation mode (50 as the paper). A fresh Adamax on a trained
                 network jumps in its first steps: opt_lr stays below lr (None: lr).
+            compile_model: torch.compile the prior's networks (as MotionDVAEModule's flag; a prior
+                trained with it compiles anyway).
             prior_hparams: filled in from the prior checkpoint; with it the module rebuilds without the file.
         """
         super().__init__()
@@ -110,6 +113,8 @@ class DVAEDenoiseModule(L.LightningModule):
         ph = self.hparams.prior_hparams
         self.net, self.body, self.codec = prior.net, prior.body, prior.codec
         self.net.gen.requires_grad_(False)  # prior p_theta_z and decoder p_theta_x stay as trained
+        if compile_model:
+            self.net.compile()
         self.window_fps = float(ph["window_fps"])
         D, H, Hm, G = self.codec.dim, ph["lstm_hidden"], ph["mlp_hidden"], ph["norm_groups"]
         num_points = self.codec.num_joints + (self.body.num_markers if self.body is not None else 0)

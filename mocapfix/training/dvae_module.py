@@ -100,6 +100,7 @@ class MotionDVAEModule(L.LightningModule):
         kl_anneal_epochs: float = 50.0,
         kl_anneal_steps: int | None = None,
         figure_every_n_val: int = 1,
+        compile_model: bool = False,
         skeleton: dict | None = None,
         window_fps: float | None = None,
         window_frames: int | None = None,
@@ -119,6 +120,11 @@ class MotionDVAEModule(L.LightningModule):
                 only; velocities of noisy observations are amplified noise, see MotionDVAE).
             lr, betas: Adamax. lr_milestones: optimiser steps where lr is multiplied by lr_decay.
             kl_anneal_epochs / kl_anneal_steps: linear KL annealing length (steps win when given).
+            compile_model: torch.compile the networks. A training step is hundreds of small kernels
+                (the encoder's latent recursion walks the frames one by one), so on a GPU it is
+                bound by launches, not arithmetic; compiling fuses them. The nn.LSTM layers stay
+                eager (dynamo does not trace them) and keep their cuDNN kernels. Parameter names,
+                and so checkpoints, are the same with or without it.
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
         """
         super().__init__()
@@ -142,6 +148,8 @@ class MotionDVAEModule(L.LightningModule):
         self.codec = MotionState(hp.state, skel.parents, skel.groups, hp.window_fps, self.body)
         velocity = None if hp.get("encoder_velocities", False) else velocity_mask(hp.state, skel.num_joints)
         self.net = MotionDVAE(self.codec.dim, hp.latent_dim, hp.lstm_hidden, hp.mlp_hidden, hp.norm_groups, velocity)
+        if hp.get("compile_model"):
+            self.net.compile()  # in place: the state dict keeps its names
         self.val_mpjpe, self.test_mpjpe = MPJPE(), MPJPE()
 
     def setup(self, stage: str) -> None:
