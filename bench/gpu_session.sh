@@ -78,6 +78,7 @@ xmae)
 print(torch.load(sys.argv[1], map_location='cpu', weights_only=True)['global_step'])" checkpoints/xmae_bandai_gpu/last.ckpt)" \
     | tee -a "$OUT/xmae_test.txt"
   cp "$(ls -t logs/xmae_bandai_gpu/version_*/eval.json | head -1)" "$OUT/xmae_eval.json"
+  tar czf "$OUT/xmae_logs.tgz" logs/xmae_bandai_gpu  # TensorBoard events of every call of the run
   $PY bench/shrink_checkpoint.py "$BEST" "$OUT/xmae_bandai.ckpt"
   # issue 5 on the same model: fix --mode both on the corrupted Bandai test clips vs Lerp
   $PY bench/fix_bandai.py --ckpt "$BEST" --source archive --path .device_data/bandai_pos30.npz \
@@ -112,12 +113,17 @@ dvae|dvae-prior|dvae-denoise)
   if [ "$PART" != dvae-prior ]; then
     $PY -m mocapfix test --config configs/motion_dvae_bvh.yaml "${C[@]}" \
       --ckpt_path checkpoints/motion_dvae_bvh/last.ckpt 2>&1 | tee "$OUT/dvae_prior_test.txt" | tail -n 15
+    # where the denoising stage starts: the prior's encoder and untrained predictors on noisy windows
+    $PY -m mocapfix test --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" --experiment motion_dvae_denoise_untrained \
+      --model.init_args.prior_ckpt checkpoints/motion_dvae_bvh/last.ckpt --model.init_args.opt_iterations 0 2>&1 \
+      | grep -v "test/" | tail -n 10 | tee "$OUT/dvae_test_untrained.txt"
     $PY -m mocapfix fit --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" \
       --model.init_args.prior_ckpt checkpoints/motion_dvae_bvh/last.ckpt \
       --trainer.max_time "${DENOISE_TIME:-00:00:02:30}" 2>&1 | tail -n 5
     $PY -m mocapfix test --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" \
       --ckpt_path checkpoints/motion_dvae_denoise_bvh/last.ckpt 2>&1 | tee "$OUT/dvae_test.txt" | grep -v "test/" | tail -n 40
     cp "$(ls -t logs/motion_dvae_denoise_bvh/version_*/eval.json | head -1)" "$OUT/dvae_eval.json"
+    tar czf "$OUT/dvae_logs.tgz" logs/motion_dvae_bvh logs/motion_dvae_denoise_bvh  # TensorBoard events
   fi
   ;;
 *)
