@@ -18,12 +18,15 @@ def forward_kinematics(local_rotmats: torch.Tensor, root_translation: torch.Tens
     returns positions (..., J, 3) and global rotations (..., J, 3, 3)."""
     J = local_rotmats.shape[-3]
     offsets = offsets.to(local_rotmats.dtype).expand(*local_rotmats.shape[:-3], J, 3)
-    glob_rot = [local_rotmats[..., 0, :, :]]
+    # unbind once, not index per joint: the backward of one unbind is one stack, that of J
+    # indexings is J zero-filled full-size gradients (FK sits in the Motion-DVAE training loss)
+    local, offset = local_rotmats.unbind(-3), offsets.unbind(-2)    # J x (..., 3, 3), J x (..., 3)
+    glob_rot = [local[0]]
     glob_pos = [root_translation.to(local_rotmats.dtype)]
     for j in range(1, J):
         p = parents[j]
-        glob_pos.append(glob_pos[p] + (glob_rot[p] @ offsets[..., j, :, None])[..., 0])
-        glob_rot.append(glob_rot[p] @ local_rotmats[..., j, :, :])
+        glob_pos.append(glob_pos[p] + (glob_rot[p] @ offset[j][..., None])[..., 0])
+        glob_rot.append(glob_rot[p] @ local[j])
     return torch.stack(glob_pos, dim=-2), torch.stack(glob_rot, dim=-3)
 
 

@@ -4,6 +4,7 @@ eval.json."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 import torch
@@ -170,3 +171,14 @@ def test_positions_state_runs_both_stages_on_position_noise(tmp_path):
     assert run_cli(["fit", "--config", CONFIGS / "motion_dvae_denoise.yaml", *data, "--model.init_args.prior_ckpt",
                     ckpt, "--model.init_args.noise", "position", "--model.init_args.train_sigmas", "[0.02]",
                     "--model.init_args.val_sigma", "0.02", "--trainer.fast_dev_run", "1"], tmp_path) == 0
+
+
+@pytest.mark.skipif(not (shutil.which("cc") or shutil.which("gcc")), reason="torch.compile on CPU needs a C compiler")
+def test_compiled_denoiser_estimates_as_the_eager_one(prior_ckpt):
+    eager, batch = _tiny_denoiser(prior_ckpt)
+    compiled = DVAEDenoiseModule(prior_ckpt=str(prior_ckpt), noise_lambda=5.0, compile_model=True)
+    assert compiled.net._compiled_call_impl is not None and eager.net._compiled_call_impl is None
+    compiled.load_state_dict(eager.state_dict())
+    obs = eager.observation(eager.add_noise(batch, 0.1, torch.Generator().manual_seed(1)))
+    with torch.no_grad():
+        torch.testing.assert_close(compiled.eval().estimate(obs), eager.eval().estimate(obs), atol=1e-4, rtol=1e-4)

@@ -115,6 +115,8 @@ class DVAEDenoiseModule(L.LightningModule):
         self.net.gen.requires_grad_(False)  # prior p_theta_z and decoder p_theta_x stay as trained
         if compile_model:
             self.net.compile()
+            if self.body is not None:
+                self.body.compile()
         self.window_fps = float(ph["window_fps"])
         D, H, Hm, G = self.codec.dim, ph["lstm_hidden"], ph["mlp_hidden"], ph["norm_groups"]
         num_points = self.codec.num_joints + (self.body.num_markers if self.body is not None else 0)

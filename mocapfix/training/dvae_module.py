@@ -148,8 +148,10 @@ class MotionDVAEModule(L.LightningModule):
         self.codec = MotionState(hp.state, skel.parents, skel.groups, hp.window_fps, self.body)
         velocity = None if hp.get("encoder_velocities", False) else velocity_mask(hp.state, skel.num_joints)
         self.net = MotionDVAE(self.codec.dim, hp.latent_dim, hp.lstm_hidden, hp.mlp_hidden, hp.norm_groups, velocity)
-        if hp.get("compile_model"):
-            self.net.compile()  # in place: the state dict keeps its names
+        if hp.get("compile_model"):  # in place: the state dict keeps its names
+            self.net.compile()
+            if self.body is not None:
+                self.body.compile()  # FK's joint walk sits in the regulariser, forward and backward
         self.val_mpjpe, self.test_mpjpe = MPJPE(), MPJPE()
 
     def setup(self, stage: str) -> None:
