@@ -58,6 +58,14 @@ def test_dvae_speed(tmp_path):
     assert all(x.get("s_per_frame", 1) > 0 for x in r["rows"])
 
 
+def test_dvae_op_count(tmp_path):
+    r = bench("dvae_op_count", "--batch", "4", "--lstm-hidden", "16", tmp_path=tmp_path)
+    ops = {x["part"]: x["ops"] for x in r["rows"]}
+    assert ops["encoder"] > 0 and ops["backward"] > ops["encoder"]
+    # the state of 30 frames is whole-window arithmetic (a frame loop in unwrap_rotvec put ~740 here)
+    assert ops["state"] < 400
+
+
 def test_fix_speed(tmp_path):
     r = bench("fix_speed", "--seconds", "2", "--overlaps", "0.5", "--cases", "denoise,infill-gaps", tmp_path=tmp_path)
     assert [x["case"] for x in r["rows"]] == ["denoise", "infill-gaps"] and r["rows"][0]["windows"] >= 2
