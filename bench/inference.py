@@ -5,8 +5,10 @@ matmul rate.
 The timed call is the product's reconstruction pass (mocapfix.inference.xmae_reconstruct:
 normalisation, observed-token index, encoder over observed tokens, cross-attention decoder over
 all tokens), the one `fix`, validation and `predict` use, in the precision `fix --precision`
-gives it: fp32 weights, bf16 autocast for the matmuls (default on CUDA), or fp32 throughout. FLOPs are counted by torch.utils.flop_counter on one
-window (matmuls and attention, multiply-add = 2 FLOPs; elementwise work is not counted).
+gives it: fp32 weights, bf16 autocast for the matmuls (default on CUDA), or fp32 throughout.
+FLOPs are counted by torch.utils.flop_counter on batches of one and two windows and given per
+window at the timed batch size (matmuls and attention, multiply-add = 2 FLOPs; elementwise work
+is not counted; the decoder's first self-attention runs once per batch).
 
     python bench/inference.py                       # CUDA: bf16, batch 1024
     python bench/inference.py --device cpu --batch 16
@@ -36,13 +38,19 @@ def make_windows(B: int, T: int, J: int, missing: float, device, seed: int = 0):
     return positions, observed
 
 
-def flops_per_window(net: XMAE, T: int, J: int, device) -> int:
-    positions, observed = make_windows(1, T, J, 0.0, device)
-    # The math backend spells attention out as matmuls, which the counter sees on every device
-    # (it has no formula for the CPU's fused attention kernel).
-    with FlopCounterMode(display=False) as counter, torch.inference_mode(), sdpa_kernel(SDPBackend.MATH):
-        xmae_reconstruct(net, positions, observed)
-    return counter.get_total_flops()
+def flops_per_window(net: XMAE, T: int, J: int, device, batch: int) -> float:
+    """Counted FLOPs per fully observed window in a batch of `batch`. The decoder's first
+    self-attention runs once per batch, so the count is a + b * batch: counted at 1 and 2 windows."""
+    def count(n):
+        positions, observed = make_windows(n, T, J, 0.0, device)
+        # The math backend spells attention out as matmuls, which the counter sees on every device
+        # (it has no formula for the CPU's fused attention kernel).
+        with FlopCounterMode(display=False) as counter, torch.inference_mode(), sdpa_kernel(SDPBackend.MATH):
+            xmae_reconstruct(net, positions, observed)
+        return counter.get_total_flops()
+    one, two = count(1), count(2)
+    per_window, shared = two - one, 2 * one - two
+    return per_window + shared / batch
 
 
 def main(argv=None) -> int:
@@ -68,7 +76,7 @@ def main(argv=None) -> int:
     torch.manual_seed(0)
     eager = XMAE(J, T).to(device).eval()  # paper sizes (Table 1)
     params = sum(p.numel() for p in eager.parameters())
-    flops = flops_per_window(eager, T, J, device)
+    flops = {b: flops_per_window(eager, T, J, device, b) for b in (B, 1)}
     peak = matmul_tflops(device, dtype)
     nets = {"eager": eager}
     if args.compile:
@@ -88,16 +96,17 @@ def main(argv=None) -> int:
             row = {"net": name, "case": case, "batch": batch, "observed_tokens": round(kept, 1),
                    "ms_per_batch": 1000 * seconds, "windows_per_s": batch / seconds}
             if missing == 0.0:  # the counted FLOPs are those of a fully observed window
-                row["tflops"] = flops * batch / seconds / 1e12
+                row["tflops"] = flops[batch] * batch / seconds / 1e12
                 row["of_matmul_peak"] = row["tflops"] / peak
             rows.append(row)
 
     result = {"benchmark": "xmae_inference", "env": describe(device), "command": " ".join(sys.argv),
               "joints": J, "frames": T, "dtype": "bf16 autocast" if bf16 else "fp32", "parameters": params,
-              "gflop_per_window": flops / 1e9, "matmul_tflops_measured": peak, "rows": rows}
+              "gflop_per_window": flops[B] / 1e9, "gflop_per_window_batch_1": flops[1] / 1e9,
+              "matmul_tflops_measured": peak, "rows": rows}
     path = write_result("inference", result, args.json_out)
     print_table(f"XMAE inference, {result['env'].get('gpu', result['env'].get('cpu'))}, {J} joints x {T} frames, "
-                f"{result['dtype']}, {params / 1e6:.2f} M parameters, {flops / 1e9:.1f} GFLOP per full window, "
+                f"{result['dtype']}, {params / 1e6:.2f} M parameters, {flops[B] / 1e9:.1f} GFLOP per full window at batch {B}, "
                 f"measured {str(dtype).replace('torch.', '')} matmul rate {peak:.1f} TFLOP/s",
                 rows, [("net", "net"), ("case", "case"), ("batch", "batch"), ("observed_tokens", "observed"),
                        ("ms_per_batch", "ms/batch"), ("windows_per_s", "windows/s"), ("tflops", "TFLOP/s"),

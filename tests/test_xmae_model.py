@@ -37,6 +37,33 @@ def test_variable_observed_count_matches_per_sample_loop(decoder):
         torch.testing.assert_close(batched[b], single[0], atol=1e-10, rtol=1e-10)
 
 
+def test_shared_first_decoder_self_attention_is_the_per_sample_decoder():
+    """decode runs the first block's self-attention once for the batch (the queries are the same
+    for every sample): output and gradients equal every block run on the whole batch."""
+    net = _tiny()
+    B, T, J = 3, 6, 5
+    g = torch.Generator().manual_seed(2)
+    x = torch.randn(B, T * J, 3, generator=g, dtype=torch.float64)
+    kept, pad = kept_index(torch.rand(B, T, J, generator=g) < torch.tensor([0.2, 0.5, 0.8])[:, None, None])
+
+    def per_sample_decoder():  # the Transformer decoder as written: every block on (B, N, Dd)
+        memory = net.encode(x, kept, pad)
+        q = net.enc_to_dec(net.mask_token + net._positions(net.enc_pos_joint, net.enc_pos_time)).expand(B, -1, -1)
+        for blk in net.decoder:
+            q = blk(q, memory, memory_padding=pad)
+        return net.head(net.dec_norm(q)) * net.position_unit_m
+
+    outputs, grads = [], []
+    for run in (lambda: net(x, kept, pad), per_sample_decoder):
+        net.zero_grad()
+        y = run()
+        (y * torch.linspace(-1, 1, y.numel(), dtype=y.dtype).view_as(y)).sum().backward()
+        outputs.append(y.detach())
+        grads.append(torch.cat([p.grad.flatten() for p in net.decoder[0].parameters()]))
+    torch.testing.assert_close(outputs[0], outputs[1], atol=1e-10, rtol=1e-10)
+    torch.testing.assert_close(grads[0], grads[1], atol=1e-10, rtol=1e-8)
+
+
 def test_masked_token_values_are_never_read():
     net = _tiny()
     x = torch.randn(2, 30, 3, dtype=torch.float64)

@@ -70,7 +70,14 @@ class DecoderBlock(nn.Module):
         self.norm3, self.mlp = nn.LayerNorm(dim), MLP(dim, mlp_dim)
 
     def forward(self, q, memory, memory_padding=None):
-        q = q + self.self_attn(self.norm1(q))
+        return self.attend_memory(self.attend_queries(q), memory, memory_padding)
+
+    def attend_queries(self, q):
+        # q: (B, N, Dd)
+        return q + self.self_attn(self.norm1(q))
+
+    def attend_memory(self, q, memory, memory_padding=None):
+        # q: (B, N, Dd); memory: (B, K, Dd); memory_padding: (B, K) True = ignore
         q = q + self.cross_attn(self.norm2(q), memory, key_padding=memory_padding)
         return q + self.mlp(self.norm3(q))
 
@@ -167,8 +174,14 @@ class XMAE(nn.Module):
         B = memory.shape[0]
         if self.decoder_type == "cross":
             pos = self._positions(self.enc_pos_joint, self.enc_pos_time)                   # (N, D)
-            x = self.enc_to_dec(self.mask_token + pos).expand(B, -1, -1)                    # (B, N, Dd)
-            for blk in self.decoder:
+            queries = self.enc_to_dec(self.mask_token + pos)[None]                          # (1, N, Dd)
+            # The queries are the same for every sample, and so is the first block's
+            # self-attention over them (the samples first differ in its cross-attention): run it
+            # once, not B times: attention over all J*T queries is the decoder's largest layer, and
+            # this one is 13 % of a training step's arithmetic (docs/performance.md).
+            first = self.decoder[0]
+            x = first.attend_memory(first.attend_queries(queries).expand(B, -1, -1), memory, padding)  # (B, N, Dd)
+            for blk in self.decoder[1:]:
                 x = blk(x, memory, memory_padding=padding)
         else:  # MAE: encoded tokens replace the mask tokens at their own positions
             pos = self._positions(self.dec_pos_joint, self.dec_pos_time)                   # (N, Dd)
