@@ -59,7 +59,7 @@ class DVAEDenoiseModule(L.LightningModule):
         noise_lambda: float = 1e6,
         obs_scale_m: float = 0.05,
         estimate: str = "auto",
-        lr: float = 1e-3,
+        lr: float = 1e-4,
         betas: tuple[float, float] = (0.9, 0.999),
         kl_weight: float = 1.0,
         kl_anneal_epochs: float = 0.0,
@@ -81,9 +81,13 @@ class DVAEDenoiseModule(L.LightningModule):
             obs_scale_m: the unit of the noise variance v (metres): v = 1 means noise std obs_scale_m.
             estimate: "decoder" (section 5.1), "fusion" (eq. 18) or "auto" (fusion when
                 noise_lambda < 1e4, i.e. when the noise model is in use).
-            lr, betas: Adamax. kl_weight, kl_anneal_*: KL(q_phi || p_theta) annealing, as the prior's.
+            lr, betas: Adamax. The encoder starts trained (the prior's): the prior's from-scratch
+                rate 1e-3 wrecks it within ~50 steps at widths of 512 and more (Bandai, width 512:
+                val MPJPE 85 -> 255 mm, then a slow climb back; 1e-4: 85 -> 72 mm in 200 steps;
+                docs/STATUS.md), so this stage refines at 1e-4.
+            kl_weight, kl_anneal_*: KL(q_phi || p_theta) annealing, as the prior's.
             opt_iterations, opt_lr: optimisation mode (50 as the paper). A fresh Adamax on a trained
-                network jumps in its first steps: opt_lr stays below lr (None: lr).
+                network jumps in its first steps: keep opt_lr small (None: lr).
             compile_model: torch.compile the prior's networks (as MotionDVAEModule's flag; a prior
                 trained with it compiles anyway).
             prior_hparams: filled in from the prior checkpoint; with it the module rebuilds without the file.
