@@ -103,7 +103,7 @@ class Encoder(nn.Module):
         # at once before the loop. The loop is the DVAE's launch-bound part on a GPU: each op
         # taken out of it is T kernels fewer forward and more backward.
         first, rest = self.e_glob.net[0], self.e_glob.net[1:]
-        H = h.shape[-1]
+        H = self.e_lat.hidden_size
         w_lat = first.weight[:, :H]
         data_term = nn.functional.linear(h_data, first.weight[:, H:], first.bias).unbind(1)  # T x (B, M)
         noise = torch.randn(B, T, self.e_lat.input_size, device=x.device, dtype=h.dtype).unbind(1) if sample else None

@@ -42,8 +42,8 @@ from mocapfix.models.dvae_inference import (Inference, Observation, infer_poster
 from mocapfix.models.dvae_state import velocity_mask
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.figures import log_validation_figure
-from mocapfix.training.dvae_module import (MotionDVAEModule, anneal_steps_of, complete_windows, kl_anneal_weight,
-                                           select)
+from mocapfix.training.dvae_module import (MotionDVAEModule, anneal_steps_of, compile_in_place, complete_windows,
+                                           kl_anneal_weight, select)
 
 METHODS = ("noisy", "dvae_regression", "dvae_optimisation")
 
@@ -118,9 +118,7 @@ class DVAEDenoiseModule(L.LightningModule):
         self.net, self.body, self.codec = prior.net, prior.body, prior.codec
         self.net.gen.requires_grad_(False)  # prior p_theta_z and decoder p_theta_x stay as trained
         if compile_model:
-            self.net.compile()
-            if self.body is not None:
-                self.body.compile()
+            compile_in_place(self.net, self.body)
         self.window_fps = float(ph["window_fps"])
         D, H, Hm, G = self.codec.dim, ph["lstm_hidden"], ph["mlp_hidden"], ph["norm_groups"]
         num_points = self.codec.num_joints + (self.body.num_markers if self.body is not None else 0)

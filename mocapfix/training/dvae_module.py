@@ -40,6 +40,14 @@ def anneal_steps_of(trainer, steps: int | None, epochs: float) -> int:
     return int(round(epochs * per_epoch)) if per_epoch != float("inf") else 0
 
 
+def compile_in_place(net: torch.nn.Module, body: torch.nn.Module | None) -> None:
+    """torch.compile the networks and the body model (FK's joint walk sits in the regulariser,
+    forward and backward) in place: the state dict keeps its names, so checkpoints are the same."""
+    net.compile()
+    if body is not None:
+        body.compile()
+
+
 def complete_windows(batch: dict) -> torch.Tensor:
     """(B,) bool: windows with no missing value. The DVAE has no notion of a missing joint."""
     ok = torch.isfinite(batch["positions"]).flatten(1).all(1)
@@ -148,10 +156,8 @@ class MotionDVAEModule(L.LightningModule):
         self.codec = MotionState(hp.state, skel.parents, skel.groups, hp.window_fps, self.body)
         velocity = None if hp.get("encoder_velocities", False) else velocity_mask(hp.state, skel.num_joints)
         self.net = MotionDVAE(self.codec.dim, hp.latent_dim, hp.lstm_hidden, hp.mlp_hidden, hp.norm_groups, velocity)
-        if hp.get("compile_model"):  # in place: the state dict keeps its names
-            self.net.compile()
-            if self.body is not None:
-                self.body.compile()  # FK's joint walk sits in the regulariser, forward and backward
+        if hp.get("compile_model"):
+            compile_in_place(self.net, self.body)
         self.val_mpjpe, self.test_mpjpe = MPJPE(), MPJPE()
 
     def setup(self, stage: str) -> None:
