@@ -18,7 +18,7 @@ from collections import Counter
 import torch
 from torch.profiler import ProfilerActivity, profile, record_function
 
-from common import print_table, write_result
+from common import describe, print_table, write_result
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
 from mocapfix.training.dvae_module import MotionDVAEModule  # noqa: E402
@@ -88,7 +88,7 @@ def main(argv=None) -> int:
             counts[part(e)] += 1
     rows = [{"part": p, "ops": counts[p]} for p in PARTS]
     rows.append({"part": "total without the optimiser", "ops": sum(counts[p] for p in PARTS if p != "optimiser")})
-    result = {"benchmark": "dvae_op_count", "command": " ".join(sys.argv), "torch": torch.__version__,
+    result = {"benchmark": "dvae_op_count", "env": describe(torch.device("cpu")), "command": " ".join(sys.argv), "torch": torch.__version__,
               "batch": args.batch, "frames": dm.window_frames, "joints": dm.skeleton.num_joints, "rows": rows}
     path = write_result("dvae_op_count", result, args.json_out)
     print_table(f"Motion-DVAE prior training step, operations by part ({dm.skeleton.num_joints} joints, "

@@ -132,8 +132,7 @@ class DVAEFixer:
                  device: str | torch.device = "cpu"):
         self.device = torch.device(device)
         self.net, self.x0_pred, self.noise_pred = (m.to(self.device).eval() for m in (net, x0_pred, noise_pred))
-        if codec.body is not None:
-            codec.body.to(self.device)
+        codec.to(self.device)  # its body model and joint reference
         self.codec, self.state = codec, codec.kind
         self.skeleton, self.fps, self.window = skeleton, float(fps), int(window)
         self.noise_lambda, self.fusion = float(noise_lambda), bool(fusion)
@@ -173,7 +172,7 @@ class DVAEFixer:
             codec = MotionState(state, skeleton.parents, skeleton.groups, fps, body)
             D, H, Hm, G = codec.dim, int(ph["lstm_hidden"]), int(ph["mlp_hidden"]), int(ph["norm_groups"])
             num_points = codec.num_joints + (body.num_markers if body is not None else 0)
-            nets = {"net": MotionDVAE(D, int(ph["latent_dim"]), H, Hm, G),
+            nets = {"codec": codec, "net": MotionDVAE(D, int(ph["latent_dim"]), H, Hm, G),
                     "x0_pred": InitialStatePredictor(D, H, Hm, G, velocity_mask(state, codec.num_joints)),
                     "noise_pred": NoisePredictor(H, 3 * num_points, Hm, G)}
         except (TypeError, ValueError) as e:

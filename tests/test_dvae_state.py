@@ -10,8 +10,8 @@ import torch
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.kinematics import fk_axis_angle
 from mocapfix.models.body import SkeletonFK
-from mocapfix.models.dvae_state import (MotionState, finite_difference, heading_of_rotation, positions_state,
-                                        velocity_mask,
+from mocapfix.models.dvae_state import (MotionState, finite_difference, heading_of_rotation, mean_joint_rotations,
+                                        positions_state, velocity_mask,
                                         rotation_state, split_rotation_state, to_canonical, unwrap_rotvec)
 
 
@@ -155,3 +155,40 @@ def test_velocity_mask_marks_the_finite_differences():
     p, _ = positions_state(pos, skel.groups, 30.0)
     pv = velocity_mask("positions", skel.num_joints)
     assert torch.equal(p[..., pv], finite_difference(p[..., ~pv], 30.0))
+
+
+def test_joint_reference_changes_the_state_not_the_body():
+    rot, root, pos, off, skel = _windows()
+    codec = MotionState("rotations", skel.parents, skel.groups, 30.0, SkeletonFK(skel.parents))
+    plain, canon = codec.encode(rotations=rot, root_translation=root)
+    codec.joint_reference.copy_(roma.random_rotmat(skel.num_joints - 1, generator=torch.Generator().manual_seed(0)))
+    x, canon2 = codec.encode(rotations=rot, root_translation=root)
+    assert (x - plain).abs().max() > 0.5                                     # another state...
+    assert (codec.points(x, off).joints - to_canonical(pos, canon2)).abs().max() < 1e-5   # ...the same body
+    got = roma.rotvec_to_rotmat(codec.joint_rotations(x))                   # the skeleton's own rotations back
+    assert (got - roma.rotvec_to_rotmat(rot[:, :, 1:])).abs().max() < 1e-5
+    assert torch.equal(canon.yaw, canon2.yaw)                               # the root is not referenced
+
+
+def test_mean_pose_reference_takes_joints_away_from_half_a_turn():
+    """A joint that sits near half a turn (Bandai's upper legs) is written as vectors on both sides
+    of pi, 2 pi apart for nearly the same rotation; from the mean pose its angles are small."""
+    g = torch.Generator().manual_seed(0)
+    N = 500
+    axis = torch.nn.functional.normalize(torch.tensor([0.3, 1.0, 0.2]) + 0.05 * torch.randn(N, 3, generator=g), dim=-1)
+    angle = math.pi + 0.2 * torch.randn(N, 1, generator=g)
+    rotvec = roma.rotmat_to_rotvec(roma.rotvec_to_rotmat(axis * angle))   # as a reader writes it: |angle| <= pi
+    rotations = torch.stack([torch.zeros(N, 3), rotvec], dim=1)          # (N, J=2, 3): root, one joint
+    assert (rotvec[:, None] - rotvec[None]).norm(dim=-1).max() > 5       # the same pose in two far places
+    ref = mean_joint_rotations(rotations)                                 # (1, 3, 3)
+    rel = roma.rotmat_to_rotvec(ref.transpose(-1, -2) @ roma.rotvec_to_rotmat(rotvec))
+    assert rel.norm(dim=-1).max() < 1.0 and rel.norm(dim=-1).median() < 0.3
+
+
+def test_state_dicts_from_before_the_reference_load_as_identity():
+    skel = _windows(B=1)[-1]
+    codec = MotionState("rotations", skel.parents, skel.groups, 30.0, SkeletonFK(skel.parents))
+    codec.joint_reference.mul_(2.0)
+    codec.load_state_dict({})
+    assert torch.equal(codec.joint_reference, torch.eye(3).repeat(skel.num_joints - 1, 1, 1))
+    assert MotionState("positions", skel.parents, skel.groups, 30.0).state_dict() == {}

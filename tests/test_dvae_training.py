@@ -83,6 +83,10 @@ def test_kl_weight_follows_the_schedule_across_resume_and_tensorboard_has_every_
     assert std.shape == (138,) and not torch.allclose(std, torch.ones_like(std))
     model = MotionDVAEModule.load_from_checkpoint(tmp_path / "checkpoints" / "kl" / "last.ckpt", map_location="cpu")
     torch.testing.assert_close(model.net.x_std, std)
+    # so does the mean pose the joint rotations are measured from
+    ref = ckpt["state_dict"]["codec.joint_reference"]
+    assert ref.shape == (21, 3, 3) and not torch.allclose(ref, torch.eye(3).expand(21, 3, 3), atol=1e-3)
+    torch.testing.assert_close(model.codec.joint_reference, ref)
 
 
 def test_positions_state_trains_on_data_without_rotations(tmp_path):

@@ -47,15 +47,28 @@ class BodyModel(Protocol):
     num_markers: int
 
     def __call__(self, root_translation: torch.Tensor, root_orientation: torch.Tensor,
-                 joint_rotations: torch.Tensor, shape: torch.Tensor) -> BodyOutput:
+                 joint_rotations: torch.Tensor, shape: torch.Tensor,
+                 joint_reference: torch.Tensor | None = None) -> BodyOutput:
         """root_translation (..., 3) world position of joint 0, root_orientation (..., 3) axis-angle,
         joint_rotations (..., J-1, 3) local axis-angle, shape broadcastable to the leading dims
-        (SkeletonFK: offsets (..., J, 3); SMPLBody: betas (..., nb))."""
+        (SkeletonFK: offsets (..., J, 3); SMPLBody: betas (..., nb)). joint_reference (J-1, 3, 3):
+        the joint rotations are measured from it, R_j = joint_reference_j exp(joint_rotations_j)
+        (MotionState); None: identity. Composed here, as matrices, because the model turns the
+        axis-angles into matrices anyway: a way back to axis-angle would cost more than the FK."""
         ...
 
     def shape_from_offsets(self, offsets: torch.Tensor) -> torch.Tensor:
         """offsets (B, J, 3), what the data module delivers -> this model's shape (B, ...)."""
         ...
+
+
+def with_reference(rotmats: torch.Tensor, joint_reference: torch.Tensor | None) -> torch.Tensor:
+    """rotmats (..., J, 3, 3), root first -> the same with joints 1.. turned by their reference
+    (J-1, 3, 3) on the left; None: unchanged."""
+    if joint_reference is None:
+        return rotmats
+    joints = joint_reference.to(rotmats.dtype) @ rotmats[..., 1:, :, :]
+    return torch.cat([rotmats[..., :1, :, :], joints], dim=-3)
 
 
 class SkeletonFK(nn.Module):
@@ -69,9 +82,9 @@ class SkeletonFK(nn.Module):
         self.num_joints = len(self.parents)
 
     def forward(self, root_translation: torch.Tensor, root_orientation: torch.Tensor, joint_rotations: torch.Tensor,
-                shape: torch.Tensor) -> BodyOutput:
+                shape: torch.Tensor, joint_reference: torch.Tensor | None = None) -> BodyOutput:
         rotations = torch.cat([root_orientation[..., None, :], joint_rotations], dim=-2)  # (..., J, 3)
-        rotmats = roma.rotvec_to_rotmat(rotations.float())
+        rotmats = with_reference(roma.rotvec_to_rotmat(rotations.float()), joint_reference)
         offsets = shape.float().expand(*rotmats.shape[:-3], self.num_joints, 3)
         joints, _ = forward_kinematics(rotmats, root_translation.float(), offsets, self.parents)
         return BodyOutput(joints)
@@ -143,12 +156,12 @@ class SMPLBody(nn.Module):
         return self.J_template + torch.einsum("jcb,nb->njc", self.J_shapedirs, betas)
 
     def forward(self, root_translation: torch.Tensor, root_orientation: torch.Tensor, joint_rotations: torch.Tensor,
-                shape: torch.Tensor) -> BodyOutput:
+                shape: torch.Tensor, joint_reference: torch.Tensor | None = None) -> BodyOutput:
         lead = root_translation.shape[:-1]
         N, Jall = int(np.prod(lead)) if lead else 1, self._num_all_joints
         betas = shape.float()[..., :self.num_betas].expand(*lead, self.num_betas).reshape(N, self.num_betas)
         rot = torch.cat([root_orientation[..., None, :], joint_rotations], dim=-2).float().reshape(N, -1, 3)
-        rotmats = roma.rotvec_to_rotmat(rot)                                               # (N, 22, 3, 3)
+        rotmats = with_reference(roma.rotvec_to_rotmat(rot), joint_reference)              # (N, 22, 3, 3)
         eye = torch.eye(3, dtype=rotmats.dtype, device=rotmats.device)
         rotmats = torch.cat([rotmats, eye.expand(N, Jall - rot.shape[1], 3, 3)], dim=1)    # (N, Jall, 3, 3)
         J_rest = self.rest_joints(betas)                                                   # (N, Jall, 3)

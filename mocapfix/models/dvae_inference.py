@@ -97,7 +97,8 @@ def rotation_estimate(inf: Inference, codec: MotionState) -> tuple[torch.Tensor,
     """Rotations state: the decoded states back in the world frame -> local axis-angle rotations
     (B, T+1, J, 3) (joint 0: root orientation) and root translation (B, T+1, 3). Eq. 18 fuses 3D
     points, not rotations: this is always the decoder's motion (x_0 from eq. 16)."""
-    r, phi, theta = split_rotation_state(inf.x, codec.num_joints)        # (B, T+1, 3), (B, T+1, 3), (B, T+1, J-1, 3)
+    r, phi, _ = split_rotation_state(inf.x, codec.num_joints)            # (B, T+1, 3) each
+    theta = codec.joint_rotations(inf.x)                                 # (B, T+1, J-1, 3)
     root_translation = from_canonical(r, inf.canon)
     # the canonical frame is the world turned by -yaw about z: turn the root orientation back
     yaw = torch.zeros(len(r), 3, dtype=r.dtype, device=r.device)

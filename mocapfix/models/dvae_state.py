@@ -2,7 +2,9 @@
 
 rotations state (paper eq. 1): x_t = [r, r_dot, phi, phi_dot, Theta, Theta_dot], root translation,
 root orientation and the J-1 local joint rotations (axis-angle), velocities by finite differences
-(per second): 6 (J + 1) numbers; 3D points by the body model M_beta (eq. 2).
+(per second): 6 (J + 1) numbers; 3D points by the body model M_beta (eq. 2). Theta is measured
+from a reference rotation per joint (R_j = R_ref_j exp(Theta_j)), by default the training data's
+mean pose: see MotionState.
 positions state (beyond the paper, for position-only data): x_t = [p, p_dot], the J joint
 positions and their velocities: 6 J numbers; M = identity.
 
@@ -17,6 +19,7 @@ from typing import NamedTuple
 
 import roma
 import torch
+import torch.nn as nn
 
 from mocapfix.models.body import BodyOutput
 
@@ -112,17 +115,22 @@ def _origin(p0: torch.Tensor) -> torch.Tensor:
     return torch.cat([p0[:, :2], torch.zeros_like(p0[:, 2:])], dim=-1)
 
 
-def rotation_state(rotations: torch.Tensor, root_translation: torch.Tensor, fps: float
-                   ) -> tuple[torch.Tensor, Canonical]:
+def rotation_state(rotations: torch.Tensor, root_translation: torch.Tensor, fps: float,
+                   reference: torch.Tensor | None = None) -> tuple[torch.Tensor, Canonical]:
     """rotations (B, T, J, 3) local axis-angle (joint 0 = root orientation), root_translation (B, T, 3)
-    -> x (B, T, 6 (J + 1)) in the window's canonical frame, and that frame."""
+    -> x (B, T, 6 (J + 1)) in the window's canonical frame, and that frame.
+    reference: (J-1, 3, 3) rotation Theta_j is measured from (R_j = reference_j exp(Theta_j));
+    None: the rotations as given."""
     B, T, J, _ = rotations.shape
     rotations, root_translation = rotations.float(), root_translation.float()
     canon = Canonical(_origin(root_translation[:, 0]), heading_of_rotation(rotations[:, 0, 0]))
     r = to_canonical(root_translation, canon)                                            # (B, T, 3)
     root = _rz(-canon.yaw)[:, None] @ roma.rotvec_to_rotmat(rotations[:, :, 0])          # (B, T, 3, 3)
     phi = unwrap_rotvec(roma.rotmat_to_rotvec(root))                                     # (B, T, 3)
-    theta = unwrap_rotvec(rotations[:, :, 1:]).reshape(B, T, 3 * (J - 1))
+    joints = rotations[:, :, 1:]                                                         # (B, T, J-1, 3)
+    if reference is not None:
+        joints = roma.rotmat_to_rotvec(reference.transpose(-1, -2) @ roma.rotvec_to_rotmat(joints))
+    theta = unwrap_rotvec(joints).reshape(B, T, 3 * (J - 1))
     x = torch.cat([r, finite_difference(r, fps), phi, finite_difference(phi, fps),
                    theta, finite_difference(theta, fps)], dim=-1)
     return x, canon
@@ -148,17 +156,41 @@ def split_positions_state(x: torch.Tensor, num_joints: int) -> torch.Tensor:
     return x[..., :3 * num_joints].reshape(*x.shape[:-1], num_joints, 3)
 
 
-class MotionState:
+class MotionState(nn.Module):
     """One state kind on one skeleton: batch tensors -> state, state -> 3D points (joints, markers).
 
-    body: a body model (models/body.py) for the rotations state; unused by the positions state."""
+    body: a body model (models/body.py) for the rotations state; unused by the positions state.
+
+    The rotations state measures each joint's rotation from `joint_reference` (J-1, 3, 3), a
+    buffer (saved with the weights; identity until set, e.g. by `mean_joint_rotations`). Why: an
+    axis-angle vector is continuous in the rotation only away from half a turn, where the axis
+    flips sign. SMPL's rest pose is a T-pose, so its joints stay far from that; a BVH skeleton's
+    zero pose is whatever its author chose: Bandai's upper legs sit within 0.3 rad of half a turn
+    in almost every frame, so two nearly equal poses can be two vectors 2 pi apart and the first
+    frame of a window (which the whole window's branch follows) lands on either. Measured from the
+    data's mean pose, the angles are small (median under 0.6 rad on Bandai) and the map smooth."""
 
     def __init__(self, kind: str, parents, groups: dict, fps: float, body=None):
         if kind not in STATES:
             raise ValueError(f"state must be one of {STATES}, got {kind!r}")
+        super().__init__()
         self.kind, self.parents, self.groups, self.fps, self.body = kind, tuple(parents), dict(groups), float(fps), body
         self.num_joints = len(self.parents)
         self.dim = state_dim(kind, self.num_joints)
+        if kind == "rotations":
+            self.register_buffer("joint_reference", torch.eye(3).repeat(self.num_joints - 1, 1, 1))
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # checkpoints from before the reference existed measured the rotations as given
+        if self.kind == "rotations" and prefix + "joint_reference" not in state_dict:
+            state_dict[prefix + "joint_reference"] = torch.eye(3).repeat(self.num_joints - 1, 1, 1)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def joint_rotations(self, x: torch.Tensor) -> torch.Tensor:
+        """Rotations state x (..., dim) -> the body joints' local axis-angle rotations (..., J-1, 3)
+        in the skeleton's own convention (the reference put back)."""
+        theta = split_rotation_state(x, self.num_joints)[2]
+        return roma.rotmat_to_rotvec(self.joint_reference.to(theta.dtype) @ roma.rotvec_to_rotmat(theta))
 
     def encode(self, positions: torch.Tensor | None = None, rotations: torch.Tensor | None = None,
                root_translation: torch.Tensor | None = None) -> tuple[torch.Tensor, Canonical]:
@@ -168,7 +200,7 @@ class MotionState:
             if rotations is None or root_translation is None:
                 raise ValueError("state 'rotations' needs rotation data: set data.with_rotations: true on a source "
                                  "with rotations (bvh, amass, synthetic), or use state: positions")
-            return rotation_state(rotations, root_translation, self.fps)
+            return rotation_state(rotations, root_translation, self.fps, self.joint_reference)
         return positions_state(positions, self.groups, self.fps)
 
     def shape(self, offsets: torch.Tensor | None) -> torch.Tensor | None:
@@ -180,4 +212,12 @@ class MotionState:
         if self.kind == "positions":
             return BodyOutput(split_positions_state(x, self.num_joints))
         r, phi, theta = split_rotation_state(x, self.num_joints)
-        return self.body(r, phi, theta, shape[:, None])
+        return self.body(r, phi, theta, shape[:, None], self.joint_reference)
+
+
+@torch.no_grad()
+def mean_joint_rotations(rotations: torch.Tensor) -> torch.Tensor:
+    """rotations (N, J, 3) local axis-angle (joint 0 = root), finite -> (J-1, 3, 3) the body
+    joints' mean rotations: the mean of the rotation matrices projected back onto SO(3) (the
+    chordal L2 mean; it does not care on which side of half a turn a vector was written)."""
+    return roma.special_procrustes(roma.rotvec_to_rotmat(rotations[:, 1:].double()).mean(0)).float()

@@ -20,7 +20,7 @@ import torch
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.models.body import build_body_model
 from mocapfix.models.dvae import MotionDVAE, gaussian_kl
-from mocapfix.models.dvae_state import MotionState, velocity_mask
+from mocapfix.models.dvae_state import MotionState, mean_joint_rotations, velocity_mask
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.figures import log_validation_figure
 
@@ -84,6 +84,21 @@ class ELBOTerms(NamedTuple):
     reg: torch.Tensor
 
 
+@torch.no_grad()
+def mean_rotations(dataset, max_windows: int = 4096) -> torch.Tensor:
+    """(J-1, 3, 3) the body joints' mean rotations over up to max_windows evenly spread complete windows."""
+    n = len(dataset)
+    idx = torch.linspace(0, n - 1, min(n, max_windows)).round().long().unique().tolist()
+    rots = []
+    for i in range(0, len(idx), 512):
+        batch = dataset.__getitems__(idx[i:i + 512])
+        rots.append(select(batch, complete_windows(batch))["rotations"].flatten(0, 1))  # (B T, J, 3)
+    rots = torch.cat(rots)
+    if not len(rots):
+        raise ValueError("no complete training window to take the mean pose from")
+    return mean_joint_rotations(rots)
+
+
 class MotionDVAEModule(L.LightningModule):
     def __init__(
         self,
@@ -101,6 +116,7 @@ class MotionDVAEModule(L.LightningModule):
         kl_weight: float = 1.0,
         normalize: bool = True,
         encoder_velocities: bool = False,
+        rotation_reference: str = "mean",
         lr: float = 1e-3,
         betas: tuple[float, float] = (0.9, 0.999),
         lr_milestones: list[int] | None = None,
@@ -126,6 +142,11 @@ class MotionDVAEModule(L.LightningModule):
             normalize: standardise the state with training-set statistics (saved in the checkpoint).
             encoder_velocities: the encoder also reads the state's velocity entries (False: poses
                 only; velocities of noisy observations are amplified noise, see MotionDVAE).
+            rotation_reference: what the rotations state measures joint rotations from: "mean"
+                (the training data's mean pose, set at the start of fit and saved in the
+                checkpoint) or "identity" (the skeleton's zero pose, the paper's axis-angle; fine
+                for SMPL's T-pose, not for a BVH whose zero pose puts joints near half a turn:
+                see MotionState).
             lr, betas: Adamax. lr_milestones: optimiser steps where lr is multiplied by lr_decay.
             kl_anneal_epochs / kl_anneal_steps: linear KL annealing length (steps win when given).
             compile_model: torch.compile the networks. A training step is hundreds of small kernels
@@ -135,6 +156,8 @@ class MotionDVAEModule(L.LightningModule):
                 and so checkpoints, are the same with or without it.
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
         """
+        if rotation_reference not in ("mean", "identity"):
+            raise ValueError(f"rotation_reference must be 'mean' or 'identity', got {rotation_reference!r}")
         super().__init__()
         self.save_hyperparameters()
         self.net: MotionDVAE | None = None
@@ -174,6 +197,8 @@ class MotionDVAEModule(L.LightningModule):
         if self.net is None:
             self.hparams.update(skeleton=skeleton, window_fps=fps, window_frames=frames)
             self._build()
+            if stage == "fit" and self.hparams.state == "rotations" and self.hparams.rotation_reference == "mean":
+                self.codec.joint_reference.copy_(mean_rotations(dm.datasets["train"]))
             if stage == "fit" and self.hparams.normalize:  # a resumed run then loads the same values back
                 mean, std = state_statistics(self.codec, dm.datasets["train"])
                 self.net.x_mean.copy_(mean)
@@ -207,8 +232,9 @@ class MotionDVAEModule(L.LightningModule):
         kl = gaussian_kl(out.q_mu.float(), out.q_logvar.float(), out.p_mu.float(), out.p_logvar.float()
                          ).sum((1, 2)).mean()
         x_hat = self.net.denormalize(out.x_hat.float())
-        pred_pts = self.codec.points(x_hat, shape).points()
-        true_pts = self.codec.points(x[:, 1:].float(), shape).points()
+        # decoded and true states through the body model in one call: half the kernels of two
+        pts = self.codec.points(torch.cat([x_hat, x[:, 1:].float()]), None if shape is None else torch.cat([shape, shape]))
+        pred_pts, true_pts = pts.points().chunk(2)
         reg = ((pred_pts - true_pts) ** 2).sum((1, 2, 3)).mean()
         return ELBOTerms(rec, kl, reg), x_hat, out
 
