@@ -6,6 +6,7 @@ import pickle
 
 import numpy as np
 import pytest
+import roma
 import torch
 
 from mocapfix.io import read_motion
@@ -90,6 +91,13 @@ def test_smpl_body_matches_smplx_joints_and_marker_vertices(tmp_path, smplh_file
     want = ref.vertices[:, markers].detach().numpy()
     np.testing.assert_allclose(out.markers.numpy(), want, atol=1e-5)
     assert out.points().shape == (5, 27, 3)
+    # rotations measured from a reference pose: the same body as the composed rotations
+    reference = roma.random_rotmat(21, generator=torch.Generator().manual_seed(0))
+    turned = roma.rotmat_to_rotvec(reference @ roma.rotvec_to_rotmat(rot[:, 1:].float()))
+    a = body(torch.from_numpy(clip.root_translation), rot[:, 0], rot[:, 1:], betas, reference)
+    b = body(torch.from_numpy(clip.root_translation), rot[:, 0], turned, betas)
+    assert (a.joints - b.joints).abs().max() < 1e-5 and (a.markers - b.markers).abs().max() < 1e-5
+    assert (a.joints - out.joints).abs().max() > 1e-2
     # pose blend shapes matter: without them the markers move (so the comparison above can fail)
     body.m_posedirs.zero_()
     off = body(torch.from_numpy(clip.root_translation), rot[:, 0], rot[:, 1:], betas).markers.numpy()
