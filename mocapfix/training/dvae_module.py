@@ -60,43 +60,41 @@ def select(batch: dict, keep: torch.Tensor) -> dict:
     return {k: v[keep] if torch.is_tensor(v) and v.shape[:1] == keep.shape else v for k, v in batch.items()}
 
 
+def spread_complete_batches(dataset, max_windows: int = 4096, batch_size: int = 512):
+    """Up to max_windows windows spread evenly over the dataset, in batches, complete windows only."""
+    n = len(dataset)
+    idx = torch.linspace(0, n - 1, min(n, max_windows)).round().long().unique().tolist()
+    for i in range(0, len(idx), batch_size):
+        batch = dataset.__getitems__(idx[i:i + batch_size])
+        batch = select(batch, complete_windows(batch))
+        if len(batch["positions"]):
+            yield batch
+
+
 @torch.no_grad()
 def state_statistics(codec: MotionState, dataset, max_windows: int = 4096) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-dimension mean and std (D,) of the state over up to max_windows evenly spread windows."""
-    n = len(dataset)
-    idx = torch.linspace(0, n - 1, min(n, max_windows)).round().long().unique().tolist()
-    xs = []
-    for i in range(0, len(idx), 512):
-        batch = dataset.__getitems__(idx[i:i + 512])
-        batch = select(batch, complete_windows(batch))
-        if len(batch["positions"]):
-            xs.append(codec.encode(batch["positions"], batch.get("rotations"), batch.get("root_translation"))[0]
-                      .flatten(0, 1))
+    xs = [codec.encode(b["positions"], b.get("rotations"), b.get("root_translation"))[0].flatten(0, 1)
+          for b in spread_complete_batches(dataset, max_windows)]
     if not xs:
         raise ValueError("no complete training window to standardise the state with")
     x = torch.cat(xs)
     return x.mean(0), x.std(0).clamp_min(STD_FLOOR)
 
 
+@torch.no_grad()
+def mean_rotations(dataset, max_windows: int = 4096) -> torch.Tensor:
+    """(J-1, 3, 3) the body joints' mean rotations over up to max_windows evenly spread windows."""
+    rots = [b["rotations"].flatten(0, 1) for b in spread_complete_batches(dataset, max_windows)]  # (B T, J, 3) each
+    if not rots:
+        raise ValueError("no complete training window to take the mean pose from")
+    return mean_joint_rotations(torch.cat(rots))
+
+
 class ELBOTerms(NamedTuple):
     rec: torch.Tensor
     kl: torch.Tensor
     reg: torch.Tensor
-
-
-@torch.no_grad()
-def mean_rotations(dataset, max_windows: int = 4096) -> torch.Tensor:
-    """(J-1, 3, 3) the body joints' mean rotations over up to max_windows evenly spread complete windows."""
-    n = len(dataset)
-    idx = torch.linspace(0, n - 1, min(n, max_windows)).round().long().unique().tolist()
-    rots = []
-    for i in range(0, len(idx), 512):
-        batch = dataset.__getitems__(idx[i:i + 512])
-        rots.append(select(batch, complete_windows(batch))["rotations"].flatten(0, 1))  # (B T, J, 3)
-    rots = torch.cat(rots)
-    if not len(rots):
-        raise ValueError("no complete training window to take the mean pose from")
-    return mean_joint_rotations(rots)
 
 
 class MotionDVAEModule(L.LightningModule):
