@@ -9,6 +9,7 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, SMALL_DATA, run_cli
 
+from mocapfix.skeleton import PRESETS
 from mocapfix.training.dvae_module import MotionDVAEModule, anneal_steps_of, kl_anneal_weight
 
 # Tiny networks: these tests exercise the loop, not the model size.
@@ -99,3 +100,13 @@ def test_rotation_state_without_rotations_says_what_to_set(tmp_path):
     with pytest.raises(ValueError, match="with_rotations"):
         run_cli(["fit", "--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU,
                  "--data.with_rotations", "false", "--trainer.fast_dev_run", "1"], tmp_path)
+
+
+def test_optimizer_is_adamax_or_adam():
+    sizes = dict(latent_dim=4, lstm_hidden=16, mlp_hidden=16, norm_groups=4, skeleton=PRESETS["smpl22"].to_dict(),
+                 window_fps=30.0, window_frames=30)
+    for name, cls in (("adamax", torch.optim.Adamax), ("adam", torch.optim.Adam)):
+        opt = MotionDVAEModule(optimizer=name, lr=3e-4, **sizes).configure_optimizers()["optimizer"]
+        assert type(opt) is cls and opt.param_groups[0]["lr"] == 3e-4
+    with pytest.raises(ValueError, match="optimizer"):
+        MotionDVAEModule(optimizer="sgd", **sizes)

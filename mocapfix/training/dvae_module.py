@@ -115,7 +115,8 @@ class MotionDVAEModule(L.LightningModule):
         normalize: bool = True,
         encoder_velocities: bool = False,
         rotation_reference: str = "mean",
-        lr: float = 1e-3,
+        optimizer: str = "adamax",
+        lr: float = 1e-4,
         betas: tuple[float, float] = (0.9, 0.999),
         lr_milestones: list[int] | None = None,
         lr_decay: float = 0.5,
@@ -145,7 +146,11 @@ class MotionDVAEModule(L.LightningModule):
                 checkpoint) or "identity" (the skeleton's zero pose, the paper's axis-angle; fine
                 for SMPL's T-pose, not for a BVH whose zero pose puts joints near half a turn:
                 see MotionState).
-            lr, betas: Adamax. lr_milestones: optimiser steps where lr is multiplied by lr_decay.
+            optimizer: "adamax" (the paper's: HuMoR's settings, lr 1e-4) or "adam". On Bandai at
+                paper width, Adam at lr 1e-4 takes the prior much further in a few hundred steps
+                (docs/STATUS.md, session 4), which is what a time-limited run needs.
+            lr, betas: the optimiser's (1e-4: HuMoR's, which the paper follows; 1e-3 is unstable
+                at width 1024). lr_milestones: optimiser steps where lr is multiplied by lr_decay.
             kl_anneal_epochs / kl_anneal_steps: linear KL annealing length (steps win when given).
             compile_model: torch.compile the networks. A training step is hundreds of small kernels
                 (the encoder's latent recursion walks the frames one by one), so on a GPU it is
@@ -154,6 +159,8 @@ class MotionDVAEModule(L.LightningModule):
                 and so checkpoints, are the same with or without it.
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
         """
+        if optimizer not in ("adamax", "adam"):
+            raise ValueError(f"optimizer must be 'adamax' or 'adam', got {optimizer!r}")
         if rotation_reference not in ("mean", "identity"):
             raise ValueError(f"rotation_reference must be 'mean' or 'identity', got {rotation_reference!r}")
         super().__init__()
@@ -209,7 +216,10 @@ class MotionDVAEModule(L.LightningModule):
 
     def configure_optimizers(self):
         hp = self.hparams
-        opt = torch.optim.Adamax(self.parameters(), lr=hp.lr, betas=tuple(hp.betas))
+        if hp.get("optimizer", "adamax") == "adam":  # fused: one kernel for the update on a GPU (as XMAE's)
+            opt = torch.optim.Adam(self.parameters(), lr=hp.lr, betas=tuple(hp.betas), fused=self.device.type == "cuda")
+        else:
+            opt = torch.optim.Adamax(self.parameters(), lr=hp.lr, betas=tuple(hp.betas))
         sched = torch.optim.lr_scheduler.MultiStepLR(opt, list(hp.lr_milestones or []), gamma=hp.lr_decay)
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
