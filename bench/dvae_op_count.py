@@ -54,7 +54,7 @@ def main(argv=None) -> int:
     net.enc.forward = _labelled(net.enc.forward, "P:encoder")
     net.gen.forward = _labelled(net.gen.forward, "P:generative")
     model.codec.points = _labelled(model.codec.points, "P:body model")
-    opt = torch.optim.Adamax(model.parameters(), lr=1e-3)
+    opt = model.configure_optimizers()["optimizer"]  # the module's own (Adamax by default)
     batch = dm.datasets["train"].__getitems__(list(range(args.batch)))
 
     def step():
@@ -88,8 +88,9 @@ def main(argv=None) -> int:
             counts[part(e)] += 1
     rows = [{"part": p, "ops": counts[p]} for p in PARTS]
     rows.append({"part": "total without the optimiser", "ops": sum(counts[p] for p in PARTS if p != "optimiser")})
-    result = {"benchmark": "dvae_op_count", "env": describe(torch.device("cpu")), "command": " ".join(sys.argv), "torch": torch.__version__,
-              "batch": args.batch, "frames": dm.window_frames, "joints": dm.skeleton.num_joints, "rows": rows}
+    result = {"benchmark": "dvae_op_count", "env": describe(torch.device("cpu")), "command": " ".join(sys.argv),
+              "torch": torch.__version__, "batch": args.batch, "frames": dm.window_frames,
+              "joints": dm.skeleton.num_joints, "rows": rows}
     path = write_result("dvae_op_count", result, args.json_out)
     print_table(f"Motion-DVAE prior training step, operations by part ({dm.skeleton.num_joints} joints, "
                 f"{dm.window_frames} frames, batch {args.batch})", rows, [("part", "part"), ("ops", "operations")])

@@ -178,12 +178,15 @@ class MotionState(nn.Module):
         self.num_joints = len(self.parents)
         self.dim = state_dim(kind, self.num_joints)
         if kind == "rotations":
-            self.register_buffer("joint_reference", torch.eye(3).repeat(self.num_joints - 1, 1, 1))
+            self.register_buffer("joint_reference", self._identity_reference())
+
+    def _identity_reference(self) -> torch.Tensor:
+        return torch.eye(3).repeat(self.num_joints - 1, 1, 1)  # (J-1, 3, 3): the rotations as given
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         # checkpoints from before the reference existed measured the rotations as given
         if self.kind == "rotations" and prefix + "joint_reference" not in state_dict:
-            state_dict[prefix + "joint_reference"] = torch.eye(3).repeat(self.num_joints - 1, 1, 1)
+            state_dict[prefix + "joint_reference"] = self._identity_reference()
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def joint_rotations(self, x: torch.Tensor) -> torch.Tensor:
