@@ -7,7 +7,7 @@ import torch
 
 from mocapfix.data.corruption import (available, constant_displacement, denormalize, gap_frames, gaussian_noise,
                                       infill_gap, kept_index, mask_and_displace, normalize, random_z_rotation,
-                                      rotate_z, rotation_noise)
+                                      rotate_z, rotation_noise, training_gaps)
 from mocapfix.kinematics import fk_axis_angle
 from mocapfix.skeleton import preset
 
@@ -94,6 +94,29 @@ def test_determinism_and_generator_use():
     # same seed, float32 batch: same tokens chosen (random draws do not depend on dtype)
     d = mask_and_displace(x.float(), generator=gen(7))
     assert torch.equal(a.observed, d.observed) and torch.equal(a.displaced, d.displaced)
+
+
+def test_training_gaps_remove_whole_frames_and_keep_counts():
+    x = motion()
+    gaps = training_gaps(4000, T, 0.5, gen(1), x)                                   # (4000, T)
+    has = gaps.any(dim=1)
+    assert abs(has.float().mean().item() - 0.5) < 0.04
+    length = gaps.sum(dim=1)[has]
+    assert length.min() == 1 and length.max() == T - 2
+    # one contiguous stretch per window: a single rising edge
+    rises = (gaps[:, 1:] & ~gaps[:, :-1]).sum(dim=1) + gaps[:, 0]
+    assert (rises[has] == 1).all()
+    assert gaps[:, 0].any() and gaps[:, -1].any()                                   # anywhere, edges too
+
+    c = mask_and_displace(x, generator=gen(2), gap_ratio=1.0)
+    gaps = training_gaps(B, T, 1.0, gen(2), x)                                      # the same first draws
+    assert not c.observed[gaps].any()                                               # every joint of a gap frame
+    K = round(0.15 * N)
+    left = (~gaps).sum(dim=1) * J                                                   # tokens outside the gap
+    assert c.observed.sum(dim=(1, 2)).tolist() == torch.clamp(left, max=K).tolist()
+    # gap_ratio 0 draws nothing extra: the paper's corruption, token for token
+    a, b = mask_and_displace(x, generator=gen(2)), mask_and_displace(x, generator=gen(2), gap_ratio=0.0)
+    assert torch.equal(a.observed, b.observed) and torch.equal(a.positions, b.positions)
 
 
 def test_invalid_ratios():

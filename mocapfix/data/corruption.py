@@ -83,9 +83,26 @@ def kept_count(num_tokens: int, mask_ratio: float) -> int:
     return round((1.0 - mask_ratio) * num_tokens)
 
 
+def training_gaps(B: int, T: int, gap_ratio: float, generator: torch.Generator | None,
+                  like: torch.Tensor) -> torch.Tensor:
+    """Whole-skeleton gaps for training: a fraction gap_ratio of the windows get one gap of
+    1..T-2 frames (uniform), anywhere in the window (uniform start); the others none.
+    -> (B, T) bool, True on the gap's frames.
+
+    Random token masking at 85% leaves a few joints in nearly every frame, so a model trained
+    on it alone seldom has to carry the whole body across a long hole, which is exactly the
+    evaluation's (and real data's) hardest case: the full skeleton gone for up to 0.9 s."""
+    draw = _rand((3, B), generator, like)                                          # (3, B)
+    has_gap = draw[0] < gap_ratio
+    length = 1 + (draw[1] * max(T - 2, 1)).long().clamp_max(max(T - 3, 0))        # (B,) in 1..T-2
+    start = (draw[2] * (T - length + 1)).long().clamp_max(T - length)              # (B,)
+    t = torch.arange(T, device=like.device)[None, :]                               # (1, T)
+    return has_gap[:, None] & (t >= start[:, None]) & (t < (start + length)[:, None])
+
+
 def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displace_ratio: float = 0.05,
                       max_displacement_m: float = 1.0, fixed_kept_count: bool = True,
-                      generator: torch.Generator | None = None) -> Corrupted:
+                      generator: torch.Generator | None = None, gap_ratio: float = 0.0) -> Corrupted:
     """Training corruption of XMAE: mask most tokens, displace a few of the kept ones.
 
     positions: (B, T, J, 3) metres, NaN = missing (never kept).
@@ -100,13 +117,20 @@ def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displac
     kept token with p = displace_ratio / (1 - mask_ratio) (same expected counts as above).
 
     Displacement offsets are uniform inside a ball of radius max_displacement_m.
+
+    gap_ratio > 0 (not in the paper; 0 draws nothing extra): that fraction of the windows also
+    loses every joint over one random stretch of frames (training_gaps) before the kept tokens
+    are drawn from the rest; a window whose gap leaves fewer than K tokens keeps what is left.
     """
     if not (0.0 <= mask_ratio <= 1.0 and 0.0 <= displace_ratio <= 1.0 - mask_ratio + 1e-9):
         raise ValueError(f"need 0 <= mask_ratio <= 1 and 0 <= displace_ratio <= 1 - mask_ratio, "
                          f"got mask_ratio={mask_ratio}, displace_ratio={displace_ratio}")
     B, T, J, _ = positions.shape
     N = T * J
-    avail = available(positions).reshape(B, N)
+    avail = available(positions)                                                   # (B, T, J)
+    if gap_ratio > 0:
+        avail = avail & ~training_gaps(B, T, gap_ratio, generator, positions)[..., None]
+    avail = avail.reshape(B, N)
     keep_frac = 1.0 - mask_ratio
     disp_frac_of_kept = displace_ratio / keep_frac if keep_frac > 0 else 0.0
 
@@ -142,12 +166,13 @@ class TrainingInput(NamedTuple):
 
 def xmae_training_input(positions: torch.Tensor, mask_ratio: float, displace_ratio: float,
                         max_displacement_m: float, fixed_kept_count: bool = True, rotate: bool = True,
-                        generator: torch.Generator | None = None) -> TrainingInput:
+                        generator: torch.Generator | None = None, gap_ratio: float = 0.0) -> TrainingInput:
     """XMAE's training corruption of a batch (B, T, J, 3), all on the batch's device: mask and
     displace, normalise, rotate about z (rotate=True), index the observed tokens. With a fixed
     kept count, K is known without reading the data: no host-device sync."""
     B, T, J, _ = positions.shape
-    c = mask_and_displace(positions, mask_ratio, displace_ratio, max_displacement_m, fixed_kept_count, generator)
+    c = mask_and_displace(positions, mask_ratio, displace_ratio, max_displacement_m, fixed_kept_count, generator,
+                          gap_ratio)
     x, offset = normalize(c.positions, c.observed)
     target = positions - offset
     if rotate:

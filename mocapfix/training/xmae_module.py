@@ -43,6 +43,7 @@ class XMAEModule(L.LightningModule):
         displace_ratio: float = 0.05,
         max_displacement_m: float = 1.0,
         clean_loss_ratio: float = 0.0,
+        gap_ratio: float = 0.0,
         fixed_kept_count: bool = True,
         rotate_augment: bool = True,
         compile_model: bool = False,
@@ -67,6 +68,8 @@ class XMAEModule(L.LightningModule):
             mask_ratio, displace_ratio: fractions of all J*T tokens masked / displaced in training.
             max_displacement_m: radius of the ball displacement offsets are drawn from.
             clean_loss_ratio: fraction of all tokens kept clean AND put in the loss ("BERT masking": 0.05).
+            gap_ratio: fraction of training windows that also lose the whole skeleton over a random
+                stretch of frames (not in the paper, 0 = the paper's corruption; see corruption.training_gaps).
             fixed_kept_count: every sample keeps the same number of tokens, known from mask_ratio
                 without reading the batch (no host-device sync); only samples short of data are padded.
             rotate_augment: random rotation about z after normalisation.
@@ -134,7 +137,7 @@ class XMAEModule(L.LightningModule):
         B, T, J, _ = positions.shape
         x, target, c, offset, kept, padding = xmae_training_input(
             positions, hp.mask_ratio, hp.displace_ratio, hp.max_displacement_m, hp.fixed_kept_count,
-            hp.rotate_augment and self.training, generator)
+            hp.rotate_augment and self.training, generator, hp.gap_ratio if self.training else 0.0)
         pred = self.net(x, kept, padding).reshape(B, T, J, 3)
         has_truth = ~torch.isnan(target).any(-1)
         in_loss = (~c.observed | c.displaced) & has_truth
