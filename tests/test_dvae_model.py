@@ -157,6 +157,33 @@ def test_denoising_data_term_is_the_expectation_over_the_noise_posterior():
     assert terms["kl_v"] > 0 and terms["kl_z"] > 0
 
 
+def test_gaussian_setting_is_the_exact_large_lambda_limit():
+    """From lambda = 1e4 on, v = 1 exactly: the data term is half the squared error, kl_v is 0,
+    and the noise predictor gets no gradient (at lambda = 1e6 the IG terms gave it gradients of
+    order lambda, which reached the encoder through the shared LSTM states)."""
+    batch, skel = _batch(B=2)
+    prior = _tiny(skel)
+    torch.manual_seed(1)
+    big = DVAEDenoiseModule(prior_hparams=dict(prior.hparams), noise_lambda=1e6, obs_scale_m=0.1)
+    obs = big.observation(big.add_noise(batch, 0.1, torch.Generator().manual_seed(0)))
+    torch.nn.init.normal_(big.noise_pred.e_b.net[-1].bias, std=0.5)  # a noise predictor off the prior
+    loss, terms = big.denoise_loss(obs, 1.0, sample=False)
+    inf = big.infer(obs, sample=False)
+    sq = (((inf.y3d - inf.m) / 0.1) ** 2).flatten(-2)
+    torch.testing.assert_close(terms["data"], 0.5 * sq.sum((1, 2)).mean(), rtol=1e-5, atol=0)
+    assert terms["kl_v"] == 0
+    loss.backward()
+    assert all(p.grad is None for p in big.noise_pred.parameters())
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in big.net.parameters())
+    # the noise-model formula tends to it: with q(v) at the prior, lambda = 5e3 is within 0.1 %
+    near = DVAEDenoiseModule(prior_hparams=dict(prior.hparams), noise_lambda=5e3, obs_scale_m=0.1)
+    near.load_state_dict(big.state_dict())
+    torch.nn.init.zeros_(near.noise_pred.e_b.net[-1].bias)
+    with torch.no_grad():
+        near_terms = near.elbo_terms(near.infer(obs, sample=False))
+    torch.testing.assert_close(near_terms["data"], terms["data"].detach(), rtol=1e-3, atol=0)
+
+
 def _velocity_noise(xn: torch.Tensor, vel: torch.Tensor, scale: float = 30.0) -> torch.Tensor:
     """xn with its velocity entries moved by `scale` standard deviations (noisy finite differences)."""
     g = torch.Generator().manual_seed(3)

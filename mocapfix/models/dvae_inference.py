@@ -45,6 +45,12 @@ class Inference(NamedTuple):
     x: torch.Tensor         # (B, T+1, D) predicted states x_0, x_hat_1..x_hat_T, raw units, canonical frame
 
 
+def gaussian_limit(noise_lambda: float) -> bool:
+    """The paper's "very high lambda" (section 5.1): IG(lambda/2, lambda/2) is then a spike at
+    v = 1, and so is the best posterior q_gamma(v): the noise variance is 1 (std obs_scale_m)."""
+    return noise_lambda >= GAUSSIAN_LAMBDA
+
+
 def uses_noise_model(estimate: str, noise_lambda: float) -> bool:
     """Whether the final estimate is eq. 18 ("fusion") or the decoder output ("decoder");
     "auto": fusion only when the noise prior is far from the Gaussian setting."""
@@ -79,10 +85,13 @@ def point_estimate(inf: Inference, codec: MotionState, noise_lambda: float, fusi
     elsewhere the decoder output stands."""
     est = inf.m
     if fusion:
-        c = noise_lambda / 2.0
-        alpha, beta = c * inf.a.exp(), c * inf.b.exp()
-        v = torch.where(alpha > 1, beta / (alpha - 1).clamp_min(1e-6), beta / (alpha + 1))  # E[v], else the mode
-        v = v.reshape(est.shape).to(est.dtype)
+        if gaussian_limit(noise_lambda):
+            v = torch.ones_like(est)
+        else:
+            c = noise_lambda / 2.0
+            alpha, beta = c * inf.a.exp(), c * inf.b.exp()
+            v = torch.where(alpha > 1, beta / (alpha - 1).clamp_min(1e-6), beta / (alpha + 1))  # E[v], else the mode
+            v = v.reshape(est.shape).to(est.dtype)
         fused = (v * est + inf.y3d) / (v + 1)
         if observed is not None:
             keep = torch.zeros(est.shape[:-1], dtype=torch.bool, device=est.device)       # (B, T+1, K)
