@@ -120,6 +120,8 @@ def test_training_gaps_remove_whole_frames_and_keep_counts():
 
 
 def test_invalid_ratios():
+    with pytest.raises(ValueError, match="gap_ratio"):
+        mask_and_displace(motion(), gap_ratio=1.5)
     with pytest.raises(ValueError):
         mask_and_displace(motion(), 0.9, 0.2)
 

@@ -174,6 +174,7 @@ def test_gaussian_setting_is_the_exact_large_lambda_limit():
     assert terms["kl_v"] == 0
     loss.backward()
     assert all(p.grad is None for p in big.noise_pred.parameters())
+    assert not any(p.requires_grad for p in big.noise_pred.parameters())  # out of the optimiser (and DDP)
     assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in big.net.parameters())
     # the noise-model formula tends to it: with q(v) at the prior, lambda = 5e3 is within 0.1 %
     near = DVAEDenoiseModule(prior_hparams=dict(prior.hparams), noise_lambda=5e3, obs_scale_m=0.1)

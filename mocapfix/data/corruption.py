@@ -125,6 +125,8 @@ def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displac
     if not (0.0 <= mask_ratio <= 1.0 and 0.0 <= displace_ratio <= 1.0 - mask_ratio + 1e-9):
         raise ValueError(f"need 0 <= mask_ratio <= 1 and 0 <= displace_ratio <= 1 - mask_ratio, "
                          f"got mask_ratio={mask_ratio}, displace_ratio={displace_ratio}")
+    if not 0.0 <= gap_ratio <= 1.0:
+        raise ValueError(f"need 0 <= gap_ratio <= 1, got gap_ratio={gap_ratio}")
     B, T, J, _ = positions.shape
     N = T * J
     avail = available(positions)                                                   # (B, T, J)

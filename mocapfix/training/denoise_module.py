@@ -126,6 +126,8 @@ class DVAEDenoiseModule(L.LightningModule):
         num_points = self.codec.num_joints + (self.body.num_markers if self.body is not None else 0)
         self.x0_pred = InitialStatePredictor(D, H, Hm, G, velocity_mask(self.codec.kind, self.codec.num_joints))
         self.noise_pred = NoisePredictor(H, 3 * num_points, Hm, G)
+        if gaussian_limit(noise_lambda):  # v = 1 exactly (elbo_terms): nothing to learn, nothing for DDP to wait on
+            self.noise_pred.requires_grad_(False)
         self._anneal_steps = 0
         self.val_mpjpe, self.val_noisy_mpjpe = MPJPE(), MPJPE()
 
