@@ -6,6 +6,7 @@ inspect: what a motion file holds. demo: a short CPU training run on the embedde
 from __future__ import annotations
 
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -82,13 +83,27 @@ def _lightning_cli(args: list[str]):
     )
 
 
+class _StderrHandler(logging.StreamHandler):
+    """A StreamHandler on whatever sys.stderr is when it writes (pytest swaps it between calls)."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     # Our own progress lines (parsing, cache, windows); Lightning configures its own loggers.
-    handler = logging.StreamHandler()
-    handler.setFormatter(logging.Formatter("%(message)s"))
-    logging.getLogger("mocapfix").addHandler(handler)
-    logging.getLogger("mocapfix").setLevel(logging.INFO)
+    logger = logging.getLogger("mocapfix")
+    if not any(isinstance(h, _StderrHandler) for h in logger.handlers):  # once, however often main runs
+        handler = _StderrHandler()
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
     command = argv[0] if argv else "--help"
     if command == "inspect":
         from mocapfix.inspect import main as inspect_main
@@ -105,7 +120,13 @@ def main(argv: list[str] | None = None) -> int:
                   "       mocapfix inspect FILE... [--json]\n"
                   "       mocapfix fix INPUT... --ckpt CKPT [-o OUT | --out-dir DIR] [--mode infill|denoise|both]\n"
                   "       mocapfix demo\n")
-        _lightning_cli(argv)
+        try:
+            _lightning_cli(argv)
+        except ValueError as e:  # the project's input checks (MotionFileError is one) say file and problem
+            if os.environ.get("MOCAPFIX_TRACEBACK"):
+                raise
+            print(f"mocapfix {command}: {e}  (MOCAPFIX_TRACEBACK=1 for the traceback)", file=sys.stderr)
+            return 2
         return 0
     print(f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect, fix or demo", file=sys.stderr)
     return 2

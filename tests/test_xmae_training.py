@@ -144,6 +144,14 @@ def test_predict_fills_only_missing(tmp_path):
     assert torch.equal(out[seen], pos[seen])
 
 
+def test_missing_data_is_one_line_naming_the_path(tmp_path, capsys):
+    missing = tmp_path / "no_such_folder"
+    rc = run_cli(["fit", "--config", CONFIGS / "xmae_bvh.yaml", "--data.path", missing, *QUIET], tmp_path)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    assert f"{missing}: no such file or folder" in err[-1] and "Traceback" not in "".join(err)
+
+
 def test_wrong_key_is_a_short_error(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         run_cli(["fit", "--config", CONFIGS / "xmae.yaml", "--model.init_args.mask_ratoi", "0.5"], tmp_path)

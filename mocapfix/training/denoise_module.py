@@ -158,6 +158,19 @@ class DVAEDenoiseModule(L.LightningModule):
     def configure_optimizers(self):
         return torch.optim.Adamax(self.trainable_parameters(), lr=self.hparams.lr, betas=tuple(self.hparams.betas))
 
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        # Before session 5 the noise predictor was trained in the Gaussian setting too; such a
+        # checkpoint's optimiser holds more parameters than this module trains.
+        saved = checkpoint.get("optimizer_states") or []
+        trainer = self._trainer  # None under load_from_checkpoint (the public property raises there)
+        if trainer is not None and trainer.training and saved:
+            n_saved = sum(len(g["params"]) for g in saved[0]["param_groups"])
+            if n_saved != len(self.trainable_parameters()):
+                raise ValueError(
+                    f"this denoising checkpoint's optimiser holds {n_saved} parameters, this module trains "
+                    f"{len(self.trainable_parameters())} (written before the noise predictor was frozen for "
+                    f"noise_lambda >= 1e4): it loads for test and fix, but cannot resume training")
+
     # --- noise and observation ---
 
     def add_noise(self, batch: dict, sigma: float, generator: torch.Generator | None = None) -> dict:
