@@ -9,6 +9,7 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, SMALL_DATA, TINY, run_cli
 
+from mocapfix.io.synthetic import generate_clips
 from mocapfix.training.xmae_module import XMAEModule
 
 FAST = ["--trainer.fast_dev_run", "1", "--data.batch_size", "4", "--data.eval_batch_size", "4",
@@ -173,3 +174,19 @@ def test_gpu_checkpoint_resumes_on_cpu_and_back(tmp_path):
                    tmp_path) == 0
     ckpt = torch.load(tmp_path / "checkpoints" / "dev" / "last.ckpt", map_location="cpu", weights_only=True)
     assert ckpt["global_step"] == 6
+
+
+def test_training_gaps_apply_in_training_only():
+    """gap_ratio reaches the training corruption; validation keeps the paper's (comparable val/mpjpe_mm)."""
+    skel = generate_clips(1, 1.0, fps=10, seed=0)[0].skeleton.to_dict()
+    m = XMAEModule(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16,
+                   skeleton=skel, window_fps=10.0, window_frames=10, gap_ratio=1.0)
+    x = torch.from_numpy(generate_clips(1, 1.0, fps=10, seed=1)[0].positions[:10])[None].repeat(16, 1, 1, 1)
+
+    def frames_without_tokens():
+        *_, c, _, _ = m._corrupt_and_predict(x, torch.Generator().manual_seed(0))
+        return (~c.observed.any(dim=2)).any(dim=1)                                   # (B,) some frame empty
+    m.train()
+    assert frames_without_tokens().all()
+    m.eval()
+    assert not frames_without_tokens().all()
