@@ -165,11 +165,12 @@ class DVAEDenoiseModule(L.LightningModule):
         trainer = self._trainer  # None under load_from_checkpoint (the public property raises there)
         if trainer is not None and trainer.training and saved:
             n_saved = sum(len(g["params"]) for g in saved[0]["param_groups"])
-            if n_saved != len(self.trainable_parameters()):
+            n_trained = len(self.trainable_parameters())
+            if n_saved != n_trained:
                 raise ValueError(
                     f"this denoising checkpoint's optimiser holds {n_saved} parameters, this module trains "
-                    f"{len(self.trainable_parameters())} (written before the noise predictor was frozen for "
-                    f"noise_lambda >= 1e4): it loads for test and fix, but cannot resume training")
+                    f"{n_trained} (written before the noise predictor was frozen for noise_lambda >= 1e4): "
+                    f"it loads for test and fix, but cannot resume training")
 
     # --- noise and observation ---
 

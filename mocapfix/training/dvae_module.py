@@ -216,7 +216,7 @@ class MotionDVAEModule(L.LightningModule):
 
     def configure_optimizers(self):
         hp = self.hparams
-        if hp.get("optimizer", "adamax") == "adam":  # fused: one kernel for the update on a GPU (as XMAE's)
+        if hp.optimizer == "adam":  # fused: one kernel for the update on a GPU (as XMAE's)
             opt = torch.optim.Adam(self.parameters(), lr=hp.lr, betas=tuple(hp.betas), fused=self.device.type == "cuda")
         else:
             opt = torch.optim.Adamax(self.parameters(), lr=hp.lr, betas=tuple(hp.betas))
