@@ -9,6 +9,7 @@
 #   bash bench/gpu_session.sh dvae-prior     # issue 4 over several calls: the prior only (RESUME=1 goes on)
 #   bash bench/gpu_session.sh dvae-denoise   # ... then its test, the denoising stage and its test
 #   bash bench/gpu_session.sh dvae-speed     # the prior's training step eager vs compiled (minutes)
+#   bash bench/gpu_session.sh profile        # issue 6: where the compiled XMAE training step's time goes (~2 min)
 #
 # A run longer than one call: the machine keeps checkpoints/ while it stays warm (~30 s between
 # calls), so back-to-back calls with RESUME=1 continue last.ckpt. MAX_TIME / PRIOR_TIME count the
@@ -24,7 +25,7 @@
 # STEPS / MAX_TIME (xmae), PRIOR_TIME / DENOISE_TIME (dvae) trim the runs to the call's 10 minutes.
 # Results land in $OUT (the device tool brings them back): eval tables, bench JSON, a small checkpoint.
 set -euo pipefail
-PART=${1:?usage: gpu_session.sh prepare|xmae|bench|dvae|dvae-prior|dvae-denoise|dvae-speed}
+PART=${1:?usage: gpu_session.sh prepare|xmae|bench|profile|dvae|dvae-prior|dvae-denoise|dvae-speed}
 if [ "$PART" = prepare ]; then  # on this machine, before the calls: what they carry
   mkdir -p .device_data .whl
   cp ../shared/bench/ref_xmae.py .device_data/
@@ -94,6 +95,11 @@ bench)
   $PY bench/dvae_speed.py --compile --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
   $PY bench/fix_speed.py --device cuda --batch-size 512 --json-out "$OUT/fix_speed-cuda.json" 2>&1 | tail -n 8
   ;;
+profile)
+  # torch.profiler over 20 compiled steps: busy fraction, kernels per step, time by kernel kind
+  $PY bench/profile_train_step.py --json-out "$OUT/profile_train_step-cuda.json" 2>&1 | tail -n 40
+  $PY bench/profile_train_step.py --eager --json-out "$OUT/profile_train_step-cuda-eager.json" 2>&1 | tail -n 40
+  ;;
 dvae-speed)
   # a few minutes: is the prior's step faster compiled? (decides COMPILE=1 for dvae-prior)
   $PY bench/dvae_speed.py --compile --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
@@ -127,6 +133,6 @@ dvae|dvae-prior|dvae-denoise)
   fi
   ;;
 *)
-  echo "unknown part $PART (xmae | bench | dvae | dvae-prior | dvae-denoise | dvae-speed)" >&2; exit 2 ;;
+  echo "unknown part $PART (xmae | bench | profile | dvae | dvae-prior | dvae-denoise | dvae-speed)" >&2; exit 2 ;;
 esac
 ls -la "$OUT"

@@ -38,6 +38,14 @@ def test_train_throughput(tmp_path):
         assert rows["ref fast"]["frames"] == 10 and rows["device"]["x_ref_fast"] > 0
 
 
+def test_profile_train_step(tmp_path):
+    r = bench("profile_train_step", "--device", "cpu", "--fps", "10", "--batch", "2", "--warmup", "1", "--steps", "2",
+              "--synthetic-clips", "4", "--top", "5", tmp_path=tmp_path)
+    assert r["profiled_steps"] == 2 and r["frames"] == 10 and r["wall_ms_per_step"] > 0
+    # the operators the profile saw: the model's matmuls are among the slowest
+    assert len(r["rows"]) == 5 and any("mm" in x["name"] for x in r["rows"])
+
+
 def test_inference(tmp_path):
     r = bench("inference", "--device", "cpu", "--fps", "10", "--batch", "2", "--repeat", "1", tmp_path=tmp_path)
     assert [x["case"] for x in r["rows"]] == ["full", "10% missing", "full, batch 1"]
