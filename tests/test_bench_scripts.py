@@ -46,6 +46,35 @@ def test_profile_train_step(tmp_path):
     assert len(r["rows"]) == 5 and any("mm" in x["name"] for x in r["rows"])
 
 
+def test_dvae_per_frame(tmp_path):
+    import lightning
+
+    from mocapfix.data.datamodule import MotionDataModule
+    from mocapfix.training.denoise_module import DVAEDenoiseModule
+    from mocapfix.training.dvae_module import MotionDVAEModule
+    dm = MotionDataModule(source="synthetic", synthetic_clips=12, with_rotations=True, fps=30, window_s=1.0,
+                          cache_dir=None)
+    dm.setup("test")  # the skeleton the script's data module will read
+    torch.manual_seed(0)  # tiny untrained models: the script's plumbing, not a model's quality
+    prior = MotionDVAEModule(latent_dim=4, lstm_hidden=16, mlp_hidden=16, norm_groups=4,
+                             skeleton=dm.skeleton.to_dict(), window_fps=30.0, window_frames=30)
+    denoiser = DVAEDenoiseModule(prior_hparams={k: v for k, v in prior.hparams.items() if not k.startswith("_")},
+                                 noise="rotation")
+    for name, module in (("prior", prior), ("denoiser", denoiser)):
+        torch.save({"pytorch-lightning_version": lightning.__version__, "hyper_parameters": dict(module.hparams),
+                    "state_dict": module.state_dict()}, tmp_path / f"{name}.ckpt")
+    r = bench("dvae_per_frame", "--prior", tmp_path / "prior.ckpt", "--denoiser", tmp_path / "denoiser.ckpt",
+              "--source", "synthetic", "--synthetic-clips", "12", "--sigmas", "0", "0.1", tmp_path=tmp_path)
+    assert [(x["model"].split()[0], x["sigma"]) for x in r["rows"]] == [("prior", 0), ("denoiser", 0), ("denoiser", 0.1)]
+    for row in r["rows"]:  # 30 frames: an error at each, an acceleration at the 28 centre frames
+        assert len(row["error_mm_per_frame"]) == 30 and len(row["accel_per_frame"]) == 28
+        assert row["accel"] == pytest.approx(sum(row["accel_per_frame"]) / 28)
+        assert row["accel_truth"] == pytest.approx(r["rows"][0]["accel_truth"])  # the same clean windows
+    assert r["rows"][0]["error_mm_per_frame"][0] == 0.0  # the prior is given x_0
+    # sigma 0 is the clean clip again (FK of the unchanged rotations: float error only)
+    assert r["rows"][1]["noisy_mpjpe_mm"] < 1e-2 < r["rows"][2]["noisy_mpjpe_mm"]
+
+
 def test_inference(tmp_path):
     r = bench("inference", "--device", "cpu", "--fps", "10", "--batch", "2", "--repeat", "1", tmp_path=tmp_path)
     assert [x["case"] for x in r["rows"]] == ["full", "10% missing", "full, batch 1"]
