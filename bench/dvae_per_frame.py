@@ -89,7 +89,8 @@ def main(argv=None) -> int:
         if denoiser is not None:
             truth = batch["positions"].float()
             for sigma in args.sigmas:
-                noisy = denoiser.add_noise(batch, sigma, torch.Generator(device).manual_seed(1))
+                # a CPU generator: the same noise on any device, as the modules' own evaluation
+                noisy = denoiser.add_noise(batch, sigma, torch.Generator().manual_seed(1))
                 obs = denoiser.observation(noisy)
                 row = {"model": "denoiser (regression)", "sigma": sigma,
                        "noisy_mpjpe_mm": 1000 * (obs.positions.float() - truth).norm(dim=-1).mean().item()}

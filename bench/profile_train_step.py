@@ -5,7 +5,8 @@ Issue 6 asks where the training step's time goes once the throughput benchmark
 batches on the device -> XMAEModule.training_step -> Adam, in Lightning's Trainer, bf16-mixed on
 a GPU, compiled unless --eager), records `--steps` steps after `--warmup` untimed ones, and says:
 
-    wall ms/step       the step as the host sees it (GPU finished at both ends)
+    wall ms/step       the step as the host sees it (GPU finished at both ends), under the
+                       profiler: a little slower than train_throughput.py's unprofiled figure
     kernel ms/step     the sum of the GPU kernels' durations in a step
     busy               kernel time / wall time: well below 1 means the GPU waits on the host
                        (launches, Python, the data path), near 1 that the kernels are the bound
@@ -38,8 +39,8 @@ from mocapfix.training.xmae_module import XMAEModule  # noqa: E402
 
 # Kernel names -> what they do; the first pattern that matches wins. cuBLAS / CUTLASS GEMMs are
 # named after their tile shapes (sm90_xmma_gemm_..., cutlass_80_tensorop_...), FlashAttention and
-# the memory-efficient SDPA kernels after the algorithm, Inductor's fused kernels start triton_.
-KINDS = (("attention", r"flash|fmha|attention|attn"),
+# the memory-efficient and cuDNN SDPA kernels after the algorithm, Inductor's fused kernels start triton_.
+KINDS = (("attention", r"flash|fmha|sdpa|attention|attn"),
          ("matmul", r"gemm|cutlass|xmma|cublas|matmul|sm90_|sm80_"),
          ("compiled (triton)", r"^triton_"),
          ("optimiser", r"multi_tensor|adam|foreach"),
@@ -82,15 +83,19 @@ def summarise(prof, steps: int, wall_s: float, gpu: bool, top: int) -> tuple[dic
                  "ms_per_step": e.self_cpu_time_total / 1000 / steps} for e in ops[:top]]
         return {"wall_ms_per_step": 1000 * wall_s / steps}, rows
     kernels = [e for e in prof.events() if e.device_type == DeviceType.CUDA]
-    total_us = sum(e.device_time_total for e in kernels)
+    if not kernels:
+        raise SystemExit("the profile holds no CUDA kernels (profiler without CUDA activity?)")
+    # a kernel's own duration: its time range (device_time_total reads 0 for events marked async)
+    dur = {id(e): e.time_range.elapsed_us() for e in kernels}
+    total_us = sum(dur.values())
     by_kind: dict[str, float] = {}
     by_name: dict[str, list] = {}
     for e in kernels:
         kind = kind_of(e.name)
-        by_kind[kind] = by_kind.get(kind, 0.0) + e.device_time_total
+        by_kind[kind] = by_kind.get(kind, 0.0) + dur[id(e)]
         acc = by_name.setdefault(e.name, [0, 0.0])
         acc[0] += 1
-        acc[1] += e.device_time_total
+        acc[1] += dur[id(e)]
     summary = {"wall_ms_per_step": 1000 * wall_s / steps, "kernel_ms_per_step": total_us / 1000 / steps,
                "busy": total_us / 1e6 / wall_s, "kernels_per_step": len(kernels) / steps,
                "kernel_ms_by_kind": {k: v / 1000 / steps for k, v in sorted(by_kind.items(), key=lambda kv: -kv[1])}}

@@ -46,6 +46,33 @@ def test_profile_train_step(tmp_path):
     assert len(r["rows"]) == 5 and any("mm" in x["name"] for x in r["rows"])
 
 
+def test_profile_summary_of_cuda_kernels():
+    """The GPU half of profile_train_step.py on made-up kernel events: no GPU needed to check it."""
+    from types import SimpleNamespace
+
+    from torch.autograd import DeviceType
+    sys.path.insert(0, str(REPO / "bench"))
+    try:
+        from profile_train_step import summarise
+    finally:
+        sys.path.remove(str(REPO / "bench"))
+
+    def kernel(name, us):
+        return SimpleNamespace(name=name, device_type=DeviceType.CUDA,
+                               time_range=SimpleNamespace(elapsed_us=lambda: us))
+    cpu_op = SimpleNamespace(name="aten::mm", device_type=DeviceType.CPU)
+    events = [kernel("sm90_xmma_gemm_bf16bf16_bf16f32", 100.0), kernel("sm90_xmma_gemm_bf16bf16_bf16f32", 100.0),
+              kernel("flash_fwd_kernel", 50.0), kernel("triton_poi_fused_add_mul_0", 30.0),
+              kernel("multi_tensor_apply_kernel", 20.0), cpu_op]
+    summary, rows = summarise(SimpleNamespace(events=lambda: events), steps=2, wall_s=0.001, gpu=True, top=3)
+    assert summary["kernel_ms_per_step"] == pytest.approx(0.15) and summary["busy"] == pytest.approx(0.3)
+    assert summary["kernels_per_step"] == 2.5
+    assert summary["kernel_ms_by_kind"] == pytest.approx({"matmul": 0.1, "attention": 0.025,
+                                                          "compiled (triton)": 0.015, "optimiser": 0.01})
+    assert [r["kind"] for r in rows] == ["matmul", "attention", "compiled (triton)"]
+    assert rows[0]["calls_per_step"] == 1 and rows[0]["share"] == pytest.approx(2 / 3)
+
+
 def test_dvae_per_frame(tmp_path):
     import lightning
 
