@@ -92,7 +92,8 @@ def test_dvae_per_frame(tmp_path):
                     "state_dict": module.state_dict()}, tmp_path / f"{name}.ckpt")
     r = bench("dvae_per_frame", "--prior", tmp_path / "prior.ckpt", "--denoiser", tmp_path / "denoiser.ckpt",
               "--source", "synthetic", "--synthetic-clips", "12", "--sigmas", "0", "0.1", tmp_path=tmp_path)
-    assert [(x["model"].split()[0], x["sigma"]) for x in r["rows"]] == [("prior", 0), ("denoiser", 0), ("denoiser", 0.1)]
+    rows = [(x["model"].split()[0], x["sigma"]) for x in r["rows"]]
+    assert rows == [("prior", 0), ("denoiser", 0), ("denoiser", 0.1)]
     for row in r["rows"]:  # 30 frames: an error at each, an acceleration at the 28 centre frames
         assert len(row["error_mm_per_frame"]) == 30 and len(row["accel_per_frame"]) == 28
         assert row["accel"] == pytest.approx(sum(row["accel_per_frame"]) / 28)
