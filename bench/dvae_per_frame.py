@@ -74,6 +74,9 @@ def main(argv=None) -> int:
     dm.setup("fit" if args.split == "val" else "test")
     if dm.window_frames != frames:
         raise SystemExit(f"the model takes {frames}-frame windows, the data module cuts {dm.window_frames}")
+    if tuple(dm.skeleton.parents) != tuple(hp["skeleton"]["parents"]):
+        raise SystemExit(f"the model was trained on {len(hp['skeleton']['parents'])} joints, the data has "
+                         f"{dm.skeleton.num_joints}: give --drop-joints as in its training config")
     loader = dm.val_dataloader() if args.split == "val" else dm.test_dataloader()
     batch = next(iter(loader))
     batch = {k: v.to(device) for k, v in select(batch, complete_windows(batch)).items()}
