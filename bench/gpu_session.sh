@@ -129,11 +129,12 @@ dvae|dvae-prior|dvae-denoise)
     $PY -m mocapfix test --config configs/motion_dvae_denoise_bvh.yaml "${C[@]}" \
       --ckpt_path checkpoints/motion_dvae_denoise_bvh/last.ckpt 2>&1 | tee "$OUT/dvae_test.txt" | grep -v "test/" | tail -n 40
     cp "$(ls -t logs/motion_dvae_denoise_bvh/version_*/eval.json | head -1)" "$OUT/dvae_eval.json"
-    # where the acceleration comes from (window ends or every frame): the checkpoints do not come back
+    tar czf "$OUT/dvae_logs.tgz" logs/motion_dvae_bvh logs/motion_dvae_denoise_bvh  # TensorBoard events
+    # where the acceleration comes from (window ends or every frame): the checkpoints do not come
+    # back. Last, so a call cut at its limit has already kept the rest.
     $PY bench/dvae_per_frame.py --prior checkpoints/motion_dvae_bvh/last.ckpt --source archive \
       --denoiser checkpoints/motion_dvae_denoise_bvh/last.ckpt --path .device_data/bandai_rot30.npz \
       --json-out "$OUT/dvae_per_frame-cuda.json" 2>&1 | tail -n 8
-    tar czf "$OUT/dvae_logs.tgz" logs/motion_dvae_bvh logs/motion_dvae_denoise_bvh  # TensorBoard events
   fi
   ;;
 *)
