@@ -23,6 +23,7 @@ import torch
 from common import describe, pick_device, write_result
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
+from mocapfix.evaluation.metrics import _second_difference  # noqa: E402
 from mocapfix.training.denoise_module import DVAEDenoiseModule  # noqa: E402
 from mocapfix.training.dvae_module import MotionDVAEModule, complete_windows, select  # noqa: E402
 
@@ -32,8 +33,8 @@ DEFAULT_BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-
 def per_frame(est: torch.Tensor, truth: torch.Tensor, fps: float, first: int) -> dict:
     """est, truth (B, T+1, J, 3) metres -> error per frame (mm) and acceleration per centre frame.
     first: the first frame the MPJPE counts (1 where x_0 was given, as the prior's `test`)."""
-    def accel(p):  # (T-1,): |second difference| / dt^2 at frames 1..T-1, mean over windows and joints
-        return ((p[:, 2:] - 2 * p[:, 1:-1] + p[:, :-2]).norm(dim=-1) * fps ** 2).mean(dim=(0, 2))
+    def accel(p):  # (T-1,): JointAcceleration's quantity at frames 1..T-1, mean over windows and joints
+        return (_second_difference(p).norm(dim=-1) * fps ** 2).mean(dim=(0, 2))
     err = (est - truth).norm(dim=-1).mean(dim=(0, 2)) * 1000
     acc, acc_true = accel(est), accel(truth)
     return {"mpjpe_mm": err[first:].mean().item(), "error_mm_per_frame": err.tolist(),
@@ -84,10 +85,7 @@ def main(argv=None) -> int:
     rows = []
     with torch.no_grad():
         if prior is not None:
-            x, shape = prior.encode_batch(batch)
-            _, x_hat, _ = prior.elbo_terms(x, shape, sample=False)
-            truth = prior.codec.points(x.float(), shape).joints                    # canonical frame
-            recon = torch.cat([truth[:, :1], prior.codec.points(x_hat, shape).joints], dim=1)
+            _, truth, recon = prior.reconstruct(batch)                             # canonical frame
             rows.append({"model": "prior (clean, x_0 given)", "sigma": 0.0, **per_frame(recon, truth, fps, first=1)})
         if denoiser is not None:
             truth = batch["positions"].float()

@@ -55,7 +55,7 @@ def uses_noise_model(estimate: str, noise_lambda: float) -> bool:
     """Whether the final estimate is eq. 18 ("fusion") or the decoder output ("decoder");
     "auto": fusion only when the noise prior is far from the Gaussian setting."""
     if estimate == "auto":
-        return noise_lambda < GAUSSIAN_LAMBDA
+        return not gaussian_limit(noise_lambda)
     return estimate == "fusion"
 
 

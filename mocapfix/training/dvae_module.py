@@ -246,6 +246,14 @@ class MotionDVAEModule(L.LightningModule):
         reg = ((pred_pts - true_pts) ** 2).sum((1, 2, 3)).mean()
         return ELBOTerms(rec, kl, reg), x_hat, out
 
+    def reconstruct(self, batch: dict) -> tuple[ELBOTerms, torch.Tensor, torch.Tensor]:
+        """Clean windows -> the ELBO terms on the posterior-mean path, the true joints and their
+        reconstruction (B, T+1, J, 3), canonical frame; frame 0 of the reconstruction is the given x_0."""
+        x, shape = self.encode_batch(batch)
+        terms, x_hat, _ = self.elbo_terms(x, shape, sample=False)
+        truth = self.codec.points(x.float(), shape).joints
+        return terms, truth, torch.cat([truth[:, :1], self.codec.points(x_hat, shape).joints], dim=1)
+
     def current_kl_weight(self) -> float:
         return self.hparams.kl_weight * kl_anneal_weight(self.global_step, self._anneal_steps)
 
@@ -273,14 +281,11 @@ class MotionDVAEModule(L.LightningModule):
         if not keep.any():
             return None
         batch = select(batch, keep)
-        x, shape = self.encode_batch(batch)
-        terms, x_hat, _ = self.elbo_terms(x, shape, sample=False)
+        terms, truth, recon = self.reconstruct(batch)
         loss = terms.rec + self.hparams.kl_weight * terms.kl + self.hparams.reg_weight * terms.reg
-        B = len(x)
+        B = len(truth)
         self.log(f"{stage}/loss", loss, prog_bar=True, batch_size=B)
         self.log_dict({f"{stage}/rec": terms.rec, f"{stage}/kl": terms.kl, f"{stage}/reg": terms.reg}, batch_size=B)
-        truth = self.codec.points(x.float(), shape).joints                                  # (B, T+1, J, 3)
-        recon = torch.cat([truth[:, :1], self.codec.points(x_hat, shape).joints], dim=1)
         metric = self.val_mpjpe if stage == "val" else self.test_mpjpe
         metric(recon[:, 1:], truth[:, 1:])
         self.log(f"{stage}/mpjpe_mm", metric, prog_bar=True, batch_size=B)
