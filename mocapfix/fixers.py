@@ -18,8 +18,8 @@ from mocapfix.inference import xmae_reconstruct
 from mocapfix.kinematics import fk_axis_angle
 from mocapfix.models.body import build_body_model
 from mocapfix.models.dvae import InitialStatePredictor, MotionDVAE, NoisePredictor
-from mocapfix.models.dvae_inference import (Observation, infer_posterior, point_estimate, rotation_estimate,
-                                            uses_noise_model)
+from mocapfix.models.dvae_inference import (FIRST_FRAMES, Observation, infer_posterior, point_estimate,
+                                            rotation_estimate, uses_noise_model)
 from mocapfix.models.dvae_state import STATES, MotionState, velocity_mask
 from mocapfix.models.xmae import XMAE
 from mocapfix.skeleton import Skeleton
@@ -129,13 +129,13 @@ class DVAEFixer:
 
     def __init__(self, net: MotionDVAE, codec: MotionState, x0_pred: InitialStatePredictor, noise_pred: NoisePredictor,
                  skeleton: Skeleton, fps: float, window: int, noise_lambda: float, fusion: bool,
-                 device: str | torch.device = "cpu"):
+                 device: str | torch.device = "cpu", first_frame: str = "decoded"):
         self.device = torch.device(device)
         self.net, self.x0_pred, self.noise_pred = (m.to(self.device).eval() for m in (net, x0_pred, noise_pred))
         codec.to(self.device)  # its body model and joint reference
         self.codec, self.state = codec, codec.kind
         self.skeleton, self.fps, self.window = skeleton, float(fps), int(window)
-        self.noise_lambda, self.fusion = float(noise_lambda), bool(fusion)
+        self.noise_lambda, self.fusion, self.first_frame = float(noise_lambda), bool(fusion), first_frame
         self.notes = ["eq. 18 fuses 3D points, not rotations: the decoder's motion is used"] \
             if fusion and self.state == "rotations" else []
 
@@ -186,8 +186,11 @@ class DVAEFixer:
                 raise MotionFileError(path, "weights do not fit the network its hyperparameters describe "
                                             f"({prefix}: {first})") from None
         fusion = uses_noise_model(str(hparams["estimate"]), float(hparams["noise_lambda"]))
+        first_frame = str(hparams.get("first_frame", "decoded"))  # checkpoints from before it: the module's default
+        if first_frame not in FIRST_FRAMES:
+            raise MotionFileError(path, f"Motion-DVAE checkpoint has an unknown first_frame {first_frame!r}")
         return cls(nets["net"], codec, nets["x0_pred"], nets["noise_pred"], skeleton, fps, frames,
-                   float(hparams["noise_lambda"]), fusion, device)
+                   float(hparams["noise_lambda"]), fusion, device, first_frame)
 
     def _infer(self, obs: Observation):
         return infer_posterior(self.net, self.codec, self.x0_pred, self.noise_pred, obs, sample=False)
@@ -198,7 +201,8 @@ class DVAEFixer:
             raise ValueError("this Motion-DVAE works on rotations: use estimate_rotations")
         filled = lerp_infill(positions.double(), observed).float().to(self.device)    # (B, W, J, 3)
         inf = self._infer(Observation(filled, None, None, None))
-        est = point_estimate(inf, self.codec, self.noise_lambda, self.fusion, observed.to(self.device))
+        est = point_estimate(inf, self.codec, self.noise_lambda, self.fusion, observed.to(self.device),
+                             self.first_frame)
         return est.float().cpu()
 
     @torch.inference_mode()
@@ -210,7 +214,7 @@ class DVAEFixer:
                                                 for t in (rotations, root_translation, offsets))
         positions = fk_axis_angle(rotations, root_translation, offsets[:, None], self.codec.parents)
         inf = self._infer(Observation(positions, rotations, root_translation, offsets))
-        rot, root = rotation_estimate(inf, self.codec)
+        rot, root = rotation_estimate(inf, self.codec, self.first_frame)
         return rot.float().cpu(), root.float().cpu()
 
 

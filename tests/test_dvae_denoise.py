@@ -12,6 +12,7 @@ from cli_utils import CONFIGS, QUIET, SMALL_DATA, run_cli
 from test_dvae_training import CPU, TINY_DVAE, bandai_subset
 
 from mocapfix.data.datamodule import MotionDataModule
+from mocapfix.models.dvae_state import to_canonical
 from mocapfix.training.denoise_module import METHODS, DVAEDenoiseModule
 from mocapfix.training.dvae_module import MotionDVAEModule
 
@@ -77,6 +78,26 @@ def _tiny_denoiser(prior_ckpt) -> tuple[DVAEDenoiseModule, dict]:
     dm.setup("test")
     batch = dm.datasets["test"].__getitems__([0, 1, 2])
     return DVAEDenoiseModule(prior_ckpt=str(prior_ckpt), noise_lambda=5.0), batch
+
+
+def test_first_frame_is_the_decoders_step_back_or_the_papers_x0(prior_ckpt):
+    model, batch = _tiny_denoiser(prior_ckpt)
+    model.eval()
+    model.hparams.estimate = "decoder"  # no fusion: the frames are the model's own
+    obs = model.observation(model.add_noise(batch, 0.1, torch.Generator().manual_seed(1)))
+    with torch.no_grad():
+        inf = model.infer(obs, sample=False)
+        decoded = model.estimate(obs)
+        model.hparams.first_frame = "predicted"
+        predicted = model.estimate(obs)
+        x0 = model.codec.step_back(inf.x[:, 1])
+        want0 = model.codec.points(x0[:, None], inf.shape).joints[:, 0]                # canonical frame
+    assert torch.equal(decoded[:, 1:], predicted[:, 1:])                             # only frame 0 differs
+    assert not torch.allclose(decoded[:, 0], predicted[:, 0], atol=1e-4)
+    assert torch.allclose(to_canonical(decoded[:, 0], inf.canon), want0, atol=1e-5)
+    assert torch.allclose(to_canonical(predicted[:, 0], inf.canon), inf.m[:, 0, :model.codec.num_joints], atol=1e-5)
+    with pytest.raises(ValueError, match="first_frame"):
+        DVAEDenoiseModule(prior_ckpt=str(prior_ckpt), first_frame="zero")
 
 
 class Untouchable(torch.Tensor):

@@ -254,7 +254,7 @@ def test_estimate_is_in_the_world_frame_and_starts_at_the_observed_pose():
     root = roma.rotvec_to_rotmat(batch["rotations"][:, :, 0])
     batch["rotations"][:, :, 0] = roma.rotmat_to_rotvec(R @ root)
     prior = _tiny(skel)
-    dn = DVAEDenoiseModule(prior_hparams=dict(prior.hparams))
+    dn = DVAEDenoiseModule(prior_hparams=dict(prior.hparams), first_frame="predicted")  # the paper's x_0
     dn.load_state_dict(prior.state_dict(), strict=False)
     clean = dict(batch, noisy_positions=batch["positions"], noisy_rotations=batch["rotations"])
     with torch.no_grad():

@@ -192,3 +192,19 @@ def test_state_dicts_from_before_the_reference_load_as_identity():
     codec.load_state_dict({})
     assert torch.equal(codec.joint_reference, torch.eye(3).repeat(skel.num_joints - 1, 1, 1))
     assert MotionState("positions", skel.parents, skel.groups, 30.0).state_dict() == {}
+
+
+def test_step_back_follows_the_state_velocities_one_frame():
+    # on motion of constant velocity the first-order step is exact: frame 1 steps back to frame 0
+    rot, root, pos, _, skel = _windows(B=2)
+    for kind in ("rotations", "positions"):
+        codec = MotionState(kind, skel.parents, skel.groups, 30.0)
+        vel = velocity_mask(kind, skel.num_joints)
+        values = torch.randn(2, codec.dim - int(vel.sum()))
+        speeds = torch.randn_like(values)
+        t = torch.arange(3.0)[None, :, None] / 30.0
+        x = torch.zeros(2, 3, codec.dim)
+        x[..., ~vel] = values[:, None] + speeds[:, None] * t
+        x[..., vel] = speeds[:, None].expand(-1, 3, -1)
+        assert torch.allclose(codec.step_back(x[:, 1]), x[:, 0], atol=1e-6)
+        assert torch.allclose(codec.step_back(x[:, 2]), x[:, 1], atol=1e-6)

@@ -8,6 +8,15 @@ import training code) run the very same computation:
   point_estimate    -> denoised joint positions, world frame: the decoder output, or eq. 18
                        (fused with the observation by the estimated noise variance)
   rotation_estimate -> denoised local rotations and root translation, world frame (rotations state)
+
+The first frame of the output (first_frame):
+  "predicted"  x_0 as the paper: the initial-state predictor's mean (eq. 16). x_0 has no prior in
+               the model and the ELBO's only direct term on it is y_0's likelihood, so it stays as
+               far off as the noisy input (Bandai, sigma 0.1 rad: 56 mm at frame 0 against 42 at
+               frame 1), and its join to the decoded frames is an acceleration spike (65 m/s^2
+               where the window's middle has 5; docs/STATUS.md, sessions 6-7).
+  "decoded"    one step back from the decoder's x_1 along x_1's own velocities (beyond the paper):
+               the decoder's motion carried to frame 0 (45 mm there, 13 m/s^2 at the join).
 """
 from __future__ import annotations
 
@@ -19,6 +28,7 @@ import torch
 from mocapfix.models.dvae import InitialStatePredictor, MotionDVAE, NoisePredictor
 from mocapfix.models.dvae_state import Canonical, MotionState, from_canonical, split_rotation_state
 
+FIRST_FRAMES = ("decoded", "predicted")
 GAUSSIAN_LAMBDA = 1e4  # from here on the IG prior is the paper's Gaussian setting: final estimate = decoder output
 
 
@@ -43,6 +53,7 @@ class Inference(NamedTuple):
     a: torch.Tensor         # (B, T+1, 3K) alpha = lambda/2 e^a
     b: torch.Tensor         # (B, T+1, 3K) beta = lambda/2 e^b
     x: torch.Tensor         # (B, T+1, D) predicted states x_0, x_hat_1..x_hat_T, raw units, canonical frame
+    shape: torch.Tensor | None  # the body model's shape (rotations state), None for positions
 
 
 def gaussian_limit(noise_lambda: float) -> bool:
@@ -73,17 +84,30 @@ def infer_posterior(net: MotionDVAE, codec: MotionState, x0_pred: InitialStatePr
     x_all = net.denormalize(torch.cat([x0[:, None], out.x_hat], dim=1).float())   # (B, T+1, D)
     m = codec.points(x_all, shape).points()
     a, b = noise_pred(out.h, y3d.flatten(-2))
-    return Inference(canon, y3d, m, x0_mu, x0_logvar, out.q_mu, out.q_logvar, out.p_mu, out.p_logvar, a, b, x_all)
+    return Inference(canon, y3d, m, x0_mu, x0_logvar, out.q_mu, out.q_logvar, out.p_mu, out.p_logvar, a, b, x_all,
+                     shape)
+
+
+def output_states(inf: Inference, codec: MotionState, first_frame: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """The states (B, T+1, D) and points (B, T+1, K, 3) the output is made of, canonical frame:
+    inf.x and inf.m with frame 0 as first_frame says (module docstring)."""
+    if first_frame not in FIRST_FRAMES:
+        raise ValueError(f"first_frame must be one of {FIRST_FRAMES}, got {first_frame!r}")
+    if first_frame == "predicted":
+        return inf.x, inf.m
+    x0 = codec.step_back(inf.x[:, 1])                                      # (B, D)
+    m0 = codec.points(x0[:, None], inf.shape).points()                     # (B, 1, K, 3)
+    return torch.cat([x0[:, None], inf.x[:, 1:]], dim=1), torch.cat([m0.to(inf.m.dtype), inf.m[:, 1:]], dim=1)
 
 
 def point_estimate(inf: Inference, codec: MotionState, noise_lambda: float, fusion: bool,
-                   observed: torch.Tensor | None = None) -> torch.Tensor:
-    """Denoised joint positions (B, T+1, J, 3), world frame (section 4.3): x_0 from the
-    initial-state predictor's mean (eq. 16), then the decoder output on the posterior-mean
-    path, fused with the observation by eq. 18 when fusion is on.
+                   observed: torch.Tensor | None = None, first_frame: str = "decoded") -> torch.Tensor:
+    """Denoised joint positions (B, T+1, J, 3), world frame (section 4.3): the decoder output on
+    the posterior-mean path, frame 0 as first_frame says, fused with the observation by eq. 18
+    when fusion is on (frame 0 too when it is the decoder's).
     observed: (B, T+1, J) bool, joints where there is an observation to fuse with (None: all);
     elsewhere the decoder output stands."""
-    est = inf.m
+    est = output_states(inf, codec, first_frame)[1]
     if fusion:
         if gaussian_limit(noise_lambda):
             v = torch.ones_like(est)
@@ -97,17 +121,19 @@ def point_estimate(inf: Inference, codec: MotionState, noise_lambda: float, fusi
             keep = torch.zeros(est.shape[:-1], dtype=torch.bool, device=est.device)       # (B, T+1, K)
             keep[:, :, :codec.num_joints] = observed
             fused = torch.where(keep[..., None], fused, est)
-        est = torch.cat([est[:, :1], fused[:, 1:]], dim=1)  # x_0 stays eq. 16
+        est = fused if first_frame == "decoded" else torch.cat([est[:, :1], fused[:, 1:]], dim=1)
     joints = est[:, :, :codec.num_joints]
     return from_canonical(joints, inf.canon)
 
 
-def rotation_estimate(inf: Inference, codec: MotionState) -> tuple[torch.Tensor, torch.Tensor]:
+def rotation_estimate(inf: Inference, codec: MotionState, first_frame: str = "decoded"
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
     """Rotations state: the decoded states back in the world frame -> local axis-angle rotations
     (B, T+1, J, 3) (joint 0: root orientation) and root translation (B, T+1, 3). Eq. 18 fuses 3D
-    points, not rotations: this is always the decoder's motion (x_0 from eq. 16)."""
-    r, phi, _ = split_rotation_state(inf.x, codec.num_joints)            # (B, T+1, 3) each
-    theta = codec.joint_rotations(inf.x)                                 # (B, T+1, J-1, 3)
+    points, not rotations: this is always the decoder's motion (frame 0 as first_frame says)."""
+    x = output_states(inf, codec, first_frame)[0]
+    r, phi, _ = split_rotation_state(x, codec.num_joints)                # (B, T+1, 3) each
+    theta = codec.joint_rotations(x)                                     # (B, T+1, J-1, 3)
     root_translation = from_canonical(r, inf.canon)
     # the canonical frame is the world turned by -yaw about z: turn the root orientation back
     yaw = torch.zeros(len(r), 3, dtype=r.dtype, device=r.device)

@@ -206,6 +206,14 @@ class MotionState(nn.Module):
             return rotation_state(rotations, root_translation, self.fps, self.joint_reference)
         return positions_state(positions, self.groups, self.fps)
 
+    def step_back(self, x: torch.Tensor) -> torch.Tensor:
+        """x (..., dim) one frame's state -> the state one frame earlier along its own velocities
+        (positions and angles minus velocity / fps; velocities kept): a first-order step."""
+        vel = velocity_mask(self.kind, self.num_joints).to(x.device)
+        out = x.clone()
+        out[..., ~vel] = x[..., ~vel] - x[..., vel] / self.fps  # the state lists values and velocities in one order
+        return out
+
     def shape(self, offsets: torch.Tensor | None) -> torch.Tensor | None:
         """The body model's shape from the batch's bone offsets (B, J, 3); None for positions."""
         return self.body.shape_from_offsets(offsets) if self.kind == "rotations" else None

@@ -39,8 +39,8 @@ from mocapfix.evaluation.metrics import MPJPE, JointAcceleration
 from mocapfix.evaluation.tasks import write_eval_json
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
 # the posterior pass is shared with `mocapfix fix`, which must not import training code
-from mocapfix.models.dvae_inference import (Inference, Observation, gaussian_limit, infer_posterior, point_estimate,
-                                            uses_noise_model)
+from mocapfix.models.dvae_inference import (FIRST_FRAMES, Inference, Observation, gaussian_limit, infer_posterior,
+                                            point_estimate, uses_noise_model)
 from mocapfix.models.dvae_state import velocity_mask
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.figures import log_validation_figure
@@ -61,6 +61,7 @@ class DVAEDenoiseModule(L.LightningModule):
         noise_lambda: float = 1e6,
         obs_scale_m: float = 0.05,
         estimate: str = "auto",
+        first_frame: str = "decoded",
         lr: float = 1e-4,
         betas: tuple[float, float] = (0.9, 0.999),
         kl_weight: float = 1.0,
@@ -83,6 +84,9 @@ class DVAEDenoiseModule(L.LightningModule):
             obs_scale_m: the unit of the noise variance v (metres): v = 1 means noise std obs_scale_m.
             estimate: "decoder" (section 5.1), "fusion" (eq. 18) or "auto" (fusion when
                 noise_lambda < 1e4, i.e. when the noise model is in use).
+            first_frame: frame 0 of the output: "decoded" (one step back from the decoder's first
+                frame along its velocities) or "predicted" (the paper's x_0, eq. 16, which stays
+                as noisy as the input); models/dvae_inference.py. Output only: training is the same.
             lr, betas: Adamax. The encoder starts trained (the prior's): the prior's from-scratch
                 rate 1e-3 wrecks it within ~50 steps at widths of 512 and more (Bandai, width 512:
                 val MPJPE 85 -> 255 mm, then a slow climb back; 1e-4: 85 -> 72 mm in 200 steps;
@@ -99,6 +103,8 @@ class DVAEDenoiseModule(L.LightningModule):
             raise ValueError(f"noise must be 'rotation' or 'position', got {noise!r}")
         if estimate not in ("auto", "decoder", "fusion"):
             raise ValueError(f"estimate must be 'auto', 'decoder' or 'fusion', got {estimate!r}")
+        if first_frame not in FIRST_FRAMES:
+            raise ValueError(f"first_frame must be one of {FIRST_FRAMES}, got {first_frame!r}")
         self.save_hyperparameters()
         # LightningCLI hands this module's hyperparameters to save_hyperparameters through a context
         # variable; the prior is built in a fresh context so that it saves its own.
@@ -228,7 +234,7 @@ class DVAEDenoiseModule(L.LightningModule):
     def estimate(self, obs: Observation) -> torch.Tensor:
         """Denoised joint positions (B, T+1, J, 3), world frame (section 4.3; models/dvae_inference.py)."""
         return point_estimate(self.infer(obs, sample=False), self.codec, self.hparams.noise_lambda,
-                              self.uses_noise_model())
+                              self.uses_noise_model(), first_frame=self.hparams.first_frame)
 
     # --- training ---
 
