@@ -24,6 +24,7 @@ from common import describe, pick_device, write_result
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
 from mocapfix.evaluation.metrics import _second_difference  # noqa: E402
+from mocapfix.models.dvae_inference import FIRST_FRAMES  # noqa: E402
 from mocapfix.training.denoise_module import DVAEDenoiseModule  # noqa: E402
 from mocapfix.training.dvae_module import MotionDVAEModule, complete_windows, select  # noqa: E402
 
@@ -56,6 +57,8 @@ def main(argv=None) -> int:
     ap.add_argument("--split", default="test", choices=("val", "test"))
     ap.add_argument("--sigmas", type=float, nargs="*", default=[0.0, 0.1, 0.15, 0.2],
                     help="noise levels for the denoiser (the configs' unit: rad for rotation noise)")
+    ap.add_argument("--first-frames", nargs="*", default=None, choices=FIRST_FRAMES,
+                    help="the denoiser's output frame 0, each in turn (default: the checkpoint's first_frame)")
     ap.add_argument("--max-windows", type=int, default=1024)
     ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
     ap.add_argument("--json-out", default=None)
@@ -93,20 +96,22 @@ def main(argv=None) -> int:
                 # a CPU generator: the same noise on any device, as the modules' own evaluation
                 noisy = denoiser.add_noise(batch, sigma, torch.Generator().manual_seed(1))
                 obs = denoiser.observation(noisy)
-                row = {"model": "denoiser (regression)", "sigma": sigma,
-                       "noisy_mpjpe_mm": 1000 * (obs.positions.float() - truth).norm(dim=-1).mean().item()}
-                rows.append({**row, **per_frame(denoiser.estimate(obs).float(), truth, fps, first=0)})
+                for first_frame in args.first_frames or [denoiser.hparams.first_frame]:
+                    denoiser.hparams.first_frame = first_frame
+                    row = {"model": f"denoiser, frame 0 {first_frame}", "sigma": sigma, "first_frame": first_frame,
+                           "noisy_mpjpe_mm": 1000 * (obs.positions.float() - truth).norm(dim=-1).mean().item()}
+                    rows.append({**row, **per_frame(denoiser.estimate(obs).float(), truth, fps, first=0)})
 
     result = {"benchmark": "dvae_per_frame", "env": describe(device), "command": " ".join(sys.argv),
               "split": args.split, "windows": len(batch["positions"]), "fps": fps, "frames": frames, "rows": rows}
     path = write_result("dvae_per_frame", result, args.json_out)
     print(f"{result['windows']} {args.split} windows of {frames} frames at {fps:g} fps; acceleration m/s^2 "
           f"(truth {rows[0]['accel_truth']:.1f}), error mm")
-    print(f"{'model':<26} {'sigma':>5} {'noisy':>6} {'MPJPE':>6} {'accel':>6} {'first':>6} {'second':>6} "
+    print(f"{'model':<30} {'sigma':>5} {'noisy':>6} {'MPJPE':>6} {'accel':>6} {'first':>6} {'second':>6} "
           f"{'middle':>6} {'last':>6}")
     for r in rows:
         noisy = f"{r['noisy_mpjpe_mm']:6.1f}" if "noisy_mpjpe_mm" in r else f"{'':>6}"
-        print(f"{r['model']:<26} {r['sigma']:5.2f} {noisy} {r['mpjpe_mm']:6.1f} {r['accel']:6.1f} "
+        print(f"{r['model']:<30} {r['sigma']:5.2f} {noisy} {r['mpjpe_mm']:6.1f} {r['accel']:6.1f} "
               f"{r['accel_first']:6.1f} {r['accel_second']:6.1f} {r['accel_middle']:6.1f} {r['accel_last']:6.1f}")
     print(f"wrote {path}")
     return 0

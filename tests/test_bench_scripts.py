@@ -57,13 +57,15 @@ def test_profile_summary_of_cuda_kernels():
     finally:
         sys.path.remove(str(REPO / "bench"))
 
-    def kernel(name, us):
-        return SimpleNamespace(name=name, device_type=DeviceType.CUDA,
+    def kernel(name, us, annotation=False):
+        return SimpleNamespace(name=name, device_type=DeviceType.CUDA, is_user_annotation=annotation,
                                time_range=SimpleNamespace(elapsed_us=lambda: us))
     cpu_op = SimpleNamespace(name="aten::mm", device_type=DeviceType.CPU)
+    # the GPU-side range of a record_function annotation spans kernels: it is not one
+    step_range = kernel("Optimizer.step#Adam.step", 900.0, annotation=True)
     events = [kernel("sm90_xmma_gemm_bf16bf16_bf16f32", 100.0), kernel("sm90_xmma_gemm_bf16bf16_bf16f32", 100.0),
               kernel("flash_fwd_kernel", 50.0), kernel("triton_poi_fused_add_mul_0", 30.0),
-              kernel("multi_tensor_apply_kernel", 20.0), cpu_op]
+              kernel("multi_tensor_apply_kernel", 20.0), cpu_op, step_range]
     summary, rows = summarise(SimpleNamespace(events=lambda: events), steps=2, wall_s=0.001, gpu=True, top=3)
     assert summary["kernel_ms_per_step"] == pytest.approx(0.15) and summary["busy"] == pytest.approx(0.3)
     assert summary["kernels_per_step"] == 2.5
@@ -91,16 +93,21 @@ def test_dvae_per_frame(tmp_path):
         torch.save({"pytorch-lightning_version": lightning.__version__, "hyper_parameters": dict(module.hparams),
                     "state_dict": module.state_dict()}, tmp_path / f"{name}.ckpt")
     r = bench("dvae_per_frame", "--prior", tmp_path / "prior.ckpt", "--denoiser", tmp_path / "denoiser.ckpt",
-              "--source", "synthetic", "--synthetic-clips", "12", "--sigmas", "0", "0.1", tmp_path=tmp_path)
-    rows = [(x["model"].split()[0], x["sigma"]) for x in r["rows"]]
-    assert rows == [("prior", 0), ("denoiser", 0), ("denoiser", 0.1)]
+              "--source", "synthetic", "--synthetic-clips", "12", "--sigmas", "0", "0.1",
+              "--first-frames", "predicted", "decoded", tmp_path=tmp_path)
+    rows = [(x["model"].split()[0], x["sigma"], x.get("first_frame")) for x in r["rows"]]
+    assert rows == [("prior", 0, None), ("denoiser,", 0, "predicted"), ("denoiser,", 0, "decoded"),
+                    ("denoiser,", 0.1, "predicted"), ("denoiser,", 0.1, "decoded")]
+    predicted, decoded = r["rows"][3], r["rows"][4]  # the same estimate but for frame 0
+    assert predicted["error_mm_per_frame"][1:] == decoded["error_mm_per_frame"][1:]
+    assert predicted["error_mm_per_frame"][0] != decoded["error_mm_per_frame"][0]
     for row in r["rows"]:  # 30 frames: an error at each, an acceleration at the 28 centre frames
         assert len(row["error_mm_per_frame"]) == 30 and len(row["accel_per_frame"]) == 28
         assert row["accel"] == pytest.approx(sum(row["accel_per_frame"]) / 28)
         assert row["accel_truth"] == pytest.approx(r["rows"][0]["accel_truth"])  # the same clean windows
     assert r["rows"][0]["error_mm_per_frame"][0] == 0.0  # the prior is given x_0
     # sigma 0 is the clean clip again (FK of the unchanged rotations: float error only)
-    assert r["rows"][1]["noisy_mpjpe_mm"] < 1e-2 < r["rows"][2]["noisy_mpjpe_mm"]
+    assert r["rows"][1]["noisy_mpjpe_mm"] < 1e-2 < r["rows"][3]["noisy_mpjpe_mm"]
 
 
 def test_inference(tmp_path):
