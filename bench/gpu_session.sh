@@ -130,11 +130,14 @@ dvae|dvae-prior|dvae-denoise)
       --ckpt_path checkpoints/motion_dvae_denoise_bvh/last.ckpt 2>&1 | tee "$OUT/dvae_test.txt" | grep -v "test/" | tail -n 40
     cp "$(ls -t logs/motion_dvae_denoise_bvh/version_*/eval.json | head -1)" "$OUT/dvae_eval.json"
     tar czf "$OUT/dvae_logs.tgz" logs/motion_dvae_bvh logs/motion_dvae_denoise_bvh  # TensorBoard events
+    # the denoiser, weights only (it carries the prior's weights and hyperparameters): test, fix and
+    # dvae_per_frame --denoiser read it here; width 256 is ~10 MB, paper width does not come back
+    $PY bench/shrink_checkpoint.py --fp32 checkpoints/motion_dvae_denoise_bvh/last.ckpt "$OUT/dvae_denoiser.ckpt"
     # where the acceleration comes from (window ends or every frame): the checkpoints do not come
     # back. Last, so a call cut at its limit has already kept the rest.
     $PY bench/dvae_per_frame.py --prior checkpoints/motion_dvae_bvh/last.ckpt --source archive \
       --denoiser checkpoints/motion_dvae_denoise_bvh/last.ckpt --path .device_data/bandai_rot30.npz \
-      --json-out "$OUT/dvae_per_frame-cuda.json" 2>&1 | tail -n 8
+      --first-frames predicted decoded --json-out "$OUT/dvae_per_frame-cuda.json" 2>&1 | tail -n 10
   fi
   ;;
 *)
