@@ -98,6 +98,8 @@ bench)
 profile)
   # torch.profiler over 20 compiled steps: busy fraction, kernels per step, time by kernel kind
   $PY bench/profile_train_step.py --json-out "$OUT/profile_train_step-cuda.json" 2>&1 | tail -n 40
+  $PY bench/profile_train_step.py --compile-mode reduce-overhead \
+    --json-out "$OUT/profile_train_step-cuda-cudagraphs.json" 2>&1 | tail -n 40
   $PY bench/profile_train_step.py --eager --json-out "$OUT/profile_train_step-cuda-eager.json" 2>&1 | tail -n 40
   ;;
 dvae-speed)

@@ -120,6 +120,7 @@ def main(argv=None) -> int:
     ap.add_argument("--batch", type=int, default=128)
     ap.add_argument("--precision", default=None, help="default: bf16-mixed on CUDA, 32-true on CPU")
     ap.add_argument("--eager", action="store_true", help="no torch.compile (default: compiled on CUDA)")
+    ap.add_argument("--compile-mode", default="default", help="torch.compile mode (reduce-overhead: CUDA graphs)")
     ap.add_argument("--warmup", type=int, default=None, help="steps before the profile (default 30 CUDA, 2 CPU)")
     ap.add_argument("--steps", type=int, default=None, help="profiled steps (default 20 CUDA, 3 CPU)")
     ap.add_argument("--top", type=int, default=25, help="slowest kernels / operators listed")
@@ -139,7 +140,8 @@ def main(argv=None) -> int:
                           stride_s=1.0 / args.fps, batch_size=args.batch, cache_dir=None, batches_on_device=True,
                           synthetic_clips=args.synthetic_clips,
                           val_fraction=0.0, test_fraction=0.0)
-    model = XMAEModule(compile_model=compiled, warmup_steps=10, total_steps=10 * (warmup + steps))
+    model = XMAEModule(compile_model=compiled, compile_mode=args.compile_mode, warmup_steps=10,
+                       total_steps=10 * (warmup + steps))
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if gpu else [])
     window = ProfileWindow(warmup, steps, activities)
     trainer = L.Trainer(accelerator=device.type, devices=1, precision=precision, max_steps=warmup + steps + 1,
@@ -154,10 +156,11 @@ def main(argv=None) -> int:
     J, T = len(model.hparams.skeleton["parents"]), model.hparams.window_frames
     result = {"benchmark": "xmae_train_step_profile", "env": describe(device), "command": " ".join(sys.argv),
               "joints": J, "frames": T, "batch": args.batch, "precision": precision, "compiled": compiled,
+              "compile_mode": args.compile_mode if compiled else None,
               "profiled_steps": steps, **summary, "rows": rows}
     path = write_result("profile_train_step", result, args.json_out)
     print(f"XMAE training step, {J} joints x {T} frames, batch {args.batch}, {precision}, "
-          f"{'compiled' if compiled else 'eager'}: wall {summary['wall_ms_per_step']:.2f} ms/step", end="")
+          f"{f'compiled ({args.compile_mode})' if compiled else 'eager'}: wall {summary['wall_ms_per_step']:.2f} ms/step", end="")
     if gpu:
         print(f", kernels {summary['kernel_ms_per_step']:.2f} ms/step (busy {summary['busy']:.0%}), "
               f"{summary['kernels_per_step']:.0f} kernels/step")

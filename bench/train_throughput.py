@@ -11,6 +11,8 @@ Rows:
     loader          the standard DataLoader (host windows, copied to the device per batch)
     device          batches_on_device: windows live on the device, batches cut there
     device+compile  the same with compile_model (torch.compile of the network)
+    device+cudagraphs   the same with compile_mode "reduce-overhead": the network's forward and
+                    backward replayed as CUDA graphs (no graphs on a CPU: there it is device+compile)
     constant        one batch repeated, no data pipeline at all: the model's own ceiling;
                     `device` at the same rate means the GPU never waits on data
     ref naive / ref fast    ref_xmae.py (its own timing: 20 steps on CUDA, 2 on CPU)
@@ -36,7 +38,7 @@ import lightning as L  # noqa: E402
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
 from mocapfix.training.xmae_module import XMAEModule  # noqa: E402
 
-ROWS = ("loader", "device", "device+compile", "constant")
+ROWS = ("loader", "device", "device+compile", "device+cudagraphs", "constant")
 DEFAULT_REF = Path(__file__).resolve().parents[2] / "shared" / "bench" / "ref_xmae.py"
 
 
@@ -61,7 +63,9 @@ def run_trainer(row: str, args, device: torch.device) -> dict:
                           batches_on_device=row != "loader", pin_memory=row == "loader" and device.type == "cuda",
                           val_fraction=0.0, test_fraction=0.0)
     steps = args.warmup + args.steps
-    model = XMAEModule(compile_model=row == "device+compile", warmup_steps=10, total_steps=10 * steps)
+    model = XMAEModule(compile_model=row in ("device+compile", "device+cudagraphs"),
+                       compile_mode="reduce-overhead" if row == "device+cudagraphs" else "default",
+                       warmup_steps=10, total_steps=10 * steps)
     clock = StepClock(args.warmup)
     trainer = L.Trainer(accelerator=device.type, devices=1, precision=args.precision, max_steps=steps,
                         logger=False, enable_checkpointing=False, enable_progress_bar=False,

@@ -96,6 +96,11 @@ def test_fit_with_batches_on_device(tmp_path):
     assert rc == 0
 
 
+def test_compile_mode_is_checked():
+    with pytest.raises(ValueError, match="compile_mode"):
+        XMAEModule(compile_model=True, compile_mode="fast")
+
+
 def test_compile_flag_keeps_checkpoint_names():
     skel = generate_clips(1, 1.0, fps=10, seed=0)[0].skeleton.to_dict()
     kwargs = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16,
@@ -106,12 +111,14 @@ def test_compile_flag_keeps_checkpoint_names():
 
 
 @pytest.mark.skipif(not (shutil.which("cc") or shutil.which("gcc")), reason="torch.compile on CPU needs a C compiler")
-def test_compiled_training_step_matches_eager():
-    """torch.compile (inductor on the CPU: needs a C compiler) gives the eager loss and gradients."""
+@pytest.mark.parametrize("mode", ["default", "reduce-overhead"])
+def test_compiled_training_step_matches_eager(mode):
+    """torch.compile (inductor on the CPU: needs a C compiler) gives the eager loss and gradients;
+    "reduce-overhead" (CUDA graphs on a GPU) leaves the CPU path working."""
     skel = generate_clips(1, 1.0, fps=10, seed=0)[0].skeleton.to_dict()
     kwargs = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16,
                   skeleton=skel, window_fps=10.0, window_frames=10, rotate_augment=False)
-    eager, compiled = XMAEModule(**kwargs), XMAEModule(compile_model=True, **kwargs)
+    eager, compiled = XMAEModule(**kwargs), XMAEModule(compile_model=True, compile_mode=mode, **kwargs)
     compiled.load_state_dict(eager.state_dict())
     x = torch.from_numpy(generate_clips(4, 1.0, fps=10, seed=1)[0].positions[:10])[None].repeat(4, 1, 1, 1)
     losses = []

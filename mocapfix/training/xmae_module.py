@@ -26,6 +26,9 @@ from mocapfix.training.schedules import warmup_cosine
 
 log = logging.getLogger(__name__)
 
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+CUDA_GRAPH_MODES = ("reduce-overhead", "max-autotune")  # the modes that replay CUDA graphs
+
 
 class XMAEModule(L.LightningModule):
     def __init__(
@@ -47,6 +50,7 @@ class XMAEModule(L.LightningModule):
         fixed_kept_count: bool = True,
         rotate_augment: bool = True,
         compile_model: bool = False,
+        compile_mode: str = "default",
         lr: float = 3e-4,
         betas: tuple[float, float] = (0.9, 0.999),
         warmup_steps: int = 1200,
@@ -75,6 +79,10 @@ class XMAEModule(L.LightningModule):
             rotate_augment: random rotation about z after normalisation.
             compile_model: torch.compile the network (faster GPU steps after a minute of compiling;
                 checkpoints are the same either way).
+            compile_mode: torch.compile's mode. "reduce-overhead" replays the network's forward and
+                backward as CUDA graphs: the compiled H100 step launches 967 kernels in 25 ms for
+                16 ms of kernel work (docs/performance.md, (7)); the launches are what it removes.
+                Not yet measured on a GPU. Ignored on the CPU (no graphs there).
             warmup_steps, total_steps: linear warm-up then cosine to zero at total_steps
                 (None: the Trainer's estimated number of optimiser steps).
             val_gap_s: the full-skeleton gap logged every validation, XMAE beside Lerp.
@@ -82,6 +90,8 @@ class XMAEModule(L.LightningModule):
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
         """
         super().__init__()
+        if compile_mode not in COMPILE_MODES:
+            raise ValueError(f"compile_mode must be one of {COMPILE_MODES}, got {compile_mode!r}")
         self.save_hyperparameters()
         self.net: XMAE | None = None
         if skeleton is not None and window_frames is not None:
@@ -98,7 +108,8 @@ class XMAEModule(L.LightningModule):
         self.net = XMAE(len(hp.skeleton["parents"]), hp.window_frames, hp.enc_dim, hp.enc_depth, hp.enc_mlp_dim,
                         hp.dec_dim, hp.dec_depth, hp.dec_mlp_dim, hp.head_dim, hp.decoder, hp.position_unit_m)
         if hp.get("compile_model"):
-            self.net.compile()  # in place: parameter names (and so checkpoints) stay as without it
+            # in place: parameter names (and so checkpoints) stay as without it
+            self.net.compile(mode=hp.get("compile_mode", "default"))
         self.val_mpjpe = MPJPE()
         self.val_gap = nn.ModuleDict({"xmae": MPJPE(), "lerp": MPJPE()})
 
@@ -150,6 +161,9 @@ class XMAEModule(L.LightningModule):
         return loss, pred, target, c, in_loss, offset
 
     def training_step(self, batch, batch_idx):
+        if self.hparams.get("compile_model") and self.hparams.get("compile_mode") in CUDA_GRAPH_MODES:
+            # each step's graph outputs may overwrite the last step's: tell the graph trees a new step began
+            torch.compiler.cudagraph_mark_step_begin()
         loss, *_ = self._corrupt_and_predict(batch["positions"])
         self.log("train/loss", loss, prog_bar=True)
         return loss
