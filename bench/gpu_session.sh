@@ -107,8 +107,9 @@ dvae-speed)
   $PY bench/dvae_speed.py --compile --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
   ;;
 dvae|dvae-prior|dvae-denoise)
-  # The prior checkpoint (~360 MB) does not come back: prior and denoising run on one warm
-  # machine, in one call (dvae) or in back-to-back calls (dvae-prior [RESUME=1] ..., dvae-denoise).
+  # The prior checkpoint (~25 MB at width 256, ~360 MB at paper width) is not brought back: prior
+  # and denoising run on one warm machine, in one call (dvae) or in back-to-back calls
+  # (dvae-prior [RESUME=1] ..., dvae-denoise); the denoiser comes back, weights only.
   # The prior's own test MPJPE on clean windows is the floor of the denoiser: read it first.
   C=("${COMMON[@]}" --data.path .device_data/bandai_rot30.npz)
   if [ "$PART" != dvae-denoise ]; then
