@@ -134,7 +134,7 @@ dvae|dvae-prior|dvae-denoise)
     cp "$(ls -t logs/motion_dvae_denoise_bvh/version_*/eval.json | head -1)" "$OUT/dvae_eval.json"
     tar czf "$OUT/dvae_logs.tgz" logs/motion_dvae_bvh logs/motion_dvae_denoise_bvh  # TensorBoard events
     # the denoiser, weights only (it carries the prior's weights and hyperparameters): test, fix and
-    # dvae_per_frame --denoiser read it here; width 256 is ~10 MB, paper width does not come back
+    # dvae_per_frame --denoiser read it here; width 256 is ~11 MB, paper width does not come back
     $PY bench/shrink_checkpoint.py --fp32 checkpoints/motion_dvae_denoise_bvh/last.ckpt "$OUT/dvae_denoiser.ckpt"
     # where the acceleration comes from (window ends or every frame): the checkpoints do not come
     # back. Last, so a call cut at its limit has already kept the rest.

@@ -159,8 +159,9 @@ def main(argv=None) -> int:
               "compile_mode": args.compile_mode if compiled else None,
               "profiled_steps": steps, **summary, "rows": rows}
     path = write_result("profile_train_step", result, args.json_out)
+    how = f"compiled ({args.compile_mode})" if compiled else "eager"
     print(f"XMAE training step, {J} joints x {T} frames, batch {args.batch}, {precision}, "
-          f"{f'compiled ({args.compile_mode})' if compiled else 'eager'}: wall {summary['wall_ms_per_step']:.2f} ms/step", end="")
+          f"{how}: wall {summary['wall_ms_per_step']:.2f} ms/step", end="")
     if gpu:
         print(f", kernels {summary['kernel_ms_per_step']:.2f} ms/step (busy {summary['busy']:.0%}), "
               f"{summary['kernels_per_step']:.0f} kernels/step")
