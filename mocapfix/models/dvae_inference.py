@@ -88,16 +88,23 @@ def infer_posterior(net: MotionDVAE, codec: MotionState, x0_pred: InitialStatePr
                      shape)
 
 
-def output_states(inf: Inference, codec: MotionState, first_frame: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """The states (B, T+1, D) and points (B, T+1, K, 3) the output is made of, canonical frame:
-    inf.x and inf.m with frame 0 as first_frame says (module docstring)."""
+def output_states(inf: Inference, codec: MotionState, first_frame: str) -> torch.Tensor:
+    """The states the output is made of (B, T+1, D), canonical frame: inf.x with frame 0 as
+    first_frame says (module docstring)."""
     if first_frame not in FIRST_FRAMES:
         raise ValueError(f"first_frame must be one of {FIRST_FRAMES}, got {first_frame!r}")
     if first_frame == "predicted":
-        return inf.x, inf.m
-    x0 = codec.step_back(inf.x[:, 1])                                      # (B, D)
-    m0 = codec.points(x0[:, None], inf.shape).points()                     # (B, 1, K, 3)
-    return torch.cat([x0[:, None], inf.x[:, 1:]], dim=1), torch.cat([m0.to(inf.m.dtype), inf.m[:, 1:]], dim=1)
+        return inf.x
+    return torch.cat([codec.step_back(inf.x[:, 1])[:, None], inf.x[:, 1:]], dim=1)
+
+
+def output_points(inf: Inference, codec: MotionState, first_frame: str) -> torch.Tensor:
+    """Their points (B, T+1, K, 3): inf.m, with frame 0 through the body model again when it changed."""
+    x = output_states(inf, codec, first_frame)
+    if first_frame == "predicted":
+        return inf.m
+    m0 = codec.points(x[:, :1], inf.shape).points()                       # (B, 1, K, 3)
+    return torch.cat([m0.to(inf.m.dtype), inf.m[:, 1:]], dim=1)
 
 
 def point_estimate(inf: Inference, codec: MotionState, noise_lambda: float, fusion: bool,
@@ -107,7 +114,7 @@ def point_estimate(inf: Inference, codec: MotionState, noise_lambda: float, fusi
     when fusion is on (frame 0 too when it is the decoder's).
     observed: (B, T+1, J) bool, joints where there is an observation to fuse with (None: all);
     elsewhere the decoder output stands."""
-    est = output_states(inf, codec, first_frame)[1]
+    est = output_points(inf, codec, first_frame)
     if fusion:
         if gaussian_limit(noise_lambda):
             v = torch.ones_like(est)
@@ -131,7 +138,7 @@ def rotation_estimate(inf: Inference, codec: MotionState, first_frame: str = "de
     """Rotations state: the decoded states back in the world frame -> local axis-angle rotations
     (B, T+1, J, 3) (joint 0: root orientation) and root translation (B, T+1, 3). Eq. 18 fuses 3D
     points, not rotations: this is always the decoder's motion (frame 0 as first_frame says)."""
-    x = output_states(inf, codec, first_frame)[0]
+    x = output_states(inf, codec, first_frame)
     r, phi, _ = split_rotation_state(x, codec.num_joints)                # (B, T+1, 3) each
     theta = codec.joint_rotations(x)                                     # (B, T+1, J-1, 3)
     root_translation = from_canonical(r, inf.canon)
