@@ -13,6 +13,7 @@ is not counted; the decoder's first self-attention runs once per batch).
     python bench/inference.py                       # CUDA: bf16, batch 1024
     python bench/inference.py --device cpu --batch 16
     python bench/inference.py --compile             # also torch.compile(mode="reduce-overhead") rows (CUDA graphs)
+    python bench/inference.py --compile --compile-mode max-autotune   # + Triton matmul templates (minutes to compile)
 """
 from __future__ import annotations
 
@@ -62,7 +63,10 @@ def main(argv=None) -> int:
     ap.add_argument("--batch", type=int, default=None, help="windows per batch (default 1024 on CUDA, 16 on CPU)")
     ap.add_argument("--dtype", default=None, choices=("bf16", "fp32"), help="default: bf16 on CUDA, fp32 on CPU")
     ap.add_argument("--repeat", type=int, default=None)
-    ap.add_argument("--compile", action="store_true", help="add rows with torch.compile(mode='reduce-overhead')")
+    ap.add_argument("--compile", action="store_true", help="add rows with torch.compile")
+    ap.add_argument("--compile-mode", default="reduce-overhead",
+                    choices=("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs"),
+                    help="torch.compile mode of the compiled rows on CUDA (a CPU uses 'default': no graphs there)")
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
     device = pick_device(args.device)
@@ -83,7 +87,7 @@ def main(argv=None) -> int:
     if args.compile:
         compiled = XMAE(J, T).to(device).eval()
         compiled.load_state_dict(eager.state_dict())
-        compiled.compile(mode="reduce-overhead" if gpu else "default")
+        compiled.compile(mode=args.compile_mode if gpu else "default")
         nets["compiled"] = compiled
 
     rows = []
@@ -103,6 +107,7 @@ def main(argv=None) -> int:
 
     result = {"benchmark": "xmae_inference", "env": describe(device), "command": " ".join(sys.argv),
               "joints": J, "frames": T, "dtype": "bf16 autocast" if bf16 else "fp32", "parameters": params,
+              "compile_mode": (args.compile_mode if gpu else "default") if args.compile else None,
               "gflop_per_window": flops[B] / 1e9, "gflop_per_window_batch_1": flops[1] / 1e9,
               "matmul_tflops_measured": peak, "rows": rows}
     path = write_result("inference", result, args.json_out)

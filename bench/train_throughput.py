@@ -13,6 +13,9 @@ Rows:
     device+compile  the same with compile_model (torch.compile of the network)
     device+cudagraphs   the same with compile_mode "reduce-overhead": the network's forward and
                     backward replayed as CUDA graphs (no graphs on a CPU: there it is device+compile)
+    device+autotune     the same with compile_mode "max-autotune": CUDA graphs, and Inductor times
+                    Triton matmul templates against cuBLAS and can fuse the ReLU / bias / residual
+                    work into them (minutes of compiling: not in the default rows, ask for it)
     constant        one batch repeated, no data pipeline at all: the model's own ceiling;
                     `device` at the same rate means the GPU never waits on data
     ref naive / ref fast    ref_xmae.py (its own timing: 20 steps on CUDA, 2 on CPU)
@@ -38,7 +41,9 @@ import lightning as L  # noqa: E402
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
 from mocapfix.training.xmae_module import XMAEModule  # noqa: E402
 
-ROWS = ("loader", "device", "device+compile", "device+cudagraphs", "constant")
+ROWS = ("loader", "device", "device+compile", "device+cudagraphs", "device+autotune", "constant")
+DEFAULT_ROWS = tuple(r for r in ROWS if r != "device+autotune")
+COMPILE_MODE = {"device+compile": "default", "device+cudagraphs": "reduce-overhead", "device+autotune": "max-autotune"}
 DEFAULT_REF = Path(__file__).resolve().parents[2] / "shared" / "bench" / "ref_xmae.py"
 
 
@@ -63,8 +68,7 @@ def run_trainer(row: str, args, device: torch.device) -> dict:
                           batches_on_device=row != "loader", pin_memory=row == "loader" and device.type == "cuda",
                           val_fraction=0.0, test_fraction=0.0)
     steps = args.warmup + args.steps
-    model = XMAEModule(compile_model=row in ("device+compile", "device+cudagraphs"),
-                       compile_mode="reduce-overhead" if row == "device+cudagraphs" else "default",
+    model = XMAEModule(compile_model=row in COMPILE_MODE, compile_mode=COMPILE_MODE.get(row, "default"),
                        warmup_steps=10, total_steps=10 * steps)
     clock = StepClock(args.warmup)
     trainer = L.Trainer(accelerator=device.type, devices=1, precision=args.precision, max_steps=steps,
@@ -118,7 +122,7 @@ def main(argv=None) -> int:
     ap.add_argument("--precision", default=None, help="Trainer precision (default: bf16-mixed on CUDA, 32-true on CPU)")
     ap.add_argument("--warmup", type=int, default=None, help="untimed steps (default 30 on CUDA, 2 on CPU)")
     ap.add_argument("--steps", type=int, default=None, help="timed steps (default 300 on CUDA, 5 on CPU)")
-    ap.add_argument("--rows", default=",".join(ROWS), help=f"comma-separated subset of {', '.join(ROWS)}")
+    ap.add_argument("--rows", default=",".join(DEFAULT_ROWS), help=f"comma-separated subset of {', '.join(ROWS)}")
     ap.add_argument("--ref", default=str(DEFAULT_REF), help="ref_xmae.py ('none' to skip it)")
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
@@ -130,7 +134,10 @@ def main(argv=None) -> int:
     # as `python -m mocapfix fit` sets it; ref_xmae.py runs in its own process, as written
     torch.set_float32_matmul_precision("high")
 
-    rows = [run_trainer(r, args, device) for r in args.rows.split(",") if r]
+    names = [r for r in args.rows.split(",") if r]
+    if unknown := sorted(set(names) - set(ROWS)):
+        ap.error(f"unknown rows {unknown}: choose from {', '.join(ROWS)}")
+    rows = [run_trainer(r, args, device) for r in names]
     if args.ref != "none":
         rows += run_reference(Path(args.ref), rows[0]["joints"], rows[0]["frames"], args.batch)
     ref = {r["row"]: r["seq_per_s"] for r in rows if r["row"].startswith("ref")}

@@ -117,6 +117,18 @@ def test_inference(tmp_path):
     assert 0.5 < r["gflop_per_window"] < 5 and r["rows"][0]["tflops"] > 0
 
 
+def test_attention_backends(tmp_path):
+    r = bench("attention_backends", "--device", "cpu", "--fps", "10", "--batch", "2", "--infer-batch", "2",
+              "--repeat", "1", "--backends", "auto,math", tmp_path=tmp_path)
+    calls = {(c["phase"], c["call"]): c for c in r["calls"]}
+    # the shapes XMAE runs: 15 % of 220 tokens kept in training, all of them at inference
+    assert calls["train", "encoder self"]["Nq"] == 33 and calls["infer", "encoder self"]["Nq"] == 220
+    assert calls["train", "decoder cross"]["Nk"] == 33 and calls["train", "decoder self, first (once)"]["B"] == 1
+    assert all(c["auto_ms"] > 0 and c["math_ms"] > 0 and c["fastest"] in ("auto", "math") for c in r["calls"])
+    train = r["totals"][0]
+    assert train["best_mix_ms"] <= min(train["auto_ms"], train["math_ms"]) + 1e-9
+
+
 def test_data_pipeline(tmp_path):
     r = bench("data_pipeline", "--device", "cpu", "--bvh", "none", "--fps", "10", "--batch", "4", "--batches", "2",
               "--workers", "0", tmp_path=tmp_path)
