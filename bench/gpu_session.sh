@@ -10,6 +10,7 @@
 #   bash bench/gpu_session.sh dvae-denoise   # ... then its test, the denoising stage and its test
 #   bash bench/gpu_session.sh dvae-speed     # the prior's training step eager vs compiled (minutes)
 #   bash bench/gpu_session.sh profile        # issue 6: where the compiled XMAE training step's time goes (~2 min)
+#   bash bench/gpu_session.sh tune           # issue 6: the kernel-time levers: attention backends, max-autotune
 #
 # A run longer than one call: the machine keeps checkpoints/ while it stays warm (~30 s between
 # calls), so back-to-back calls with RESUME=1 continue last.ckpt. MAX_TIME / PRIOR_TIME count the
@@ -25,7 +26,7 @@
 # STEPS / MAX_TIME (xmae), PRIOR_TIME / DENOISE_TIME (dvae) trim the runs to the call's 10 minutes.
 # Results land in $OUT (the device tool brings them back): eval tables, bench JSON, a small checkpoint.
 set -euo pipefail
-PART=${1:?usage: gpu_session.sh prepare|xmae|bench|profile|dvae|dvae-prior|dvae-denoise|dvae-speed}
+PART=${1:?usage: gpu_session.sh prepare|xmae|bench|profile|tune|dvae|dvae-prior|dvae-denoise|dvae-speed}
 if [ "$PART" = prepare ]; then  # on this machine, before the calls: what they carry
   mkdir -p .device_data .whl
   cp ../shared/bench/ref_xmae.py .device_data/
@@ -102,6 +103,17 @@ profile)
     --json-out "$OUT/profile_train_step-cuda-cudagraphs.json" 2>&1 | tail -n 40
   $PY bench/profile_train_step.py --eager --json-out "$OUT/profile_train_step-cuda-eager.json" 2>&1 | tail -n 40
   ;;
+tune)
+  # What would cut the kernel time (the bound once CUDA graphs remove the launches): which SDPA
+  # backend is fastest on each attention call (~1 min), then max-autotune (Triton matmul templates
+  # with the ReLU / residual work fused in; minutes of compiling each, so last) for training and
+  # for inference, each beside the reduce-overhead row measured in the same run.
+  $PY bench/attention_backends.py --json-out "$OUT/attention_backends-cuda.json" 2>&1 | tail -n 14
+  $PY bench/train_throughput.py --ref .device_data/ref_xmae.py --rows device+cudagraphs,device+autotune \
+    --json-out "$OUT/train_throughput-cuda-autotune.json" 2>&1 | grep -v -e "^GPU available" -e "^TPU available" \
+    -e "LOCAL_RANK" -e "Tip:" | tail -n 8
+  $PY bench/inference.py --compile --compile-mode max-autotune --json-out "$OUT/inference-cuda-autotune.json" 2>&1 | tail -n 12
+  ;;
 dvae-speed)
   # a few minutes: is the prior's step faster compiled? (decides COMPILE=1 for dvae-prior)
   $PY bench/dvae_speed.py --compile --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
@@ -144,6 +156,6 @@ dvae|dvae-prior|dvae-denoise)
   fi
   ;;
 *)
-  echo "unknown part $PART (xmae | bench | profile | dvae | dvae-prior | dvae-denoise | dvae-speed)" >&2; exit 2 ;;
+  echo "unknown part $PART (xmae | bench | profile | tune | dvae | dvae-prior | dvae-denoise | dvae-speed)" >&2; exit 2 ;;
 esac
 ls -la "$OUT"
