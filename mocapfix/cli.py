@@ -40,11 +40,14 @@ def _lightning_cli(args: list[str]):
                 kwargs["logger"] = TensorBoardLogger(save_dir="logs", name=name)
             if trainer_cfg.get("enable_checkpointing", True) is not False:
                 dirpath = Path("checkpoints") / name
+                # Both callbacks write the one last.ckpt, the later write of a step winning. With
+                # Lightning's version counter the second writer of an existing last.ckpt would
+                # write last-v1.ckpt beside it, and `--ckpt_path last` would pick between the two.
                 extra.append(ModelCheckpoint(dirpath=dirpath, filename="best-{epoch}-{step}", monitor=cfg.monitor,
-                                             mode="min", save_top_k=1, save_last=True))
+                                             mode="min", save_top_k=1, save_last=True, enable_version_counter=False))
                 if cfg.checkpoint_every_n_steps:
                     extra.append(ModelCheckpoint(dirpath=dirpath, every_n_train_steps=cfg.checkpoint_every_n_steps,
-                                                 save_top_k=0, save_last=True))
+                                                 save_top_k=0, save_last=True, enable_version_counter=False))
             if kwargs.get("logger", trainer_cfg.get("logger")) not in (None, False):
                 extra.append(LearningRateMonitor(logging_interval="step"))
             configured = self.config_init[self.subcommand].trainer.get("callbacks") or []

@@ -170,6 +170,7 @@ def test_fix_bandai(tmp_path, bandai_dir):
     assert rows["holes"]["lerp_mm"] < 200 < rows["displaced"]["lerp_mm"]
 
 
+@pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_inference_cuda_graphs(tmp_path):
     r = bench("inference", "--device", "cuda", "--fps", "10", "--batch", "8", "--repeat", "2", "--compile",

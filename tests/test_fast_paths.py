@@ -128,3 +128,53 @@ def test_compiled_training_step_matches_eager(mode):
         losses.append((loss.detach(), m.net.embed.weight.grad.clone()))
     torch.testing.assert_close(losses[0][0], losses[1][0], atol=1e-5, rtol=1e-4)
     torch.testing.assert_close(losses[0][1], losses[1][1], atol=1e-5, rtol=1e-3)
+
+
+CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+
+
+@pytest.mark.gpu
+@CUDA
+def test_cuda_graph_training_steps_match_eager():
+    """compile_mode reduce-overhead on a GPU: the network's forward and backward replayed as CUDA
+    graphs give the eager loss and gradients, step after step (each step's graph outputs reuse
+    the last step's memory: a stale reference would show here)."""
+    skel = generate_clips(1, 1.0, fps=10, seed=0)[0].skeleton.to_dict()
+    kwargs = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16,
+                  skeleton=skel, window_fps=10.0, window_frames=10, rotate_augment=False)
+    eager = XMAEModule(**kwargs).cuda()
+    graphed = XMAEModule(compile_model=True, compile_mode="reduce-overhead", **kwargs).cuda()
+    graphed.load_state_dict(eager.state_dict())
+    x = torch.from_numpy(generate_clips(4, 1.0, fps=10, seed=1)[0].positions[:10])[None].repeat(4, 1, 1, 1).cuda()
+    precision = torch.get_float32_matmul_precision()
+    torch.set_float32_matmul_precision("highest")  # no TF32: compare like with like
+    try:
+        for step in range(3):
+            results = []
+            for m in (eager, graphed):
+                m.zero_grad()
+                if m is graphed:
+                    torch.compiler.cudagraph_mark_step_begin()  # as XMAEModule.training_step does
+                loss, *_ = m._corrupt_and_predict(x, torch.Generator().manual_seed(step))
+                loss.backward()
+                results.append((loss.detach(), m.net.embed.weight.grad.clone()))
+            torch.testing.assert_close(results[0][0], results[1][0], atol=1e-5, rtol=1e-4)
+            torch.testing.assert_close(results[0][1], results[1][1], atol=1e-5, rtol=1e-3)
+    finally:
+        torch.set_float32_matmul_precision(precision)
+
+
+@pytest.mark.gpu
+@CUDA
+def test_cuda_graph_fit_validates_and_resumes(tmp_path):
+    """The whole loop with compile_mode reduce-overhead: bf16, data on the device, validation (a
+    second graph, other shapes, its figure kept past the next batch) and a resume from last.ckpt."""
+    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "graphs",
+              "--trainer.accelerator", "gpu", "--trainer.precision", "bf16-mixed", "--data.batches_on_device", "true",
+              "--model.init_args.compile_model", "true", "--model.init_args.compile_mode", "reduce-overhead",
+              "--trainer.val_check_interval", "2", "--checkpoint_every_n_steps", "2"]
+    assert run_cli([*common, "--trainer.max_steps", "4"], tmp_path) == 0
+    assert run_cli([*common, "--trainer.max_steps", "6", "--ckpt_path", "last"], tmp_path) == 0
+    ckpt = torch.load(tmp_path / "checkpoints" / "graphs" / "last.ckpt", map_location="cpu", weights_only=True)
+    assert ckpt["global_step"] == 6 and ckpt["hyper_parameters"]["compile_mode"] == "reduce-overhead"
+    assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values() if v.is_floating_point())

@@ -83,6 +83,8 @@ def test_resume_continues_step_and_optimiser(tmp_path):
     assert run_cli([*common, "--trainer.max_steps", "8", "--ckpt_path", "last"], tmp_path) == 0
     second = torch.load(last, map_location="cpu", weights_only=True)
     assert second["global_step"] == 8
+    # one last.ckpt, written by both checkpoint callbacks (no last-v1.ckpt beside it)
+    assert [p.name for p in last.parent.glob("last*.ckpt")] == ["last.ckpt"]
     adam_steps = {float(s["step"]) for s in second["optimizer_states"][0]["state"].values()}
     assert adam_steps == {8.0}, "Adam's step count must continue from the checkpoint, not restart"
     assert second["lr_schedulers"][0]["last_epoch"] == 8
