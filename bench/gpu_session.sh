@@ -11,6 +11,7 @@
 #   bash bench/gpu_session.sh dvae-speed     # the prior's training step eager vs compiled (minutes)
 #   bash bench/gpu_session.sh profile        # issue 6: where the compiled XMAE training step's time goes (~2 min)
 #   bash bench/gpu_session.sh tune           # issue 6: the kernel-time levers: attention backends, max-autotune
+#   bash bench/gpu_session.sh gpu-tests      # the tests marked gpu (CUDA paths: CUDA graphs, bf16, resume across devices)
 #
 # A run longer than one call: the machine keeps checkpoints/ while it stays warm (~30 s between
 # calls), so back-to-back calls with RESUME=1 continue last.ckpt. MAX_TIME / PRIOR_TIME count the
@@ -20,19 +21,21 @@
 # the first call: a resumed run takes the checkpoint's hyperparameters over the command line.
 #
 # Needs, carried as git-ignored folders (the GPU image has torch and lightning but not these):
-#   .whl/          wheels: roma omegaconf antlr4-python3-runtime jsonargparse docstring-parser typeshed-client
+#   .whl/          wheels: roma omegaconf antlr4-python3-runtime jsonargparse docstring-parser typeshed-client,
+#                  pytest pluggy iniconfig pygments (for gpu-tests)
 #   .device_data/  bandai_pos30.npz and bandai_rot30.npz (parsed Bandai), ref_xmae.py (../shared does not travel)
 # Make both here first: `PYTHON=.venv/bin/python bash bench/gpu_session.sh prepare` (then carry [".whl", ".device_data"]).
 # STEPS / MAX_TIME (xmae), PRIOR_TIME / DENOISE_TIME (dvae) trim the runs to the call's 10 minutes.
 # Results land in $OUT (the device tool brings them back): eval tables, bench JSON, a small checkpoint.
 set -euo pipefail
-PART=${1:?usage: gpu_session.sh prepare|xmae|bench|profile|tune|dvae|dvae-prior|dvae-denoise|dvae-speed}
+PART=${1:?usage: gpu_session.sh prepare|xmae|bench|profile|tune|gpu-tests|dvae|dvae-prior|dvae-denoise|dvae-speed}
 if [ "$PART" = prepare ]; then  # on this machine, before the calls: what they carry
   mkdir -p .device_data .whl
   cp ../shared/bench/ref_xmae.py .device_data/
   python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
     --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 -d .whl \
-    roma==1.8.0 omegaconf==2.4.0 antlr4-python3-runtime==4.13.2 jsonargparse==4.53.0 docstring-parser typeshed-client
+    roma==1.8.0 omegaconf==2.4.0 antlr4-python3-runtime==4.13.2 jsonargparse==4.53.0 docstring-parser typeshed-client \
+    pytest==9.2.0 pluggy iniconfig pygments
   "${PYTHON:-.venv/bin/python}" - <<'PY'
 from pathlib import Path
 from mocapfix.data.datamodule import MotionDataModule
@@ -103,6 +106,10 @@ profile)
     --json-out "$OUT/profile_train_step-cuda-cudagraphs.json" 2>&1 | tail -n 40
   $PY bench/profile_train_step.py --eager --json-out "$OUT/profile_train_step-cuda-eager.json" 2>&1 | tail -n 40
   ;;
+gpu-tests)
+  # CI has no GPU: the CUDA paths are tested here (../shared does not travel: its tests skip)
+  $PY -m pytest -q -m gpu -p no:cacheprovider tests 2>&1 | tee "$OUT/gpu_tests.txt" | tail -n 30
+  ;;
 tune)
   # What would cut the kernel time (the bound once CUDA graphs remove the launches): which SDPA
   # backend is fastest on each attention call (~1 min), then max-autotune (Triton matmul templates
@@ -156,6 +163,6 @@ dvae|dvae-prior|dvae-denoise)
   fi
   ;;
 *)
-  echo "unknown part $PART (xmae | bench | profile | tune | dvae | dvae-prior | dvae-denoise | dvae-speed)" >&2; exit 2 ;;
+  echo "unknown part $PART (xmae | bench | profile | tune | gpu-tests | dvae | dvae-prior | dvae-denoise | dvae-speed)" >&2; exit 2 ;;
 esac
 ls -la "$OUT"
