@@ -40,9 +40,10 @@ def _lightning_cli(args: list[str]):
                 kwargs["logger"] = TensorBoardLogger(save_dir="logs", name=name)
             if trainer_cfg.get("enable_checkpointing", True) is not False:
                 dirpath = Path("checkpoints") / name
-                # Both callbacks write the one last.ckpt, the later write of a step winning. With
-                # Lightning's version counter the second writer of an existing last.ckpt would
-                # write last-v1.ckpt beside it, and `--ckpt_path last` would pick between the two.
+                # last.ckpt is always the newest state of this experiment, the file the docs and
+                # configs name (e.g. the denoising stage's prior_ckpt). With Lightning's version
+                # counter a second writer (the every-N callback, or a new fit of the same
+                # experiment) would write last-v1.ckpt beside it and leave last.ckpt stale.
                 extra.append(ModelCheckpoint(dirpath=dirpath, filename="best-{epoch}-{step}", monitor=cfg.monitor,
                                              mode="min", save_top_k=1, save_last=True, enable_version_counter=False))
                 if cfg.checkpoint_every_n_steps:
