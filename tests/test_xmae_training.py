@@ -93,6 +93,18 @@ def test_resume_continues_step_and_optimiser(tmp_path):
     assert not torch.equal(first["state_dict"][k], second["state_dict"][k])
 
 
+def test_a_new_fit_of_the_same_experiment_writes_last_ckpt(tmp_path):
+    """last.ckpt is the file configs and docs name (e.g. a denoising stage's prior_ckpt): a second
+    fit of the same experiment must not leave it stale beside a last-v1.ckpt."""
+    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "again",
+              "--trainer.val_check_interval", "2"]
+    assert run_cli([*common, "--trainer.max_steps", "2"], tmp_path) == 0
+    assert run_cli([*common, "--trainer.max_steps", "4"], tmp_path) == 0
+    folder = tmp_path / "checkpoints" / "again"
+    assert [p.name for p in folder.glob("last*.ckpt")] == ["last.ckpt"]
+    assert torch.load(folder / "last.ckpt", map_location="cpu", weights_only=True)["global_step"] == 4
+
+
 def test_checkpoint_is_self_contained_and_loads_safely(tmp_path):
     assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "ck",
                     "--trainer.max_steps", "2", "--trainer.val_check_interval", "2"], tmp_path) == 0
