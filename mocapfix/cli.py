@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import os
+import pickle
 import sys
 from pathlib import Path
 
@@ -20,6 +21,7 @@ def _lightning_cli(args: list[str]):
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from mocapfix.data.datamodule import MotionDataModule
+    from mocapfix.training.rng_state import RNGStateInCheckpoint
 
     class MocapCLI(LightningCLI):
         def add_arguments_to_parser(self, parser):
@@ -29,6 +31,23 @@ def _lightning_cli(args: list[str]):
                                 help="also write last.ckpt every N optimiser steps")
             parser.add_argument("--monitor", type=str, default="val/mpjpe_mm",
                                 help="metric for the best checkpoint (lower is better)")
+
+        def _parse_ckpt_path(self):
+            # LightningCLI builds the model from the checkpoint's hyperparameters when --ckpt_path
+            # is a file, but leaves "last" to the Trainer, after the model is built from the
+            # config alone: a model trained with other sizes would then fail to load. Resolve
+            # "last" to this experiment's last.ckpt first (none: Lightning starts from scratch).
+            cfg = self.config.get(self.config.get("subcommand") or "", None)
+            ckpt_path = cfg.get("ckpt_path") if cfg is not None else None
+            if ckpt_path == "last" and (Path("checkpoints") / cfg.experiment / "last.ckpt").is_file():
+                cfg.ckpt_path = ckpt_path = str(Path("checkpoints") / cfg.experiment / "last.ckpt")
+            elif ckpt_path and ckpt_path not in ("last", "best", "hpc", "registry") and not Path(ckpt_path).is_file():
+                raise ValueError(f"{ckpt_path}: no such checkpoint file")
+            try:
+                super()._parse_ckpt_path()
+            except (pickle.UnpicklingError, RuntimeError, EOFError) as e:  # torch.load of a file that is not one
+                raise ValueError(f"{ckpt_path}: not a checkpoint that torch.load reads safely "
+                                 f"({type(e).__name__}; weights_only)") from e
 
         def instantiate_trainer(self, **kwargs):
             cfg = self.config[self.subcommand]
@@ -51,6 +70,7 @@ def _lightning_cli(args: list[str]):
                                                  save_top_k=0, save_last=True, enable_version_counter=False))
             if kwargs.get("logger", trainer_cfg.get("logger")) not in (None, False):
                 extra.append(LearningRateMonitor(logging_interval="step"))
+            extra.append(RNGStateInCheckpoint())
             configured = self.config_init[self.subcommand].trainer.get("callbacks") or []
             configured = list(configured if isinstance(configured, list) else [configured])
             if trainer_cfg.get("enable_progress_bar", True) is not False and \

@@ -105,6 +105,47 @@ def test_a_new_fit_of_the_same_experiment_writes_last_ckpt(tmp_path):
     assert torch.load(folder / "last.ckpt", map_location="cpu", weights_only=True)["global_step"] == 4
 
 
+def test_resume_draws_new_masks_not_the_first_steps_again(tmp_path):
+    """The training corruption and shuffling draw from torch's generator, which seed_everything
+    resets at every start: a resumed run goes on from the checkpoint's generator state instead of
+    replaying the masks and batches of steps 0, 1, ... (lr 0: a loss depends on its batch and
+    masks only)."""
+    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "rng",
+              "--trainer.val_check_interval", "2", "--trainer.log_every_n_steps", "1", "--model.init_args.lr", "0"]
+    assert run_cli([*common, "--trainer.max_steps", "2"], tmp_path) == 0
+    assert run_cli([*common, "--trainer.max_steps", "4", "--ckpt_path", "last"], tmp_path) == 0
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    losses = {}
+    for version in ("version_0", "version_1"):
+        ea = EventAccumulator(str(tmp_path / "logs" / "rng" / version), size_guidance={"scalars": 0})
+        ea.Reload()
+        losses.update({e.step: e.value for e in ea.Scalars("train/loss")})
+    assert sorted(losses) == [0, 1, 2, 3]
+    assert losses[2] != losses[0] and losses[3] != losses[1]
+    ckpt = torch.load(tmp_path / "checkpoints" / "rng" / "last.ckpt", map_location="cpu", weights_only=True)
+    assert any("RNGStateInCheckpoint" in k for k in ckpt["callbacks"])
+
+
+def test_resume_from_last_takes_the_checkpoints_model_settings(tmp_path):
+    """`--ckpt_path last` builds the model from the checkpoint, as a path does: a run trained with
+    other sizes than the config's resumes without repeating them."""
+    common = ["fit", "--config", CONFIGS / "xmae.yaml", *SMALL_DATA, *QUIET, "--experiment", "sizes",
+              "--trainer.val_check_interval", "2"]
+    assert run_cli([*common, *TINY, "--trainer.max_steps", "2"], tmp_path) == 0
+    assert run_cli([*common, "--trainer.max_steps", "4", "--ckpt_path", "last"], tmp_path) == 0
+    ckpt = torch.load(tmp_path / "checkpoints" / "sizes" / "last.ckpt", map_location="cpu", weights_only=True)
+    assert ckpt["global_step"] == 4 and ckpt["hyper_parameters"]["enc_dim"] == 32
+
+
+def test_bad_checkpoint_path_is_one_line(tmp_path, capsys):
+    (tmp_path / "text.ckpt").write_text("not a checkpoint")
+    for path, problem in ((tmp_path / "missing.ckpt", "no such checkpoint file"),
+                          (tmp_path / "text.ckpt", "not a checkpoint that torch.load reads safely")):
+        rc = run_cli(["test", "--config", CONFIGS / "xmae.yaml", *QUIET, "--ckpt_path", path], tmp_path)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and f"{path}: {problem}" in err[-1] and "Traceback" not in "".join(err)
+
+
 def test_checkpoint_is_self_contained_and_loads_safely(tmp_path):
     assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "ck",
                     "--trainer.max_steps", "2", "--trainer.val_check_interval", "2"], tmp_path) == 0
