@@ -130,6 +130,9 @@ def inspect_files(paths, as_json: bool = False, source: str = "auto", out=None, 
             print(f"error: {_one_line(p, e)}", file=err)
             failed = True
             continue
+        if not files:
+            print(f"error: {p}: no motion files in this folder", file=err)
+            failed = True
         for f in files:
             try:
                 clips = read_motion(f, source, **read_options)

@@ -185,6 +185,8 @@ def test_write_round_trip_and_template(tmp_path):
     with pytest.raises(MotionFileError):
         write_bvh(out, clip.replace(rotations=None))
     assert out.read_text() == text
+    write_bvh(tmp_path / "new" / "folder" / "out.bvh", clip, template=f)  # folders made as needed
+    assert (tmp_path / "new" / "folder" / "out.bvh").read_text() == text
 
 
 def test_crlf_and_non_finite_values(tmp_path):

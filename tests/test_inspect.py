@@ -83,6 +83,13 @@ def test_folder_argument(files, capsys):
     assert code == 1 and len(out.splitlines()) == 2 and len(err.splitlines()) == 1
 
 
+def test_folder_without_motion_files_is_an_error(tmp_path, capsys):
+    (tmp_path / "notes.txt").write_text("no motion here")
+    assert inspect_files([tmp_path]) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and err.strip() == f"error: {tmp_path}: no motion files in this folder"
+
+
 def test_bandai_bvh(request, capsys):
     pytest.importorskip("mocapfix.io.bvh")
     try:

@@ -285,6 +285,7 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
 
 def _write_text(path: Path, text: str) -> None:
     """Write to a temporary file beside path and rename: never half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)  # `fix --out-dir new/` writes into a new folder tree
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "w") as f:
