@@ -5,13 +5,15 @@ conventions (uppercase = intrinsic, so "ZXY" is Rz @ Rx @ Ry, the BVH rule) and 
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
 from mocapfix.clip import MotionFileError
-from mocapfix.io.bvh import read_bvh, write_bvh
+from mocapfix.io.bvh import _frame_rate, read_bvh, write_bvh
 from mocapfix.kinematics import fk_axis_angle
 
 CM_Y_UP = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]]) * 0.01  # file (cm, y up) -> metres, z up: (x, -z, y)
@@ -189,21 +191,31 @@ def test_write_round_trip_and_template(tmp_path):
     assert (tmp_path / "new" / "folder" / "out.bvh").read_text() == text
 
 
+@pytest.mark.parametrize("text, fps", [("0.0333333", 30.0), ("0.033333333", 30.0), ("0.008333", 120.0),
+                                       ("0.0333667", 29.97), ("0.041708", 23.976), ("3.33333e-02", 30.0),
+                                       ("0.0123456789", 1 / 0.0123456789)])
+def test_frame_rate_is_the_roundest_that_prints_as_the_frame_time(text, fps):
+    # 1 / 0.0333333 is 30.00003: the file means 30, and 30 spares every clip a resampling
+    assert _frame_rate(text) == pytest.approx(fps, rel=1e-12)
+
+
 def test_crlf_and_non_finite_values(tmp_path):
     text = unusual_bvh()
     f = tmp_path / "crlf.bvh"
     f.write_bytes(text.replace("\n", "\r\n").encode())
     ref = reference_fk(text)[1] @ CM_Y_UP.T
     np.testing.assert_allclose(read_bvh(f, unit="cm", up_axis="y")[0].positions, ref, atol=1e-5)
-    # a NaN channel (Spine's first rotation, frame 2) makes the joints below Spine (Head) missing
-    # in that frame, nothing else; such a clip has no rotations
+    # a non-finite channel (Spine's first rotation, frame 2) makes the joints below Spine (Head)
+    # missing in that frame, nothing else; such a clip has no rotations
     lines = text.split("\n")
     row = lines.index("Frame Time: 0.04") + 3
     vals = lines[row].split()
-    vals[6] = "nan"
+    vals[6] = "inf"  # (nan reads the same; inf is the one numpy warns about)
     lines[row] = " ".join(vals)
     f.write_text("\n".join(lines))
-    clip = read_bvh(f, unit="cm", up_axis="y")[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # missing joints are data: no numpy warnings either
+        clip = read_bvh(f, unit="cm", up_axis="y")[0]
     missing = clip.missing_mask()
     assert missing[2].tolist() == [False, False, True, False, False] and missing.sum() == 1
     np.testing.assert_allclose(clip.positions[~missing], ref[~missing], atol=1e-5)

@@ -54,8 +54,9 @@ def read_bvh(path, unit: str = "auto", up_axis: str = "auto", groups: dict | Non
     names, parents, offsets, channels, data, frame_time = _parse(path)
     T, J = data.shape[0], len(names)
 
-    local_r, local_t = _local_transforms(offsets, channels, data)
-    pos = _forward_kinematics(local_r, local_t, parents)  # (T, J, 3) file units, file axes
+    with np.errstate(invalid="ignore", over="ignore"):  # non-finite channels: those joints are missing (below)
+        local_r, local_t = _local_transforms(offsets, channels, data)
+        pos = _forward_kinematics(local_r, local_t, parents)  # (T, J, 3) file units, file axes
 
     unit = _guess_unit(path, names, parents, local_t) if unit == "auto" else unit
     up_axis = _guess_up_axis(names, parents, pos) if up_axis == "auto" else up_axis
@@ -67,9 +68,10 @@ def read_bvh(path, unit: str = "auto", up_axis: str = "auto", groups: dict | Non
 
     # A global change of axes C (and scale s): p' = s C p, so local rotations become C R C^T and
     # every translation s C t.
-    positions = scale * pos @ C.T
-    local_r = C @ local_r @ C.T
-    local_t = scale * local_t @ C.T
+    with np.errstate(invalid="ignore", over="ignore"):
+        positions = scale * pos @ C.T
+        local_r = C @ local_r @ C.T
+        local_t = scale * local_t @ C.T
 
     skeleton = Skeleton(names, parents, {}, path.stem)
     meta = {"format": "bvh", "unit": unit, "up_axis": up_axis, "frame_time": frame_time}
@@ -298,6 +300,20 @@ def _write_text(path: Path, text: str) -> None:
 
 # --- parsing ---
 
+def _frame_rate(frame_time: str) -> float:
+    """fps from the text of a 'Frame Time:' line. Files print the frame time to a few digits
+    (0.0333333 at 30 fps), and 1 / 0.0333333 = 30.00003 fps would send every clip through
+    resampling (one frame short, every frame interpolated) and shift its timestamps. Take the
+    roundest rate (0 to 3 decimals) that prints as the same frame time at the file's precision."""
+    t = float(frame_time)
+    digits = max(len(frame_time.lower().split("e")[0].lstrip("+-").replace(".", "").lstrip("0")), 1)
+    for decimals in range(4):
+        fps = round(1.0 / t, decimals)
+        if fps > 0 and float(f"{1.0 / fps:.{digits}g}") == float(f"{t:.{digits}g}"):
+            return fps
+    return 1.0 / t
+
+
 def _sections(path: Path) -> tuple[str, str, int]:
     """(hierarchy text, motion text, 0-based line of MOTION) or a MotionFileError."""
     try:
@@ -419,6 +435,7 @@ def _parse(path: Path):
         raise MotionFileError(path, f"Frames: {n_frames} (no motion)")
     if not (np.isfinite(frame_time) and frame_time > 0):
         raise MotionFileError(path, f"Frame Time must be positive, got {mt.group(1)}")
+    frame_time = 1.0 / _frame_rate(mt.group(1))
 
     # The frame rows start after whichever of the two header lines comes last; rows[0] is the rest
     # of that header line (normally empty). Line numbers in messages count from 1 in the file.
