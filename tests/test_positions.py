@@ -191,3 +191,202 @@ def test_atomic_write_leaves_the_old_file_on_failure(tmp_path, monkeypatch):
         write_positions(f, _motion(P=1, seed=3)[0], 30, H36M)
     assert f.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz"]  # no temp file left
+
+
+def _chain_csv(path, frames, times, comment="# parents=-1,0,1,1 unit=m\n"):
+    """A 4-joint csv with the given frame numbers (None: no frame column) and time cells (text)."""
+    head = ("frame," if frames is not None else "") + "time," + \
+        ",".join(f"{n}_{a}" for n in ("Hips", "Spine", "LeftArm", "RightArm") for a in "xyz")
+    rows = []
+    for k, t in enumerate(times):
+        xyz = [0, 0, 0.9, 0, 0, 1.2, 0.1, 0, 1.4, -0.1, 0, 1.4]
+        xyz[0] = round(0.01 * k, 4)
+        rows.append(([str(frames[k])] if frames is not None else []) + [t] + [repr(v) for v in xyz])
+    path.write_text(comment + head + "\n" + "\n".join(",".join(r) for r in rows) + "\n")
+    return path
+
+
+def _written_times(path) -> list[str]:
+    lines = [ln for ln in path.read_text().splitlines() if not ln.startswith("#")]
+    col = lines[0].split(",").index("time")
+    return [ln.split(",")[col] for ln in lines[1:]]
+
+
+def test_csv_keeps_its_times_through_the_fix_writer(tmp_path):
+    """Frame numbers from 100 with times from 0: `fix` writes the input's times, not (100 + t) / fps;
+    a skipped frame (103) gets a time between its neighbours'."""
+    from mocapfix.fix_cli import write_output  # what `fix` writes a csv with
+    frames = [100, 101, 102, 104, 105]
+    times = ["0.000", "0.033", "0.067", "0.133", "0.167"]
+    f = _chain_csv(tmp_path / "take.csv", frames, times)
+    clips = read_positions(f)
+    assert clips[0].meta["first_frame"] == 100 and clips[0].num_frames == 6
+    out = tmp_path / "take.fixed.csv"
+    write_output(out, clips, clips, f)
+    written = _written_times(out)
+    assert [float(t) for t in written] == [0.0, 0.033, 0.067, 0.1, 0.133, 0.167]  # 103: midway, linear
+    assert [written[i] for i in (0, 1, 2, 4, 5)] == ["0", "0.033", "0.067", "0.133", "0.167"]
+    again = read_positions(out)
+    assert again[0].meta["times"] == clips[0].meta["times"]
+    np.testing.assert_array_equal(again[0].positions, clips[0].positions)
+
+
+def test_csv_unix_times_and_per_person_times_survive_write_clips(tmp_path):
+    times = [f"{1700000000 + k / 30:.4f}" for k in range(40)]
+    f = _chain_csv(tmp_path / "unix.csv", None, times)
+    [clip] = read_positions(f)
+    assert clip.fps == 30.0
+    out = write_clips(tmp_path / "out.csv", [clip])
+    assert [float(t) for t in _written_times(out)] == [float(t) for t in times]
+    # two people: each row keeps its own time; a frame one person lacks takes the other's
+    c = tmp_path / "two.csv"
+    c.write_text("# fps=30 parents=-1\nperson,frame,time,A_x,A_y,A_z\n"
+                 "a,0,10.5,0,0,1\na,1,10.533,0,0,1\nb,0,10.501,1,0,1\nb,2,10.567,1,0,1\n")
+    clips = read_positions(c)
+    out = write_clips(tmp_path / "two_out.csv", clips)
+    assert _written_times(out) == ["10.5", "10.533", "10.5665", "10.501", "10.533", "10.567"]
+
+
+@pytest.mark.parametrize("seconds", [2.0, 10.0])
+@pytest.mark.parametrize("frame_column", [False, True])
+def test_fps_from_millisecond_times(tmp_path, seconds, frame_column):
+    """30 fps times rounded to ms (0.033, 0.067, 0.100, ...): 30, not 1 / 0.033 = 30.3."""
+    n = int(seconds * 30)
+    times = [f"{k / 30:.3f}" for k in range(n)]
+    [clip] = read_positions(_chain_csv(tmp_path / "ms.csv", list(range(n)) if frame_column else None, times))
+    assert abs(clip.fps - 30.0) < 0.01
+    assert clip.fps == 30.0  # and snapped: the ms rounding cannot tell it from 30
+
+
+@pytest.mark.parametrize("frame_column", [False, True])
+def test_fps_with_a_dropped_frame(tmp_path, frame_column):
+    keep = [k for k in range(60) if k != 17]  # one step twice as long
+    times = [f"{k / 30:.3f}" for k in keep]
+    [clip] = read_positions(_chain_csv(tmp_path / "drop.csv", keep if frame_column else None, times))
+    assert clip.fps == 30.0
+    assert clip.num_frames == (60 if frame_column else 59)
+
+
+def test_fps_from_times_keeps_exact_rates(tmp_path):
+    for fps in (25.0, 29.97, 50.0):
+        times = [repr(k / fps) for k in range(90)]
+        [clip] = read_positions(_chain_csv(tmp_path / "x.csv", None, times))
+        assert clip.fps == pytest.approx(fps, rel=1e-9)
+    with pytest.raises(MotionFileError, match="too few times"):
+        read_positions(_chain_csv(tmp_path / "y.csv", None, ["0.5", "0.5", "0.5"]))
+
+
+def test_csv_numbers_come_back_as_written(tmp_path):
+    """Each number is written with the fewest digits that read back as the same float32 metres."""
+    c = tmp_path / "cm.csv"
+    c.write_text("# fps=30 parents=-1,0 unit=cm up_axis=y\nA_x,A_y,A_z,B_x,B_y,B_z\n"
+                 "-13.7228,90,0.1,1234.567,,3\n0.333333,-0.5,7,1e-05,2,3\n")
+    clips = read_positions(c)
+    out = write_clips(tmp_path / "out.csv", clips)
+    rows = [ln.split(",") for ln in out.read_text().splitlines()[3:]]
+    assert rows == [["-13.7228", "90", "0.1", "1234.567", "", ""], ["0.333333", "-0.5", "7", "1e-05", "2", "3"]]
+    np.testing.assert_array_equal(read_positions(out)[0].positions, clips[0].positions)
+    # any float32 metres (a model's estimate): read back bit for bit, in every unit and axis
+    pos = np.random.default_rng(5).normal(size=(50, 17, 3)).astype(np.float32)
+    for unit, up in (("m", "z"), ("mm", "y"), ("cm", "z")):
+        write_positions(tmp_path / "r.csv", pos, 30, H36M, unit=unit, up_axis=up)
+        np.testing.assert_array_equal(read_positions(tmp_path / "r.csv")[0].positions, pos)
+
+
+def _chain_csv(path, frames, times, comment="# parents=-1,0,1,1 unit=m\n"):
+    """A 4-joint csv with the given frame numbers (None: no frame column) and time cells (text)."""
+    head = ("frame," if frames is not None else "") + "time," + \
+        ",".join(f"{n}_{a}" for n in ("Hips", "Spine", "LeftArm", "RightArm") for a in "xyz")
+    rows = []
+    for k, t in enumerate(times):
+        xyz = [round(0.01 * k, 4), 0, 0.9, 0, 0, 1.2, 0.1, 0, 1.4, -0.1, 0, 1.4]
+        rows.append(([str(frames[k])] if frames is not None else []) + [t] + [repr(v) for v in xyz])
+    path.write_text(comment + head + "\n" + "\n".join(",".join(r) for r in rows) + "\n")
+    return path
+
+
+def _written_times(path) -> list[str]:
+    lines = [ln for ln in path.read_text().splitlines() if not ln.startswith("#")]
+    col = lines[0].split(",").index("time")
+    return [ln.split(",")[col] for ln in lines[1:]]
+
+
+def test_csv_keeps_its_times_through_the_fix_writer(tmp_path):
+    """Frame numbers from 100 with times from 0: `fix` writes the input's times, not (100 + t) / fps;
+    a skipped frame (103) gets a time between its neighbours'."""
+    from mocapfix.fix_cli import write_output  # what `fix` writes its output with
+    frames = [100, 101, 102, 104, 105]
+    times = ["0.000", "0.033", "0.067", "0.133", "0.167"]
+    f = _chain_csv(tmp_path / "take.csv", frames, times)
+    clips = read_positions(f)
+    assert clips[0].meta["first_frame"] == 100 and clips[0].num_frames == 6
+    out = tmp_path / "take.fixed.csv"
+    write_output(out, clips, clips, f)
+    written = _written_times(out)
+    assert [float(t) for t in written] == [0.0, 0.033, 0.067, 0.1, 0.133, 0.167]  # 103: midway, linear
+    assert [written[i] for i in (0, 1, 2, 4, 5)] == ["0", "0.033", "0.067", "0.133", "0.167"]
+    again = read_positions(out)
+    assert again[0].meta["times"] == clips[0].meta["times"]
+    np.testing.assert_array_equal(again[0].positions, clips[0].positions)
+
+
+def test_csv_unix_times_and_per_person_times_survive_write_clips(tmp_path):
+    times = [f"{1700000000 + k / 30:.4f}" for k in range(40)]
+    f = _chain_csv(tmp_path / "unix.csv", None, times)
+    [clip] = read_positions(f)
+    assert clip.fps == 30.0
+    out = write_clips(tmp_path / "out.csv", [clip])
+    assert [float(t) for t in _written_times(out)] == [float(t) for t in times]
+    # two people: each row keeps its own time; a frame one person lacks takes the other's
+    c = tmp_path / "two.csv"
+    c.write_text("# fps=30 parents=-1\nperson,frame,time,A_x,A_y,A_z\n"
+                 "a,0,10.5,0,0,1\na,1,10.533,0,0,1\nb,0,10.501,1,0,1\nb,2,10.567,1,0,1\n")
+    clips = read_positions(c)
+    out = write_clips(tmp_path / "two_out.csv", clips)
+    assert _written_times(out) == ["10.5", "10.533", "10.567", "10.501", "10.533", "10.567"]
+
+
+@pytest.mark.parametrize("seconds", [2.0, 10.0])
+@pytest.mark.parametrize("frame_column", [False, True])
+def test_fps_from_millisecond_times(tmp_path, seconds, frame_column):
+    """30 fps times rounded to ms (0.033, 0.067, 0.100, ...): 30, not 1 / 0.033 = 30.3."""
+    n = int(seconds * 30)
+    times = [f"{k / 30:.3f}" for k in range(n)]
+    [clip] = read_positions(_chain_csv(tmp_path / "ms.csv", list(range(n)) if frame_column else None, times))
+    assert abs(clip.fps - 30.0) < 0.01
+    assert clip.fps == 30.0  # and snapped: the ms rounding cannot tell it from 30
+
+
+@pytest.mark.parametrize("frame_column", [False, True])
+def test_fps_with_a_dropped_frame(tmp_path, frame_column):
+    keep = [k for k in range(60) if k != 17]  # one step twice as long
+    times = [f"{k / 30:.3f}" for k in keep]
+    [clip] = read_positions(_chain_csv(tmp_path / "drop.csv", keep if frame_column else None, times))
+    assert clip.fps == 30.0
+    assert clip.num_frames == (60 if frame_column else 59)
+
+
+def test_fps_from_times_keeps_exact_rates(tmp_path):
+    for fps in (25.0, 29.97, 50.0):
+        times = [repr(k / fps) for k in range(90)]
+        [clip] = read_positions(_chain_csv(tmp_path / "x.csv", None, times))
+        assert clip.fps == pytest.approx(fps, rel=1e-9)
+    with pytest.raises(MotionFileError, match="too few times"):
+        read_positions(_chain_csv(tmp_path / "y.csv", None, ["0.5", "0.5", "0.5"]))
+
+
+def test_csv_numbers_come_back_as_written(tmp_path):
+    """Each number is written with the fewest digits that read back as the same float32 metres."""
+    c = tmp_path / "cm.csv"
+    c.write_text("# fps=30 parents=-1,0 unit=cm up_axis=y\nA_x,A_y,A_z,B_x,B_y,B_z\n"
+                 "-13.7228,90,0.1,1234.567,4.5,3\n0.333333,-0.5,7,1e-05,,3\n")
+    clips = read_positions(c)
+    out = write_clips(tmp_path / "out.csv", clips)
+    rows = [ln.split(",") for ln in out.read_text().splitlines()[3:]]
+    assert rows == [["-13.7228", "90", "0.1", "1234.567", "4.5", "3"], ["0.333333", "-0.5", "7", "", "", ""]]
+    np.testing.assert_array_equal(read_positions(out)[0].positions, clips[0].positions)
+    # any float32 metres (a model's estimate): read back bit for bit, in every unit and axis
+    pos = np.random.default_rng(5).normal(size=(50, 17, 3)).astype(np.float32)
+    for unit, up in (("m", "z"), ("mm", "y"), ("cm", "z")):
+        write_positions(tmp_path / "r.csv", pos, 30, H36M, unit=unit, up_axis=up)
+        np.testing.assert_array_equal(read_positions(tmp_path / "r.csv")[0].positions, pos)

@@ -21,7 +21,8 @@ csv: optional "# key=value" comment lines, then a header row, then one row per p
   - person (optional): any label; one clip per distinct label. Without it, one person.
   - frame (optional): integer frame number; frames with no row are missing. Without it the
     rows of each person are consecutive frames.
-  - time (optional): seconds; gives fps (1 / median step) when no "# fps=" line does.
+  - time (optional): seconds; gives fps when no "# fps=" line does (frames counted over the
+    time they took, _fps_from_times); kept per frame (meta "times") and written back as read.
   - joint columns: <joint>_x, <joint>_y, <joint>_z, consecutive, in skeleton order; the
     joint names are the header's prefixes. An empty cell or "nan" is missing; a joint with
     any missing coordinate is missing.
@@ -306,17 +307,59 @@ def _to_float(path, cells: np.ndarray, header: list[str], cols: list[int], first
         raise
 
 
-def _fps_from_times(path, times: np.ndarray, frame: np.ndarray, person: np.ndarray) -> float:
-    """Median frames per second between a person's consecutive rows: rows may skip frames."""
+def _time_resolution(cells: np.ndarray) -> float:
+    """cells: (N,) time column text -> the step its decimals resolve (0.001 for "0.033"), 0 when a
+    cell has an exponent (no telling)."""
+    s = np.char.lower(np.char.strip(cells))
+    if (np.char.find(s, "e") >= 0).any():
+        return 0.0
+    dot = np.char.find(s, ".")
+    decimals = np.where(dot >= 0, np.char.str_len(s) - dot - 1, 0)
+    return 10.0 ** -int(decimals.max())
+
+
+def _fps_from_times(path, times: np.ndarray, frame: np.ndarray, person: np.ndarray, resolution: float = 0.0
+                    ) -> float:
+    """Frames per second from the steps between a person's consecutive rows (seconds).
+
+    The median seconds per frame d0 tells how many frames each step spans, round(dt / d0), so
+    skipped frames count whether or not there are frame numbers; fps = frames counted / time
+    they took. The median of per-step rates instead is biased by rounded times: 30 fps in ms
+    (0.033, 0.067, 0.100, ...) has steps 0.033/0.034 and a median rate of 30.3.
+    resolution: seconds the time text resolves (0.001 for ms), for snapping to a whole fps."""
     order = np.lexsort((frame, person))
     t, f, p = times[order], frame[order], person[order]
     dt, df = np.diff(t), np.diff(f)
     ok = (np.diff(p) == 0) & (df > 0) & np.isfinite(dt) & (dt > 0)
     if not ok.any():
         raise MotionFileError(path, "no '# fps=' line and too few times in the time column to tell the fps")
-    fps = float(np.median(df[ok] / dt[ok]))
-    # times written with a few decimals: 1/0.0333333 is 30.00003, which means 30
-    return float(round(fps)) if abs(fps - round(fps)) < 1e-4 * fps else fps
+    runs = int(ok[0]) + int((ok[1:] & ~ok[:-1]).sum())  # stretches of good steps: each spans t_end - t_start
+    dt, df = dt[ok], df[ok]
+    d0 = float(np.median(dt / df))                       # seconds per frame
+    span = float(dt.sum())
+    fps = float(np.round(dt / d0).sum()) / span
+    # Rounded times leave each stretch's span off by up to one resolution step: 1/0.0333333 is
+    # 30.00003, and 30 fps in ms over 2 s is 29.995; both mean 30. Capped, so that 29.97 stays.
+    tol = min(5e-4, max(1e-4, resolution * runs / span))
+    return float(round(fps)) if abs(fps - round(fps)) <= tol * fps else fps
+
+
+def _frame_times(tt: np.ndarray, fps: float) -> np.ndarray | None:
+    """tt: (P, T) seconds from the time column, NaN where a person has no row (or an empty cell)
+    -> (P, T) with the gaps filled: from the other people's rows at that frame (mean: they
+    normally agree), else linear in the frame index between the nearest frames with a time,
+    1 / fps per frame past either end. None when no row has a time."""
+    known = np.isfinite(tt)
+    n = known.sum(axis=0)                                                        # (T,)
+    if not n.any():
+        return None
+    shared = np.where(known, tt, 0.0).sum(axis=0) / np.maximum(n, 1)            # (T,)
+    k = np.nonzero(n)[0]
+    f = np.arange(tt.shape[1])
+    fill = np.interp(f, k, shared[k])
+    fill = np.where(f < k[0], shared[k[0]] - (k[0] - f) / fps, fill)
+    fill = np.where(f > k[-1], shared[k[-1]] + (f - k[-1]) / fps, fill)
+    return np.where(known, tt, fill)
 
 
 def read_positions_csv(path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None,
@@ -382,7 +425,8 @@ def read_positions_csv(path, unit: str = "auto", up_axis: str = "auto", fps: flo
             frame[person == p] = np.arange((person == p).sum())
     if fps is None:
         fps = comments["fps"] if "fps" in comments else \
-            _fps_from_times(path, times, frame, person) if times is not None else None
+            _fps_from_times(path, times, frame, person, _time_resolution(cells[:, special["time"]])) \
+            if times is not None else None
     if fps is None:
         raise MotionFileError(path, "no fps: add a '# fps=30' line or a time column in seconds")
     fps = _check_fps(path, fps)
@@ -400,6 +444,11 @@ def read_positions_csv(path, unit: str = "auto", up_axis: str = "auto", fps: flo
     raw = np.full((P * T, J, 3), np.nan)
     raw[key] = xyz
     raw = raw.reshape(P, T, J, 3)
+    frame_times = None  # (P, T) seconds: the writer gives each row the time it was read with
+    if times is not None:
+        tt = np.full(P * T, np.nan)
+        tt[key] = times
+        frame_times = _frame_times(tt.reshape(P, T), fps)
 
     parents = None
     if "parents" in comments:
@@ -413,6 +462,9 @@ def read_positions_csv(path, unit: str = "auto", up_axis: str = "auto", fps: flo
     up = _resolve_up(path, up_axis, comments.get("up_axis", comments.get("up")))
     layout = [{"person_id": uniq[i], "person_column": "person" in special, "time_column": times is not None,
                "frame_column": "frame" in special, "first_frame": first_frame} for i in range(P)]
+    if frame_times is not None:
+        for i in range(P):
+            layout[i]["times"] = frame_times[i].tolist()  # (T,) seconds, plain floats like the rest of meta
     return _clips(path, raw, fps, skel, unit, unit_source, up, "positions-csv", layout)
 
 
@@ -447,19 +499,46 @@ def _atomic_write(path: Path, write) -> None:
         raise
 
 
-def _fmt(v: float) -> str:
-    return "" if v != v else f"{v:.9g}"  # 9 digits: float32 round-trips exactly
+def _format_numbers(out: np.ndarray, scale: float) -> list[str]:
+    """out: (N,) float64 in the file's unit and axes -> the text of each: the fewest significant
+    digits (6 to 9) that the reader turns back into the same float32 metres (float32(text * scale),
+    scale = metres per unit), so a number read from a csv is written as it was ("-13.7228", not
+    9 digits' "-13.7227997"); "" for NaN. Six digits always suffice when the float32 came from a
+    number with at most six; only the others are formatted again."""
+    v = out.tolist()
+    target = out.astype(np.float32) if scale == 1.0 else (out * scale).astype(np.float32)
+    text = [f"{x:.6g}" for x in v]
+    todo = np.nonzero(~np.isnan(out))[0]
+    for digits in (7, 8, 9):
+        back = (np.array([text[i] for i in todo.tolist()], dtype=np.float64) * scale).astype(np.float32)
+        todo = todo[back != target[todo]]
+        if not todo.size:
+            break
+        for i in todo.tolist():
+            text[i] = f"{v[i]:.{digits}g}"  # 9 digits read back as the same float32, always
+    for i in np.nonzero(np.isnan(out))[0].tolist():
+        text[i] = ""
+    return text
+
+
+def _format_time(t: float) -> str:
+    """Seconds -> the shortest text that reads back as the same float64 ("0", "0.0333333333",
+    "1700000000.0333"); "" for NaN."""
+    if t != t:
+        return ""
+    r = repr(float(t))
+    return r[:-2] if r.endswith(".0") else r
 
 
 def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton, unit: str = "m",
                     up_axis: str = "z", *, squeeze: bool | None = None, person_ids: list | None = None,
                     person_column: bool | None = None, frame_column: bool = True, time_column: bool = True,
-                    first_frame: int = 0) -> Path:
+                    first_frame: int = 0, times: np.ndarray | None = None) -> Path:
     """Write positions (T, J, 3) or (P, T, J, 3), metres z up, NaN = missing, as .npz or .csv (by
     the path's extension) in `unit` and `up_axis`. The layout options mirror what the readers put
     into clip.meta: squeeze (npz: (T, J, 3) for one person; default when P == 1), person_ids and
-    person_column (csv; the column is written when P > 1 by default), frame/time columns and
-    first_frame (csv)."""
+    person_column (csv; the column is written when P > 1 by default), frame/time columns,
+    first_frame and times (csv: (T,) or (P, T) seconds of each row; default (first_frame + t) / fps)."""
     path = Path(path)
     pos = np.asarray(positions, dtype=np.float64)
     if pos.ndim == 3:
@@ -491,12 +570,22 @@ def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton,
                  (["time"] if time_column else []) + [f"{n}_{a}" for n in skeleton.joint_names for a in "xyz"]
         lines = [f"# fps={fps:.9g} unit={unit} up_axis={up_axis}",
                  "# parents=" + ",".join(str(p) for p in skeleton.parents), ",".join(header)]
-        flat = out.reshape(P, T, J * 3)  # float64: 9 digits of it read back as the same float32 metres
+        if times is None:
+            time_text = [[f"{(first_frame + t) / fps:.9g}" for t in range(T)]] * P
+        else:
+            try:
+                seconds = np.broadcast_to(np.asarray(times, dtype=np.float64), (P, T))
+            except ValueError:
+                raise ValueError(f"times must be ({T},) or ({P}, {T}), got {np.shape(times)}") from None
+            time_text = [[_format_time(t) for t in row] for row in seconds.tolist()]
+        C = J * 3
+        cells = _format_numbers(out.reshape(-1), UNITS[unit])  # (P * T * C,) row-major
         for p in range(P):
             for t in range(T):
                 lead = ([ids[p]] if person_column else []) + ([str(first_frame + t)] if frame_column else []) + \
-                       ([f"{(first_frame + t) / fps:.9g}"] if time_column else [])
-                lines.append(",".join(lead + [_fmt(v) for v in flat[p, t].tolist()]))
+                       ([time_text[p][t]] if time_column else [])
+                r = (p * T + t) * C
+                lines.append(",".join(lead + cells[r:r + C]))
         payload = ("\n".join(lines) + "\n").encode()
         _atomic_write(path, lambda f: f.write(payload))
     else:
@@ -517,6 +606,10 @@ def write_clips(path, clips: list[Clip]) -> Path:
     unit = m.get("unit", "m") if m.get("unit", "m") in UNITS else "m"
     up = m.get("up_axis", "z") if m.get("up_axis", "z") in UP_AXES else "z"
     from_csv = m.get("format") == "positions-csv"
+    # The rows' times as read; a clip whose frames changed since (resampled) has no such times.
+    times = None
+    if from_csv and all(len(c.meta.get("times") or ()) == c.num_frames for c in clips):
+        times = np.array([c.meta["times"] for c in clips], dtype=np.float64)  # (P, T) seconds
     return write_positions(
         path, np.stack([c.positions for c in clips]), c0.fps, c0.skeleton, unit, up,
         squeeze=m.get("squeeze"),
@@ -524,4 +617,4 @@ def write_clips(path, clips: list[Clip]) -> Path:
         person_column=m.get("person_column") if from_csv else None,
         frame_column=m.get("frame_column", True) if from_csv else True,
         time_column=m.get("time_column", True) if from_csv else True,
-        first_frame=int(m.get("first_frame", 0)))
+        first_frame=int(m.get("first_frame", 0)), times=times)
