@@ -23,7 +23,8 @@ from mocapfix.fix import MODES, fix_clips, map_joints, rotation_clips
 from mocapfix.fixers import PRECISIONS, load_fixer
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import write_bvh_like
-from mocapfix.io.positions import UNITS, _atomic_write, load_npz, npz_array, to_z_up, write_clips, write_positions
+from mocapfix.io.files import atomic_write
+from mocapfix.io.positions import UNITS, load_npz, npz_array, to_z_up, write_clips, write_positions
 
 FIXED = ".fixed"          # default output: <stem>.fixed<ext> beside the input
 LONG_INPUT_S = 600.0      # progress is shown for inputs this long even when stderr is not a terminal
@@ -73,7 +74,7 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
         tree: dict = {}
         for c in clips:
             tree.setdefault(c.meta["subject"], {})[c.meta["action"]] = c.positions.astype(np.float32)
-        _atomic_write(target, lambda f: np.savez_compressed(f, positions_3d=np.array(tree, dtype=object)))
+        atomic_write(target, lambda f: np.savez_compressed(f, positions_3d=np.array(tree, dtype=object)))
         return
     m = clips[0].meta
     if fmt == "positions-npz" and m.get("unit") in UNITS and m.get("unit") != "m":

@@ -14,9 +14,7 @@ Conventions (the BVH ones, as Blender, MotionBuilder and the Bandai Namco data u
 """
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -24,6 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocapfix.clip import Clip, MotionFileError
+from mocapfix.io.files import atomic_write
 from mocapfix.skeleton import Skeleton, guess_groups
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}
@@ -197,7 +196,7 @@ def write_bvh(path, clip: Clip, template: str | Path | None = None) -> None:
     body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in frames.tolist())
     text = "\n".join(lines) + "\n" + body + "\n"
 
-    _write_text(path, text)
+    atomic_write(path, lambda f: f.write(text.encode()))
 
 
 def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
@@ -282,20 +281,8 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
                                     f"would be {np.nanmax(err):.3g} m off (its translation has no channels?)")
     hierarchy = _sections(template)[0]
     body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in out.tolist())
-    _write_text(path, f"HIERARCHY{hierarchy}MOTION\nFrames: {T}\nFrame Time: {frame_time:.8g}\n{body}\n")
-
-
-def _write_text(path: Path, text: str) -> None:
-    """Write to a temporary file beside path and rename: never half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)  # `fix --out-dir new/` writes into a new folder tree
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    text = f"HIERARCHY{hierarchy}MOTION\nFrames: {T}\nFrame Time: {frame_time:.8g}\n{body}\n"
+    atomic_write(path, lambda f: f.write(text.encode()))
 
 
 # --- parsing ---

@@ -34,14 +34,13 @@ layout (write_clips uses what the reader put into clip.meta).
 from __future__ import annotations
 
 import csv
-import os
 import re
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from mocapfix.clip import Clip, MotionFileError
+from mocapfix.io.files import atomic_write
 from mocapfix.skeleton import PRESETS, Skeleton, guess_groups
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}  # metres per unit
@@ -486,19 +485,6 @@ def read_positions(path, unit: str = "auto", up_axis: str = "auto", fps: float |
 
 # --- writers ---
 
-def _atomic_write(path: Path, write) -> None:
-    """write(file object) into a temp file beside path, then rename: readers never see half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _format_numbers(out: np.ndarray, scale: float) -> list[str]:
     """out: (N,) float64 in the file's unit and axes -> the text of each: the fewest significant
     digits (6 to 9) that the reader turns back into the same float32 metres (float32(text * scale),
@@ -557,7 +543,7 @@ def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton,
                   "parents": np.array(skeleton.parents, dtype=np.int64),
                   "joint_names": np.array(skeleton.joint_names, dtype=str),
                   "unit": np.array(unit), "up_axis": np.array(up_axis)}
-        _atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+        atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
     elif suffix == ".csv":
         bad = [n for n in skeleton.joint_names if re.search(r"[,\"\s]", n) or n.lower() in _SPECIAL_COLUMNS]
         if bad:
@@ -587,7 +573,7 @@ def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton,
                 r = (p * T + t) * C
                 lines.append(",".join(lead + cells[r:r + C]))
         payload = ("\n".join(lines) + "\n").encode()
-        _atomic_write(path, lambda f: f.write(payload))
+        atomic_write(path, lambda f: f.write(payload))
     else:
         raise ValueError(f"write_positions writes .npz or .csv, not {path.suffix!r}")
     return path
