@@ -302,7 +302,7 @@ def _to_float(path, cells: np.ndarray, header: list[str], cols: list[int], first
                     float(cells[r, c])
                 except ValueError:
                     raise MotionFileError(path, f"line {first_line + r}: column {header[cols[c]]!r} has "
-                                                f"{cells[r, c]!r}, not a number") from None
+                                                f"{str(cells[r, c])!r}, not a number") from None
         raise
 
 
