@@ -65,6 +65,12 @@ def test_truncated_npz(tmp_path):
     _raises(f, "not a readable npz")
 
 
+def test_text_file_named_npz(tmp_path):
+    f = tmp_path / "notes.npz"
+    f.write_text("frame,x,y,z\n0,1,2,3\n")
+    assert "allow_pickle" not in _raises(f, "not an npz file")
+
+
 def test_corrupt_member_of_npz(tmp_path):
     """A valid zip whose compressed positions are damaged: fails when the array is read."""
     f = tmp_path / "corrupt.npz"

@@ -86,9 +86,15 @@ def guess_unit(positions: np.ndarray, parents) -> str:
 def load_npz(path: Path, allow_pickle: bool = False):
     """np.load that turns every way an npz can be broken into one MotionFileError."""
     try:
+        with open(path, "rb") as f:
+            magic = f.read(6)
+        if not magic.startswith((b"PK", b"\x93NUMPY")):  # else np.load tries pickle and blames allow_pickle
+            raise MotionFileError(path, "not an npz file (an .npz is a zip archive of .npy arrays)")
         return np.load(path, allow_pickle=allow_pickle)
     except FileNotFoundError:
         raise MotionFileError(path, "no such file") from None
+    except MotionFileError:
+        raise
     except Exception as e:  # BadZipFile, EOFError, OSError, ValueError, pickle errors ...
         raise MotionFileError(path, f"not a readable npz file ({_one_line(e)})") from None
 
