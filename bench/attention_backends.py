@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch.nn.attention import SDPBackend, sdpa_kernel
 
-from common import describe, pick_device, print_table, timed, write_result
+from common import add_window_arguments, describe, pick_device, print_table, timed, write_result
 
 from mocapfix.data.corruption import kept_count  # noqa: E402
 
@@ -81,10 +81,7 @@ def time_call(call: dict, backend, head_dim: int, dtype: torch.dtype, device: to
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
-    ap.add_argument("--joints", type=int, default=22)
-    ap.add_argument("--fps", type=float, default=60.0)
-    ap.add_argument("--window-s", type=float, default=1.0)
+    add_window_arguments(ap)
     ap.add_argument("--batch", type=int, default=128, help="training batch")
     ap.add_argument("--infer-batch", type=int, default=None, help="inference batch (default 1024 on CUDA, 16 on CPU)")
     ap.add_argument("--mask-ratio", type=float, default=0.85)

@@ -25,6 +25,14 @@ def pick_device(name: str) -> torch.device:
     return torch.device(name)
 
 
+def add_window_arguments(ap) -> None:
+    """--device, and the issue's window: --joints (smpl22), --fps (60), --window-s (1)."""
+    ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+    ap.add_argument("--joints", type=int, default=22)
+    ap.add_argument("--fps", type=float, default=60.0)
+    ap.add_argument("--window-s", type=float, default=1.0)
+
+
 def describe(device: torch.device) -> dict:
     """The facts a reader needs to compare two tables."""
     info = {"device": device.type, "torch": torch.__version__, "python": platform.python_version()}

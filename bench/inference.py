@@ -24,7 +24,7 @@ import torch
 from torch.nn.attention import SDPBackend, sdpa_kernel
 from torch.utils.flop_counter import FlopCounterMode
 
-from common import describe, matmul_tflops, pick_device, print_table, timed, write_result
+from common import add_window_arguments, describe, matmul_tflops, pick_device, print_table, timed, write_result
 
 from mocapfix.inference import xmae_reconstruct  # noqa: E402
 from mocapfix.models.xmae import XMAE  # noqa: E402
@@ -56,10 +56,7 @@ def flops_per_window(net: XMAE, T: int, J: int, device) -> tuple[float, float]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
-    ap.add_argument("--joints", type=int, default=22)
-    ap.add_argument("--fps", type=float, default=60.0)
-    ap.add_argument("--window-s", type=float, default=1.0)
+    add_window_arguments(ap)
     ap.add_argument("--batch", type=int, default=None, help="windows per batch (default 1024 on CUDA, 16 on CPU)")
     ap.add_argument("--dtype", default=None, choices=("bf16", "fp32"), help="default: bf16 on CUDA, fp32 on CPU")
     ap.add_argument("--repeat", type=int, default=None)
