@@ -103,6 +103,39 @@ def test_rotation_state_without_rotations_says_what_to_set(tmp_path, capsys):
     assert rc == 2 and "with_rotations" in err[-1] and "Traceback" not in "".join(err)
 
 
+def test_a_bvh_without_rotations_among_others_is_named(tmp_path, bandai_files, capsys):
+    """One clip with a non-finite channel has no rotations: the windows would lose every clip's
+    rotations (the rotation state then failed with KeyError 'rotations'); the file is named."""
+    args = bandai_subset(bandai_files, tmp_path / "bvh")
+    bad = tmp_path / "bvh" / "dataset-1_bow_active_001.bvh"
+    lines = bad.read_text().splitlines()
+    i = next(k for k, ln in enumerate(lines) if ln.startswith("Frame Time")) + 5
+    lines[i] = " ".join(["inf"] + lines[i].split()[1:])
+    bad.write_text("\n".join(lines) + "\n")
+    rc = run_cli(["fit", "--config", CONFIGS / "motion_dvae_bvh.yaml", *TINY_DVAE, *QUIET, *CPU, *args,
+                  "--trainer.fast_dev_run", "1"], tmp_path)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and f"{bad}: no joint rotations (non-finite channel values)" in err[-1]
+
+
+def test_a_split_without_complete_windows_is_one_line(tmp_path, capsys):
+    """Motion-DVAE learns from and scores complete windows only: data where a joint is always
+    missing gave no val/loss (a Lightning traceback about the monitored key) and NaN tables."""
+    from mocapfix.io.positions import write_positions
+    from mocapfix.io.synthetic import generate_clips
+    (tmp_path / "pos").mkdir()
+    for i, c in enumerate(generate_clips(4, 3.0, fps=30, seed=0)):
+        positions = c.positions.copy()
+        positions[:, 5] = float("nan")  # one joint never seen
+        write_positions(tmp_path / "pos" / f"take{i}.npz", positions, c.fps, c.skeleton)
+    rc = run_cli(["fit", "--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU,
+                  "--model.init_args.state", "positions", "--data.with_rotations", "false",
+                  "--data.source", "positions", "--data.path", tmp_path / "pos", "--data.max_missing_fraction", "0.5",
+                  "--trainer.fast_dev_run", "1"], tmp_path)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and "windows is complete" in err[-1] and "Traceback" not in "".join(err)
+
+
 def test_optimizer_is_adamax_or_adam():
     sizes = dict(latent_dim=4, lstm_hidden=16, mlp_hidden=16, norm_groups=4, skeleton=PRESETS["smpl22"].to_dict(),
                  window_fps=30.0, window_frames=30)

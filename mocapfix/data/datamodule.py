@@ -25,6 +25,14 @@ SOURCES = ("synthetic", "bvh", "positions", "h36m", "amass", "archive")
 SPLITS = ("train", "val", "test")
 
 
+def complete_windows(batch: dict) -> torch.Tensor:
+    """(B,) bool: windows with no missing value (NaN) in their positions or rotations."""
+    ok = torch.isfinite(batch["positions"]).flatten(1).all(1)
+    if "rotations" in batch:
+        ok &= torch.isfinite(batch["rotations"]).flatten(1).all(1)
+    return ok
+
+
 class WindowDataset(Dataset):
     """Windows cut from clips. Items are dicts of tensors; a whole batch is gathered in one
     indexing op (__getitems__), which keeps the loader cheap at large batch sizes."""
@@ -263,6 +271,8 @@ class MotionDataModule(L.LightningDataModule):
             return
         hp = self.hparams
         clips = self.load_clips()
+        if hp.with_rotations:
+            self._require_rotations(clips)
         self.skeleton = clips[0].skeleton
         patterns = {"train": hp.train_patterns, "val": hp.val_patterns, "test": hp.test_patterns}
         self.clips = {s: [] for s in SPLITS}
@@ -285,6 +295,31 @@ class MotionDataModule(L.LightningDataModule):
                 self._drop_mostly_missing(ds)
             self.datasets[s] = ds
         log.info("windows: %s", {s: len(d) for s, d in self.datasets.items()})
+
+    def _require_rotations(self, clips: list[Clip]) -> None:
+        """with_rotations on data where some clips have rotations and some not (a BVH with a
+        non-finite channel, say): the windows would lose them all, silently. Positions data (no
+        clip has any) is fine: it is delivered without rotations (`has_rotations`)."""
+        lacking = [c for c in clips if not c.has_rotations]
+        if lacking and len(lacking) < len(clips):
+            c = next((c for c in lacking if c.meta.get("no_rotations")), lacking[0])
+            why = c.meta.get("no_rotations") or f"its {c.meta.get('format', self.hparams.source)} data has none"
+            raise MotionFileError(c.source, f"no joint rotations ({why}), and {len(clips) - len(lacking)} other clips "
+                                            f"have them: with_rotations needs them in every clip ({len(lacking)} "
+                                            "lack them): mend or leave out those files, or train on positions "
+                                            "(data.with_rotations: false, model.state: positions)")
+
+    @property
+    def has_rotations(self) -> bool:
+        """Whether the windows come with rotations (with_rotations, and rotation data)."""
+        return all(ds.with_rotations for ds in self.datasets.values() if len(ds))
+
+    def count_complete_windows(self, split: str) -> int:
+        """How many of the split's windows miss nothing (models without a notion of a missing
+        joint, Motion-DVAE, learn from and are scored on those only)."""
+        ds = self.datasets[split]
+        return sum(int(complete_windows(ds.__getitems__(list(range(i, min(i + 4096, len(ds)))))).sum())
+                   for i in range(0, len(ds), 4096))
 
     def _drop_mostly_missing(self, ds: WindowDataset) -> None:
         keep = []

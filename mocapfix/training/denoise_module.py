@@ -44,8 +44,9 @@ from mocapfix.models.dvae_inference import (FIRST_FRAMES, Inference, Observation
 from mocapfix.models.dvae_state import velocity_mask
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.figures import log_validation_figure
-from mocapfix.training.dvae_module import (MotionDVAEModule, anneal_steps_of, compile_in_place, complete_windows,
-                                           kl_anneal_weight, select)
+from mocapfix.data.datamodule import complete_windows
+from mocapfix.training.dvae_module import (MotionDVAEModule, anneal_steps_of, compile_in_place, kl_anneal_weight,
+                                           require_complete_windows, select)
 
 METHODS = ("noisy", "dvae_regression", "dvae_optimisation")
 
@@ -149,12 +150,13 @@ class DVAEDenoiseModule(L.LightningModule):
         ph = self.hparams.prior_hparams
         if dm is None:
             return
-        if self.hparams.noise == "rotation" and not dm.hparams.with_rotations:
+        if self.hparams.noise == "rotation" and not (dm.hparams.with_rotations and dm.has_rotations):
             raise ValueError("model.noise rotation needs rotation data: set data.with_rotations: true "
-                             "(bvh, amass, synthetic sources), or model.noise: position")
+                             f"(bvh, amass, synthetic sources; {dm.hparams.source} data here), or model.noise: position")
         if self.hparams.noise == "position" and ph["state"] == "rotations":
             raise ValueError("noise on positions gives no noisy rotations to a rotation-state prior: "
                              "use a positions-state prior or noise: rotation")
+        require_complete_windows(dm, stage)
         if (dm.skeleton.parents, dm.window_frames) != (tuple(ph["skeleton"]["parents"]), ph["window_frames"]) \
                 or abs(float(dm.hparams.fps) - ph["window_fps"]) > 1e-6:
             raise ValueError(f"the prior was trained on {len(ph['skeleton']['parents'])} joints, {ph['window_frames']} "

@@ -17,6 +17,7 @@ from typing import NamedTuple
 import lightning as L
 import torch
 
+from mocapfix.data.datamodule import complete_windows
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.models.body import build_body_model
 from mocapfix.models.dvae import MotionDVAE, gaussian_kl
@@ -48,12 +49,16 @@ def compile_in_place(net: torch.nn.Module, body: torch.nn.Module | None) -> None
         body.compile()
 
 
-def complete_windows(batch: dict) -> torch.Tensor:
-    """(B,) bool: windows with no missing value. The DVAE has no notion of a missing joint."""
-    ok = torch.isfinite(batch["positions"]).flatten(1).all(1)
-    if "rotations" in batch:
-        ok &= torch.isfinite(batch["rotations"]).flatten(1).all(1)
-    return ok
+def require_complete_windows(dm, stage: str) -> None:
+    """The DVAE has no notion of a missing joint: it learns from and is scored on complete windows
+    only. A split with windows but none complete would train or score nothing (no val/loss for
+    the checkpoint to monitor, NaN test tables): say so before the loop starts."""
+    for split in {"fit": ("train", "val"), "validate": ("val",), "test": ("test",)}.get(stage, ()):
+        if len(dm.datasets[split]) and not dm.count_complete_windows(split):
+            raise ValueError(f"data: none of the {split} split's {len(dm.datasets[split])} windows is complete "
+                             "(every one misses a joint somewhere); Motion-DVAE learns from and is scored on "
+                             "complete windows: drop the joints that are always missing (data.drop_joints) or "
+                             "choose other files for this split")
 
 
 def select(batch: dict, keep: torch.Tensor) -> dict:
@@ -195,9 +200,10 @@ class MotionDVAEModule(L.LightningModule):
                 raise RuntimeError("MotionDVAEModule needs a data module (or a checkpoint) to know the skeleton "
                                    "and window")
             return
-        if self.hparams.state == "rotations" and not dm.hparams.with_rotations:
+        if self.hparams.state == "rotations" and not (dm.hparams.with_rotations and dm.has_rotations):
             raise ValueError("model.state rotations needs rotation data: set data.with_rotations: true "
-                             "(bvh, amass, synthetic sources), or model.state: positions")
+                             f"(bvh, amass, synthetic sources; {dm.hparams.source} data here), or model.state: positions")
+        require_complete_windows(dm, stage)
         skeleton, fps, frames = dm.skeleton.to_dict(), float(dm.hparams.fps), dm.window_frames
         if self.net is None:
             self.hparams.update(skeleton=skeleton, window_fps=fps, window_frames=frames)
