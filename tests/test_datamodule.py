@@ -133,3 +133,26 @@ def test_bandai_drop_root_cache_timing(bandai_dir, tmp_path):
     assert all(c.has_rotations for c in dm.clips["train"])
     assert len(dm2.datasets["train"]) == len(dm.datasets["train"]) > 1000
     assert cached < first
+
+
+def test_archive_source_and_what_is_not_an_archive(tmp_path):
+    """source: archive reads the cache's format (how parsed data travels to a machine without the
+    raw files); anything else is one MotionFileError naming the file."""
+    from mocapfix.data.windows import save_clips
+    clips = generate_clips(3, 2.0, fps=30, seed=0)
+    save_clips(tmp_path / "a.npz", clips)
+    dm = MotionDataModule(source="archive", path=str(tmp_path / "a.npz"), cache_dir=None, fps=30,
+                          val_fraction=0.0, test_fraction=0.0, with_rotations=True)
+    dm.setup("fit")
+    direct = MotionDataModule(source="synthetic", synthetic_clips=3, synthetic_seconds=2.0, cache_dir=None, fps=30,
+                              val_fraction=0.0, test_fraction=0.0, with_rotations=True)
+    direct.setup("fit")
+    assert len(dm.datasets["train"]) == len(direct.datasets["train"]) > 0 and dm.has_rotations
+    write_positions(tmp_path / "positions.npz", clips[0].positions, 30, clips[0].skeleton)
+    (tmp_path / "text.csv").write_text("a,b\n1,2\n")
+    for path, problem in (("missing.npz", "no such archive file"), ("positions.npz", "not an archive of parsed clips"),
+                          ("text.csv", "not an npz file")):
+        dm = MotionDataModule(source="archive", path=str(tmp_path / path), cache_dir=None)
+        with pytest.raises(MotionFileError, match=problem) as e:
+            dm.setup("fit")
+        assert str(e.value).startswith(str(tmp_path / path))

@@ -244,6 +244,8 @@ class MotionDataModule(L.LightningDataModule):
         hp = self.hparams
         options = {k: hp[k] for k in ("source", "fps", "drop_joints", "keep_joints", "groups", "unit", "up_axis",
                                       "body_model_path", "synthetic_clips", "synthetic_seconds", "synthetic_seed")}
+        if hp.source == "archive" and not Path(hp.path).is_file():
+            raise MotionFileError(hp.path, "no such archive file")
         cache = None
         if hp.cache_dir:
             files = [] if hp.source == "synthetic" else [Path(hp.path)] if hp.source == "archive" else self._files()

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mocapfix.clip import Clip
+from mocapfix.clip import Clip, MotionFileError
+from mocapfix.io.positions import load_npz
 from mocapfix.kinematics import fk_axis_angle
 from mocapfix.skeleton import Skeleton
 
@@ -125,7 +126,11 @@ def save_clips(path: Path, clips: list[Clip]) -> None:
 
 
 def load_clips(path: Path) -> list[Clip]:
-    with np.load(path) as z:
+    z = load_npz(Path(path))
+    if not isinstance(z, np.lib.npyio.NpzFile) or not {"header", "positions", "lengths", "fps"} <= set(z.files):
+        raise MotionFileError(path, "not an archive of parsed clips (the .npz the data cache and "
+                                    "`bench/gpu_session.sh prepare` write: header, positions, lengths, fps)")
+    with z:
         header = json.loads(str(z["header"]))
         skeleton = Skeleton.from_dict(header["skeleton"])
         bounds = np.concatenate([[0], np.cumsum(z["lengths"])])
