@@ -156,3 +156,15 @@ def test_archive_source_and_what_is_not_an_archive(tmp_path):
         with pytest.raises(MotionFileError, match=problem) as e:
             dm.setup("fit")
         assert str(e.value).startswith(str(tmp_path / path))
+
+
+def test_drop_joints_names_a_joint_of_the_data(tmp_path):
+    """A drop_joints name that no file has (a typo) is an error, not a silent no-op."""
+    c = generate_clips(1, 2.0, fps=30, seed=0)[0]
+    write_positions(tmp_path / "a.npz", c.positions, 30, c.skeleton)
+    kw = dict(source="positions", path=str(tmp_path), cache_dir=None, fps=30, val_fraction=0.0, test_fraction=0.0)
+    dm = MotionDataModule(drop_joints=[c.skeleton.joint_names[-1]], **kw)
+    dm.setup("fit")
+    assert dm.skeleton.num_joints == c.skeleton.num_joints - 1
+    with pytest.raises(MotionFileError, match=r"drop_joints not in any file's skeleton: \['Nope'\]"):
+        MotionDataModule(drop_joints=["Nope"], **kw).setup("fit")

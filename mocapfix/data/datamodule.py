@@ -215,6 +215,14 @@ class MotionDataModule(L.LightningDataModule):
         """Joint selection and resampling; every clip must end on the same skeleton."""
         hp = self.hparams
         out = []
+        # drop_joints may name joints that only some files have (to bring them to one skeleton),
+        # but a name no file has is a typo, and training on the joint it meant to drop is wrong.
+        # (The BVH reader selects joints itself and has checked the names of its files.)
+        others = [c for c in clips if c.meta.get("format") != "bvh"]
+        unknown = set(hp.drop_joints or ()) - {n for c in others for n in c.skeleton.joint_names}
+        if unknown and others:
+            raise MotionFileError(hp.path, f"drop_joints not in any file's skeleton: {sorted(unknown)} "
+                                           f"(joints: {', '.join(others[0].skeleton.joint_names)})")
         for c in clips:
             names = c.skeleton.joint_names
             keep = list(range(len(names)))
