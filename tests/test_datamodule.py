@@ -79,7 +79,13 @@ def test_cache_second_run_skips_parsing(tmp_path, monkeypatch):
     # a changed option is another cache entry, parsed again
     with pytest.raises(MotionFileError):
         MotionDataModule(**{**kw, "fps": 25}).load_clips()  # _read_all returns nothing now
-    assert calls
+    assert calls == [1]
+    # and so is a cache written by code whose readers changed since
+    import mocapfix.data.windows as windows
+    monkeypatch.setattr(windows, "CACHE_VERSION", windows.CACHE_VERSION + 1)
+    with pytest.raises(MotionFileError):
+        MotionDataModule(**kw).load_clips()
+    assert calls == [1, 1]
 
 
 def test_resample_rotation_clip_keeps_bones_exact():

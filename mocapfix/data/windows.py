@@ -94,8 +94,14 @@ def split_of(source: str, val_fraction: float, test_fraction: float, seed: int,
 
 # --- cache: parsed, joint-selected, resampled clips as one npz ---
 
+# What the readers and _prepare make of a file: bump it when that changes (a reader fix, a new
+# meta field), so caches written by older code are parsed again instead of served stale.
+# 2: session 8 (BVH fps from the printed frame time, csv fps and times).
+CACHE_VERSION = 2
+
+
 def cache_key(files: list[Path], options: dict) -> str:
-    h = hashlib.sha1(json.dumps(options, sort_keys=True, default=str).encode())
+    h = hashlib.sha1(json.dumps({**options, "cache_version": CACHE_VERSION}, sort_keys=True, default=str).encode())
     for f in files:
         st = f.stat()
         h.update(f"{f.resolve()}|{st.st_size}|{st.st_mtime_ns}".encode())
