@@ -114,3 +114,21 @@ class Clip:
             return out
         return out.replace(rotations=rotations.astype(np.float32), root_translation=root.astype(np.float32),
                            offsets=offsets.astype(np.float32))
+
+
+def limb_lengths(positions: np.ndarray, parents) -> np.ndarray:
+    """positions: (T, J, 3) -> (T, L) length of each limb (parent, child), NaN where an end is missing."""
+    p = np.asarray(parents)
+    child = np.nonzero(p >= 0)[0]
+    return np.linalg.norm(positions[:, child] - positions[:, p[child]], axis=-1)
+
+
+def body_limbs(positions: np.ndarray, parents) -> np.ndarray:
+    """(L,) bool: the limbs that are bones. A root that never moves (Bandai Namco's joint_Root at
+    the origin) is a placeholder, and its link to the moving hips is a translation, not a bone."""
+    p = np.asarray(parents)
+    child = np.nonzero(p >= 0)[0]
+    root = positions[:, 0]
+    seen = root[np.isfinite(root).all(axis=-1)]
+    fixed_root = len(seen) > 1 and np.abs(seen - seen[0]).max() < 1e-9
+    return ~(fixed_root & (p[child] == 0))

@@ -26,7 +26,7 @@ import numpy as np
 import roma
 import torch
 
-from mocapfix.clip import Clip, MotionFileError
+from mocapfix.clip import Clip, MotionFileError, body_limbs, limb_lengths
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.fixers import Fixer, RotationFixer
@@ -158,6 +158,24 @@ class FixReport:
     notes: list[str] = field(default_factory=list)
 
 
+HUMAN_BONE_M = (0.01, 1.5)  # median bone length of a human skeleton in metres: far outside = a wrong unit
+
+
+def check_human_scale(clips: list[Clip], source) -> None:
+    """A file in mm read as metres would be 'fixed' to the model's human-sized guess everywhere,
+    silently; one in metres read as mm shrinks to a point. The median bone says which."""
+    lengths = [limb_lengths(c.positions, c.skeleton.parents)[:, body_limbs(c.positions, c.skeleton.parents)]
+               for c in clips]
+    seen = np.concatenate([L[np.isfinite(L)] for L in lengths])
+    if seen.size == 0:
+        return
+    median = float(np.median(seen))
+    if not HUMAN_BONE_M[0] <= median <= HUMAN_BONE_M[1]:
+        unit = clips[0].meta.get("unit", "m")
+        raise MotionFileError(source, f"bones are {median:.3g} m long (median), read as {unit}: not a human body; "
+                                      "give the file's unit (--unit m|cm|mm)")
+
+
 def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: float = 0.5,
               batch_size: int = 64, progress: Callable[[int, int], None] | None = None
               ) -> tuple[list[Clip], FixReport]:
@@ -170,6 +188,7 @@ def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: fl
         raise ValueError(f"overlap must be in [0, 1), got {overlap}")
     if not clips:
         raise ValueError("fix_clips needs at least one clip")
+    check_human_scale(clips, clips[0].source or clips[0].name)
     if getattr(fixer, "state", "positions") == "rotations":
         return fix_rotation_clips(clips, fixer, mode, overlap, batch_size, progress)
     model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps

@@ -399,9 +399,10 @@ def test_bad_inputs_each_one_line_and_the_rest_still_run(tmp_path, ckpt, motion,
     write_positions(tmp_path / "nanperson.npz", two, 30, SMPL)
     write_positions(tmp_path / "h36m.npz", motion[0][:, :17], 30, preset("h36m17"))
     (tmp_path / "text.csv").write_text("hello\n")
+    write_positions(tmp_path / "mm_as_m.npz", motion[0] * 1000, 30, SMPL, unit="m")  # mm numbers said to be m
     bad = {"missing.npz": "no such file", "trunc.npz": "not a readable npz", "shape.npz": "(frames, joints, 3)",
            "nofps.npz": "fps", "nanperson.npz": "person 1: no data", "h36m.npz": "missing pelvis",
-           "text.csv": "columns"}
+           "text.csv": "columns", "mm_as_m.npz": "m long (median), read as m: not a human body"}
     args = [tmp_path / n for n in bad] + [good]
     rc, out, err = fix([*args, "--ckpt", ckpt], capsys)
     assert rc == 1
@@ -412,8 +413,10 @@ def test_bad_inputs_each_one_line_and_the_rest_still_run(tmp_path, ckpt, motion,
     assert "Traceback" not in err
     assert (tmp_path / "good.fixed.npz").exists() and out.count("\n") == 1
     assert not any((tmp_path / n.replace(".", ".fixed.")).exists() for n in bad)
-    # fps given on the command line reads the file that lacks it
+    # fps given on the command line reads the file that lacks it; the unit, the file in mm
     rc, _, err = fix([tmp_path / "nofps.npz", "--ckpt", ckpt, "--fps", "30"], capsys)
+    assert rc == 0, err
+    rc, _, err = fix([tmp_path / "mm_as_m.npz", "--ckpt", ckpt, "--unit", "mm"], capsys)
     assert rc == 0, err
 
 
