@@ -21,6 +21,7 @@ def _lightning_cli(args: list[str]):
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from mocapfix.data.datamodule import MotionDataModule
+    from mocapfix.training.predictions import WritePredictions
     from mocapfix.training.rng_state import RNGStateInCheckpoint
 
     class MocapCLI(LightningCLI):
@@ -71,6 +72,8 @@ def _lightning_cli(args: list[str]):
             if kwargs.get("logger", trainer_cfg.get("logger")) not in (None, False):
                 extra.append(LearningRateMonitor(logging_interval="step"))
             extra.append(RNGStateInCheckpoint())
+            if self.subcommand == "predict":
+                extra.append(WritePredictions())
             configured = self.config_init[self.subcommand].trainer.get("callbacks") or []
             configured = list(configured if isinstance(configured, list) else [configured])
             if trainer_cfg.get("enable_progress_bar", True) is not False and \
@@ -90,6 +93,11 @@ def _lightning_cli(args: list[str]):
                 print(f"TensorBoard logs: {t.logger.log_dir}   (view: tensorboard --logdir {Path(t.logger.log_dir).parent})")
                 if ckpt is not None:
                     print(f"checkpoints: best {ckpt.best_model_path or '-'}, last {ckpt.last_model_path or '-'}")
+
+        def after_predict(self):
+            writer = next((cb for cb in self.trainer.callbacks if isinstance(cb, WritePredictions)), None)
+            if writer is not None and writer.path is not None and self.trainer.is_global_zero:
+                print(f"predictions: {writer.path}")
 
         def after_test(self):
             path = getattr(self.model, "eval_json_path", None)

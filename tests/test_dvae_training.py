@@ -136,6 +136,15 @@ def test_a_split_without_complete_windows_is_one_line(tmp_path, capsys):
     assert rc == 2 and "windows is complete" in err[-1] and "Traceback" not in "".join(err)
 
 
+def test_predict_with_a_prior_says_to_use_the_denoising_stage(tmp_path, capsys):
+    common = ["--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU, "--experiment", "p"]
+    assert run_cli(["fit", *common, "--trainer.max_steps", "1", "--trainer.val_check_interval", "1"], tmp_path) == 0
+    capsys.readouterr()
+    rc = run_cli(["predict", *common, "--ckpt_path", tmp_path / "checkpoints" / "p" / "last.ckpt"], tmp_path)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and "denoising stage's checkpoint" in err[-1] and "Traceback" not in "".join(err)
+
+
 def test_optimizer_is_adamax_or_adam():
     sizes = dict(latent_dim=4, lstm_hidden=16, mlp_hidden=16, norm_groups=4, skeleton=PRESETS["smpl22"].to_dict(),
                  window_fps=30.0, window_frames=30)

@@ -184,6 +184,17 @@ def test_test_writes_eval_json_in_paper_layout(tmp_path, capsys):
     assert all(500 <= r["mpjpe_mm"] <= 1000 for r in disp)
 
 
+def test_predict_command_writes_the_windows(tmp_path, capsys):
+    common = ["--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "pred"]
+    assert run_cli(["fit", *common, "--trainer.max_steps", "2", "--trainer.val_check_interval", "2"], tmp_path) == 0
+    capsys.readouterr()
+    assert run_cli(["predict", *common, "--ckpt_path", tmp_path / "checkpoints" / "pred" / "last.ckpt"], tmp_path) == 0
+    path = capsys.readouterr().out.strip().splitlines()[-1].removeprefix("predictions: ")
+    with np.load(tmp_path / path) as z:
+        assert z["positions"].ndim == 4 and z["positions"].shape[1:] == (30, 22, 3)
+        assert np.isfinite(z["positions"]).all() and float(z["fps"]) == 30.0 and len(z["joint_names"]) == 22
+
+
 def test_predict_fills_only_missing(tmp_path):
     from mocapfix.data.datamodule import MotionDataModule
     assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "pr",

@@ -305,6 +305,10 @@ class MotionDVAEModule(L.LightningModule):
     def test_step(self, batch, batch_idx):
         self._evaluate(batch, "test")
 
+    def predict_step(self, batch, batch_idx):
+        raise ValueError("a Motion-DVAE prior checkpoint models clean motion and does not denoise: predict "
+                         "(or fix) with its denoising stage's checkpoint (configs/motion_dvae_denoise*.yaml)")
+
     def on_validation_epoch_end(self):
         if self.trainer.sanity_checking:
             return

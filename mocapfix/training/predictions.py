@@ -1,0 +1,34 @@
+"""`python -m mocapfix predict`: the model's output on the data module's predict windows, to a file."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from lightning.pytorch.callbacks import BasePredictionWriter
+
+from mocapfix.io.files import atomic_write
+
+
+class WritePredictions(BasePredictionWriter):
+    """Writes every predicted window to predictions.npz in the run's log folder: `positions`
+    (N, T, J, 3) metres z up, NaN where the model gave nothing, with `fps`, `joint_names` and
+    `parents`. (Whole recordings in their own files and layouts: `mocapfix fix`.)"""
+
+    def __init__(self):
+        super().__init__(write_interval="epoch")
+        self.path: Path | None = None
+
+    def write_on_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, predictions, batch_indices):
+        if not trainer.is_global_zero or not predictions:
+            return
+        if isinstance(predictions[0], list):  # one list per predict dataloader
+            predictions = [p for per_loader in predictions for p in per_loader]
+        positions = torch.cat([p.float().cpu() for p in predictions]).numpy()       # (N, T, J, 3)
+        skeleton = trainer.datamodule.skeleton
+        log_dir = trainer.logger.log_dir if trainer.logger and trainer.logger.log_dir else trainer.default_root_dir
+        self.path = Path(log_dir) / "predictions.npz"
+        atomic_write(self.path, lambda f: np.savez_compressed(
+            f, positions=positions, fps=np.float64(trainer.datamodule.hparams.fps),
+            joint_names=np.array(skeleton.joint_names), parents=np.array(skeleton.parents)))
