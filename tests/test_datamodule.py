@@ -174,3 +174,12 @@ def test_drop_joints_names_a_joint_of_the_data(tmp_path):
     assert dm.skeleton.num_joints == c.skeleton.num_joints - 1
     with pytest.raises(MotionFileError, match=r"drop_joints not in any file's skeleton: \['Nope'\]"):
         MotionDataModule(drop_joints=["Nope"], **kw).setup("fit")
+    with pytest.raises(MotionFileError, match="one tree") as e:  # the root: its children would be roots
+        MotionDataModule(drop_joints=[c.skeleton.joint_names[0]], **kw).setup("fit")
+    assert str(e.value).startswith(str(tmp_path / "a.npz"))
+
+
+@pytest.mark.parametrize("val, test", [(-0.1, 0.1), (0.1, 1.0), (0.6, 0.6)])
+def test_split_fractions_are_checked(val, test):
+    with pytest.raises(ValueError, match="together under 1"):
+        MotionDataModule(val_fraction=val, test_fraction=test)

@@ -7,6 +7,7 @@ table, as the paper reports them.
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,6 +15,8 @@ import torch
 
 from mocapfix.data.corruption import Corrupted, constant_displacement, gaussian_noise, infill_gap
 from mocapfix.skeleton import Skeleton
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -49,6 +52,10 @@ def paper_tasks(skeleton: Skeleton, gaps_s=(0.1, 0.3, 0.5, 0.7, 0.9), noise_sigm
     tasks = []
     arms = [g for g in ("left_arm", "right_arm") if g in skeleton.groups]
     legs = [g for g in ("left_leg", "right_leg") if g in skeleton.groups]
+    if len(arms) + len(legs) < 4:
+        absent = sorted({"left_arm", "right_arm", "left_leg", "right_leg"} - set(arms) - set(legs))
+        log.info("skeleton %r has no %s group: those tasks are left out of the tables (data.groups names "
+                 "their joints)", skeleton.name, ", ".join(absent))
     for gap in gaps_s:
         tasks += [Task("infill", p, gap_s=gap) for p in ["full", *arms, *legs]]
         tasks += [Task("displacement", p, gap_s=gap) for p in arms]
