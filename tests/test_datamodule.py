@@ -179,7 +179,8 @@ def test_drop_joints_names_a_joint_of_the_data(tmp_path):
     assert str(e.value).startswith(str(tmp_path / "a.npz"))
 
 
-@pytest.mark.parametrize("val, test", [(-0.1, 0.1), (0.1, 1.0), (0.6, 0.6)])
+@pytest.mark.parametrize("val, test", [(-0.1, 0.1), (0.1, 1.5), (0.6, 0.6)])
 def test_split_fractions_are_checked(val, test):
-    with pytest.raises(ValueError, match="together under 1"):
+    with pytest.raises(ValueError, match="together at most 1"):
         MotionDataModule(val_fraction=val, test_fraction=test)
+    MotionDataModule(val_fraction=0.0, test_fraction=1.0)  # every file to test: evaluation-only data

@@ -179,9 +179,9 @@ class MotionDataModule(L.LightningDataModule):
             raise ValueError(f"data.source: unknown source type {source!r}; known: {', '.join(SOURCES)}")
         if source != "synthetic" and not path:
             raise ValueError(f"data.path: source {source!r} needs a file or folder path")
-        if not (0.0 <= val_fraction < 1.0 and 0.0 <= test_fraction < 1.0 and val_fraction + test_fraction < 1.0):
-            raise ValueError(f"data.val_fraction {val_fraction} and data.test_fraction {test_fraction}: each in [0, 1), "
-                             "and together under 1 (the rest is the training split)")
+        if not (0.0 <= val_fraction and 0.0 <= test_fraction and val_fraction + test_fraction <= 1.0):
+            raise ValueError(f"data.val_fraction {val_fraction} and data.test_fraction {test_fraction}: fractions "
+                             "of the files, together at most 1 (the rest is the training split)")
         self.save_hyperparameters()
         self.skeleton: Skeleton | None = None
         self.clips: dict[str, list[Clip]] = {}
