@@ -105,6 +105,8 @@ profile)
   $PY bench/profile_train_step.py --compile-mode reduce-overhead \
     --json-out "$OUT/profile_train_step-cuda-cudagraphs.json" 2>&1 | tail -n 40
   $PY bench/profile_train_step.py --eager --json-out "$OUT/profile_train_step-cuda-eager.json" 2>&1 | tail -n 40
+  # and batched inference (benchmark 2's pass, compiled with CUDA graphs): what bounds 8,530 windows/s
+  $PY bench/profile_inference.py --json-out "$OUT/profile_inference-cuda.json" 2>&1 | tail -n 40
   ;;
 gpu-tests)
   # CI has no GPU: the CUDA paths are tested here (../shared does not travel: its tests skip)

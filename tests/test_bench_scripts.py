@@ -46,6 +46,13 @@ def test_profile_train_step(tmp_path):
     assert len(r["rows"]) == 5 and any("mm" in x["name"] for x in r["rows"])
 
 
+def test_profile_inference(tmp_path):
+    r = bench("profile_inference", "--device", "cpu", "--fps", "10", "--batch", "2", "--warmup", "1", "--passes", "2",
+              "--top", "5", tmp_path=tmp_path)
+    assert r["profiled_passes"] == 2 and r["frames"] == 10 and r["wall_ms_per_pass"] > 0
+    assert len(r["rows"]) == 5 and any("addmm" in x["name"] or "mm" in x["name"] for x in r["rows"])
+
+
 def test_profile_summary_of_cuda_kernels():
     """The GPU half of profile_train_step.py on made-up kernel events: no GPU needed to check it."""
     from types import SimpleNamespace
