@@ -20,9 +20,9 @@ import time
 import torch
 from torch.profiler import ProfilerActivity, profile
 
-from common import add_window_arguments, describe, pick_device, print_table, sync, write_result
+from common import add_window_arguments, describe, pick_device, sync, write_result
 from inference import make_windows
-from profile_train_step import summarise
+from profile_train_step import add_output_arguments, print_profile, summarise
 
 from mocapfix.inference import xmae_reconstruct  # noqa: E402
 from mocapfix.models.xmae import XMAE  # noqa: E402
@@ -37,9 +37,7 @@ def main(argv=None) -> int:
     ap.add_argument("--compile-mode", default="reduce-overhead", help="torch.compile mode on CUDA")
     ap.add_argument("--warmup", type=int, default=None, help="passes before the profile (default 10 CUDA, 1 CPU)")
     ap.add_argument("--passes", type=int, default=None, help="profiled passes (default 10 CUDA, 2 CPU)")
-    ap.add_argument("--top", type=int, default=25, help="slowest kernels / operators listed")
-    ap.add_argument("--trace-out", default=None, help="also write a Chrome trace (chrome://tracing, Perfetto)")
-    ap.add_argument("--json-out", default=None)
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
     device = pick_device(args.device)
     gpu = device.type == "cuda"
@@ -80,18 +78,8 @@ def main(argv=None) -> int:
               "rows": [{k.replace("_per_step", "_per_pass"): v for k, v in r.items()} for r in rows]}
     path = write_result("profile_inference", result, args.json_out)
     how = f"compiled ({args.compile_mode})" if compiled else "eager"
-    print(f"XMAE inference, {J} joints x {T} frames, batch {B}, {result['dtype']}, {how}: "
-          f"wall {summary['wall_ms_per_pass']:.2f} ms/pass", end="")
-    if gpu:
-        print(f", kernels {summary['kernel_ms_per_pass']:.2f} ms/pass (busy {summary['busy']:.0%}), "
-              f"{summary['kernels_per_pass']:.0f} kernels/pass")
-        for kind, ms in summary["kernel_ms_by_kind"].items():
-            print(f"  {kind:<18} {ms:8.2f} ms/pass  {ms / summary['kernel_ms_per_pass']:6.1%}")
-    else:
-        print()
-    print_table("slowest " + ("kernels" if gpu else "operators (self CPU time)"), result["rows"],
-                [("name", "name"), ("kind", "kind"), ("calls_per_pass", "calls/pass"), ("ms_per_pass", "ms/pass")]
-                + ([("share", "share")] if gpu else []))
+    print_profile(f"XMAE inference, {J} joints x {T} frames, batch {B}, {result['dtype']}, {how}",
+                  summary, result["rows"], gpu, per="pass")
     print(f"wrote {path}")
     return 0
 

@@ -109,6 +109,30 @@ def summarise(prof, steps: int, wall_s: float, gpu: bool, top: int) -> tuple[dic
     return summary, rows
 
 
+def add_output_arguments(ap) -> None:
+    """--top, --trace-out, --json-out: what a profile script writes."""
+    ap.add_argument("--top", type=int, default=25, help="slowest kernels / operators listed")
+    ap.add_argument("--trace-out", default=None, help="also write a Chrome trace (chrome://tracing, Perfetto)")
+    ap.add_argument("--json-out", default=None)
+
+
+def print_profile(title: str, summary: dict, rows: list[dict], gpu: bool, per: str = "step") -> None:
+    """The summary and the slowest kernels as printed lines; `per`: what the figures are per
+    (their keys end in _per_<per>)."""
+    print(f"{title}: wall {summary[f'wall_ms_per_{per}']:.2f} ms/{per}", end="")
+    if gpu:
+        kernel_ms = summary[f"kernel_ms_per_{per}"]
+        print(f", kernels {kernel_ms:.2f} ms/{per} (busy {summary['busy']:.0%}), "
+              f"{summary[f'kernels_per_{per}']:.0f} kernels/{per}")
+        for kind, ms in summary["kernel_ms_by_kind"].items():
+            print(f"  {kind:<18} {ms:8.2f} ms/{per}  {ms / kernel_ms:6.1%}")
+    else:
+        print()
+    print_table("slowest " + ("kernels" if gpu else "operators (self CPU time)"), rows,
+                [("name", "name"), ("kind", "kind"), (f"calls_per_{per}", f"calls/{per}"),
+                 (f"ms_per_{per}", f"ms/{per}")] + ([("share", "share")] if gpu else []))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
@@ -123,9 +147,7 @@ def main(argv=None) -> int:
     ap.add_argument("--compile-mode", default="default", help="torch.compile mode (reduce-overhead: CUDA graphs)")
     ap.add_argument("--warmup", type=int, default=None, help="steps before the profile (default 30 CUDA, 2 CPU)")
     ap.add_argument("--steps", type=int, default=None, help="profiled steps (default 20 CUDA, 3 CPU)")
-    ap.add_argument("--top", type=int, default=25, help="slowest kernels / operators listed")
-    ap.add_argument("--trace-out", default=None, help="also write a Chrome trace (chrome://tracing, Perfetto)")
-    ap.add_argument("--json-out", default=None)
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
     device = pick_device(args.device)
     gpu = device.type == "cuda"
@@ -160,18 +182,8 @@ def main(argv=None) -> int:
               "profiled_steps": steps, **summary, "rows": rows}
     path = write_result("profile_train_step", result, args.json_out)
     how = f"compiled ({args.compile_mode})" if compiled else "eager"
-    print(f"XMAE training step, {J} joints x {T} frames, batch {args.batch}, {precision}, "
-          f"{how}: wall {summary['wall_ms_per_step']:.2f} ms/step", end="")
-    if gpu:
-        print(f", kernels {summary['kernel_ms_per_step']:.2f} ms/step (busy {summary['busy']:.0%}), "
-              f"{summary['kernels_per_step']:.0f} kernels/step")
-        for kind, ms in summary["kernel_ms_by_kind"].items():
-            print(f"  {kind:<18} {ms:8.2f} ms/step  {ms / summary['kernel_ms_per_step']:6.1%}")
-    else:
-        print()
-    print_table("slowest " + ("kernels" if gpu else "operators (self CPU time)"), rows,
-                [("name", "name"), ("kind", "kind"), ("calls_per_step", "calls/step"), ("ms_per_step", "ms/step")]
-                + ([("share", "share")] if gpu else []))
+    print_profile(f"XMAE training step, {J} joints x {T} frames, batch {args.batch}, {precision}, {how}",
+                  summary, rows, gpu)
     print(f"wrote {path}")
     return 0
 
