@@ -73,7 +73,8 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
     if fmt == "h36m":
         tree: dict = {}
         for c in clips:
-            tree.setdefault(c.meta["subject"], {})[c.meta["action"]] = c.positions.astype(np.float32)
+            scale = UNITS.get(c.meta.get("unit", "m"), 1.0)  # back to the file's unit
+            tree.setdefault(c.meta["subject"], {})[c.meta["action"]] = (c.positions / scale).astype(np.float32)
         atomic_write(target, lambda f: np.savez_compressed(f, positions_3d=np.array(tree, dtype=object)))
         return
     m = clips[0].meta

@@ -20,6 +20,7 @@ from mocapfix.fix import (blend_weights, fix_clips, map_joints, model_frames, re
 from mocapfix.fixers import load_fixer, resolve_precision, xmae_checkpoint
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import write_bvh
+from mocapfix.io.h36m import H36M_KEEP
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.models.xmae import XMAE
@@ -359,6 +360,19 @@ def test_h36m_input_keeps_its_layout(tmp_path, capsys):
     back = read_motion(tmp_path / "data_3d_h36m.fixed.npz", "h36m")
     assert [c.name for c in back] == ["S9/Eating", "S9/Walking"]
     assert [c.num_frames for c in back] == [130, 80] and all(np.isfinite(c.positions).all() for c in back)
+    # the raw dataset's millimetres: too big a body as metres, read and written back in mm with --unit
+    mm = {"S9": {a: x * 1000 for a, x in tree["S9"].items()}}
+    (tmp_path / "mm").mkdir()
+    np.savez(tmp_path / "mm" / "data_3d_h36m.npz", positions_3d=np.array(mm, dtype=object))
+    rc, _, err = fix([tmp_path / "mm" / "data_3d_h36m.npz", "--ckpt", ck], capsys)
+    assert rc == 1 and "not a human body" in err
+    rc, _, err = fix([tmp_path / "mm" / "data_3d_h36m.npz", "--ckpt", ck, "--unit", "mm"], capsys)
+    assert rc == 0, err
+    with np.load(tmp_path / "mm" / "data_3d_h36m.fixed.npz", allow_pickle=True) as z:
+        walking = z["positions_3d"].item()["S9"]["Walking"]
+    given = mm["S9"]["Walking"][:, H36M_KEEP]                                        # (80, 17, 3) mm
+    seen = np.isfinite(given)
+    np.testing.assert_allclose(walking[seen], given[seen], rtol=1e-6)  # observed kept, in mm
 
 
 def test_amass_input(tmp_path, capsys):

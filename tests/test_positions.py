@@ -290,3 +290,12 @@ def test_csv_numbers_come_back_as_written(tmp_path):
     for unit, up in (("m", "z"), ("mm", "y"), ("cm", "z")):
         write_positions(tmp_path / "r.csv", pos, 30, H36M, unit=unit, up_axis=up)
         np.testing.assert_array_equal(read_positions(tmp_path / "r.csv")[0].positions, pos)
+
+
+def test_written_files_get_the_usual_mode(tmp_path):
+    """Outputs are readable as any file the user writes (0666 less the umask), not mkstemp's private 0600."""
+    import os
+    mask = os.umask(0o022)
+    os.umask(mask)
+    out = write_positions(tmp_path / "out.npz", np.zeros((2, 17, 3)), 30, H36M)
+    assert out.stat().st_mode & 0o777 == 0o666 & ~mask
