@@ -132,3 +132,22 @@ def body_limbs(positions: np.ndarray, parents) -> np.ndarray:
     seen = root[np.isfinite(root).all(axis=-1)]
     fixed_root = len(seen) > 1 and np.abs(seen - seen[0]).max() < 1e-9
     return ~(fixed_root & (p[child] == 0))
+
+
+HUMAN_BONE_M = (0.01, 1.5)  # median bone length of a human skeleton in metres: far outside = a wrong unit
+
+
+def check_human_scale(clips: list[Clip], source) -> None:
+    """The clips of one file at a human body's scale in metres, or a MotionFileError: a file in mm
+    read as metres would be 'fixed' to a model's human-sized guess everywhere, or trained on in
+    kilometres, silently; one in metres read as mm shrinks to a point. The median bone says which."""
+    lengths = [limb_lengths(c.positions, c.skeleton.parents)[:, body_limbs(c.positions, c.skeleton.parents)]
+               for c in clips]
+    seen = np.concatenate([L[np.isfinite(L)] for L in lengths])
+    if seen.size == 0:
+        return
+    median = float(np.median(seen))
+    if not HUMAN_BONE_M[0] <= median <= HUMAN_BONE_M[1]:
+        unit = clips[0].meta.get("unit", "m")
+        raise MotionFileError(source, f"bones are {median:.3g} m long (median), read as {unit}: not a human body; "
+                                      "give the file's unit (--unit or data.unit: m, cm, mm)")

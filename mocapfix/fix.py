@@ -26,7 +26,7 @@ import numpy as np
 import roma
 import torch
 
-from mocapfix.clip import Clip, MotionFileError, body_limbs, limb_lengths
+from mocapfix.clip import Clip, MotionFileError, check_human_scale
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.fixers import Fixer, RotationFixer
@@ -156,24 +156,6 @@ class FixReport:
     limb_sigma_after_mm: float
     windows: int                   # windows the model ran on
     notes: list[str] = field(default_factory=list)
-
-
-HUMAN_BONE_M = (0.01, 1.5)  # median bone length of a human skeleton in metres: far outside = a wrong unit
-
-
-def check_human_scale(clips: list[Clip], source) -> None:
-    """A file in mm read as metres would be 'fixed' to the model's human-sized guess everywhere,
-    silently; one in metres read as mm shrinks to a point. The median bone says which."""
-    lengths = [limb_lengths(c.positions, c.skeleton.parents)[:, body_limbs(c.positions, c.skeleton.parents)]
-               for c in clips]
-    seen = np.concatenate([L[np.isfinite(L)] for L in lengths])
-    if seen.size == 0:
-        return
-    median = float(np.median(seen))
-    if not HUMAN_BONE_M[0] <= median <= HUMAN_BONE_M[1]:
-        unit = clips[0].meta.get("unit", "m")
-        raise MotionFileError(source, f"bones are {median:.3g} m long (median), read as {unit}: not a human body; "
-                                      "give the file's unit (--unit m|cm|mm)")
 
 
 def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: float = 0.5,

@@ -184,3 +184,14 @@ def test_split_fractions_are_checked(val, test):
     with pytest.raises(ValueError, match="together at most 1"):
         MotionDataModule(val_fraction=val, test_fraction=test)
     MotionDataModule(val_fraction=0.0, test_fraction=1.0)  # every file to test: evaluation-only data
+
+
+def test_a_file_at_the_wrong_scale_is_named(tmp_path):
+    """A file in mm declared as metres would train a model in kilometres, silently."""
+    c = generate_clips(2, 2.0, fps=30, seed=0)
+    write_positions(tmp_path / "good.npz", c[0].positions, 30, c[0].skeleton)
+    write_positions(tmp_path / "mm.npz", c[1].positions * 1000, 30, c[1].skeleton, unit="m")
+    dm = MotionDataModule(source="positions", path=str(tmp_path), cache_dir=None, fps=30)
+    with pytest.raises(MotionFileError, match="not a human body") as e:
+        dm.setup("fit")
+    assert str(e.value).startswith(str(tmp_path / "mm.npz"))

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from mocapfix.clip import Clip, MotionFileError
+from mocapfix.clip import Clip, MotionFileError, check_human_scale
 from mocapfix.data.windows import cache_key, load_clips, resample, save_clips, split_of, window_starts
 from mocapfix.skeleton import Skeleton
 
@@ -218,6 +218,11 @@ class MotionDataModule(L.LightningDataModule):
         """Joint selection and resampling; every clip must end on the same skeleton."""
         hp = self.hparams
         out = []
+        by_file: dict[str, list[Clip]] = {}
+        for c in clips:
+            by_file.setdefault(c.source, []).append(c)
+        for source, file_clips in by_file.items():  # a file in mm read as metres would train in km
+            check_human_scale(file_clips, source)
         # drop_joints may name joints that only some files have (to bring them to one skeleton),
         # but a name no file has is a typo, and training on the joint it meant to drop is wrong.
         # (The BVH reader selects joints itself and has checked the names of its files.)
