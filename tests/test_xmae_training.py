@@ -256,3 +256,16 @@ def test_training_gaps_apply_in_training_only():
     assert frames_without_tokens().all()
     m.eval()
     assert not frames_without_tokens().all()
+
+
+def test_loss_token_settings_are_checked_and_clean_tokens_follow_the_generator():
+    with pytest.raises(ValueError, match="no token would be scored"):
+        XMAEModule(mask_ratio=0.0, displace_ratio=0.0)
+    with pytest.raises(ValueError, match="clean_loss_ratio 0.5"):
+        XMAEModule(mask_ratio=0.85, displace_ratio=0.05, clean_loss_ratio=0.5)  # only 10 % of tokens are clean
+    skel = generate_clips(1, 1.0, fps=10, seed=0)[0].skeleton.to_dict()
+    m = XMAEModule(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16,
+                   skeleton=skel, window_fps=10.0, window_frames=10, clean_loss_ratio=0.05).eval()
+    x = torch.from_numpy(generate_clips(1, 1.0, fps=10, seed=1)[0].positions[:10])[None].repeat(8, 1, 1, 1)
+    scored = [m._corrupt_and_predict(x, torch.Generator().manual_seed(3))[4] for _ in range(2)]
+    assert torch.equal(scored[0], scored[1])  # validation's generator draws the clean tokens too

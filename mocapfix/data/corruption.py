@@ -35,12 +35,12 @@ class Corrupted(NamedTuple):
 # Drawn in float32 whatever the batch dtype: bf16 scores would tie and bias the token choice,
 # and the same seed then gives the same corruption in every precision.
 
-def _rand(shape, generator: torch.Generator | None, like: torch.Tensor) -> torch.Tensor:
+def uniform_like(shape, generator: torch.Generator | None, like: torch.Tensor) -> torch.Tensor:
     device = generator.device if generator is not None else like.device
     return torch.rand(shape, generator=generator, device=device).to(like.device)
 
 
-def _randn(shape, generator: torch.Generator | None, like: torch.Tensor) -> torch.Tensor:
+def normal_like(shape, generator: torch.Generator | None, like: torch.Tensor) -> torch.Tensor:
     device = generator.device if generator is not None else like.device
     return torch.randn(shape, generator=generator, device=device).to(like.device)
 
@@ -72,7 +72,7 @@ def _pick_random(candidates: torch.Tensor, counts: torch.Tensor, generator, like
     B, N = candidates.shape
     # Random scores, non-candidates pushed past every candidate; a token's rank in the sorted
     # scores decides whether it is among the first counts[b].
-    scores = torch.where(candidates, _rand((B, N), generator, like), 2.0)
+    scores = torch.where(candidates, uniform_like((B, N), generator, like), 2.0)
     order = scores.argsort(dim=1)
     rank = torch.empty_like(order).scatter_(1, order, torch.arange(N, device=order.device).expand(B, N))
     return candidates & (rank < counts[:, None])
@@ -92,7 +92,7 @@ def training_gaps(B: int, T: int, gap_ratio: float, generator: torch.Generator |
     Random token masking at 85% leaves a few joints in nearly every frame, so a model trained
     on it alone seldom has to carry the whole body across a long hole, which is exactly the
     evaluation's (and real data's) hardest case: the full skeleton gone for up to 0.9 s."""
-    draw = _rand((3, B), generator, like)                                          # (3, B)
+    draw = uniform_like((3, B), generator, like)                                          # (3, B)
     has_gap = draw[0] < gap_ratio
     length = 1 + (draw[1] * max(T - 2, 1)).long().clamp_max(max(T - 3, 0))        # (B,) in 1..T-2
     start = (draw[2] * (T - length + 1)).long().clamp_max(T - length)              # (B,)
@@ -144,15 +144,15 @@ def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displac
         n_disp = torch.where(n_kept >= K, D, torch.round(n_kept * (D / max(K, 1))).long())
         displaced = _pick_random(observed, n_disp, generator, positions)
     else:
-        observed = avail & (_rand((B, N), generator, positions) < keep_frac)
-        displaced = observed & (_rand((B, N), generator, positions) < disp_frac_of_kept)
+        observed = avail & (uniform_like((B, N), generator, positions) < keep_frac)
+        displaced = observed & (uniform_like((B, N), generator, positions) < disp_frac_of_kept)
 
     observed, displaced = observed.reshape(B, T, J), displaced.reshape(B, T, J)
     # Uniform in a ball: isotropic direction, radius R * u^(1/3) (volume grows as r^3).
     # Drawn for every token to keep shapes static; only displaced tokens use them.
-    direction = _randn((B, T, J, 3), generator, positions)
+    direction = normal_like((B, T, J, 3), generator, positions)
     direction = direction / direction.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    radius = max_displacement_m * _rand((B, T, J, 1), generator, positions).pow(1.0 / 3.0)
+    radius = max_displacement_m * uniform_like((B, T, J, 1), generator, positions).pow(1.0 / 3.0)
     moved = torch.where(displaced[..., None], positions + (direction * radius).to(positions.dtype), positions)
     return _pack(moved, observed, displaced)
 
@@ -242,9 +242,9 @@ def constant_displacement(positions: torch.Tensor, fps: float, gap_s: float, joi
     [min_m, max_m]; the same offset moves `joints` (None: all) over the centred gap.
     Every non-NaN token stays observed; `displaced` marks the moved ones."""
     B = positions.shape[0]
-    direction = _randn((B, 3), generator, positions)
+    direction = normal_like((B, 3), generator, positions)
     direction = direction / direction.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    length = min_m + (max_m - min_m) * _rand((B, 1), generator, positions)
+    length = min_m + (max_m - min_m) * uniform_like((B, 1), generator, positions)
     offset = (direction * length).to(positions.dtype)[:, None, None, :]  # (B, 1, 1, 3)
     observed = available(positions)
     displaced = observed & _gap_mask(positions, fps, gap_s, joints)
@@ -254,7 +254,7 @@ def constant_displacement(positions: torch.Tensor, fps: float, gap_s: float, joi
 def gaussian_noise(positions: torch.Tensor, sigma_m: float, generator: torch.Generator | None = None) -> Corrupted:
     """Gaussian noise task on positions: N(0, sigma_m^2) on each coordinate of every non-NaN token."""
     observed = available(positions)
-    noisy = positions + (sigma_m * _randn(positions.shape, generator, positions)).to(positions.dtype)
+    noisy = positions + (sigma_m * normal_like(positions.shape, generator, positions)).to(positions.dtype)
     return _pack(noisy, observed, observed.clone())
 
 
@@ -272,7 +272,7 @@ def rotation_noise(rotations: torch.Tensor, root_translation: torch.Tensor, offs
     """
     J = rotations.shape[-2]
     noisy_joint = _index_mask(J, list(range(1, J)) if joints is None else joints, rotations.device)
-    noise = (sigma_rad * _randn(rotations.shape, generator, rotations)).to(rotations.dtype)
+    noise = (sigma_rad * normal_like(rotations.shape, generator, rotations)).to(rotations.dtype)
     noisy_rot = torch.where(noisy_joint[:, None], rotations + noise, rotations)
     return noisy_rot, fk_axis_angle(noisy_rot, root_translation, offsets, parents)
 
@@ -317,5 +317,5 @@ def random_z_rotation(positions: torch.Tensor, generator: torch.Generator | None
     """Augmentation: each sample rotated about z by an angle uniform in [0, 2 pi).
     Apply after normalize so that the rotation axis passes through the window's centre.
     positions: (B, T, J, 3) -> rotated (B, T, J, 3), angle (B,); rotate targets with rotate_z(x, angle)."""
-    angle = 2.0 * math.pi * _rand((positions.shape[0],), generator, positions)
+    angle = 2.0 * math.pi * uniform_like((positions.shape[0],), generator, positions)
     return rotate_z(positions, angle), angle

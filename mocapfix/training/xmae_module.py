@@ -14,7 +14,7 @@ import lightning as L
 import torch
 import torch.nn as nn
 
-from mocapfix.data.corruption import xmae_training_input
+from mocapfix.data.corruption import uniform_like, xmae_training_input
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows, write_eval_json
@@ -92,6 +92,13 @@ class XMAEModule(L.LightningModule):
         super().__init__()
         if compile_mode not in COMPILE_MODES:
             raise ValueError(f"compile_mode must be one of {COMPILE_MODES}, got {compile_mode!r}")
+        clean = 1.0 - mask_ratio - displace_ratio  # the share of tokens left observed and clean
+        if not 0.0 <= clean_loss_ratio <= clean + 1e-9:
+            raise ValueError(f"clean_loss_ratio {clean_loss_ratio} must be in [0, 1 - mask_ratio - displace_ratio "
+                             f"= {clean:.3g}]: the share of all tokens that are clean and scored anyway")
+        if mask_ratio + displace_ratio + clean_loss_ratio <= 0.0:
+            raise ValueError("mask_ratio, displace_ratio and clean_loss_ratio are all 0: no token would be scored "
+                             "(the loss is over masked, displaced and clean_loss_ratio tokens)")
         self.save_hyperparameters()
         self.net: XMAE | None = None
         if skeleton is not None and window_frames is not None:
@@ -155,7 +162,7 @@ class XMAEModule(L.LightningModule):
         if hp.clean_loss_ratio > 0:  # BERT masking: some clean observed tokens are scored too
             clean = c.observed & ~c.displaced
             p = hp.clean_loss_ratio / (1 - hp.mask_ratio - hp.displace_ratio)
-            in_loss |= clean & (torch.rand(clean.shape, device=clean.device) < p)
+            in_loss |= clean & (uniform_like(clean.shape, generator, clean) < p)  # the val generator too
         err = (pred.float() - torch.nan_to_num(target).float()).abs().sum(-1)               # (B, T, J)
         loss = (err * in_loss).sum() / (3 * in_loss.sum().clamp_min(1))
         return loss, pred, target, c, in_loss, offset
