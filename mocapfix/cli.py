@@ -21,6 +21,7 @@ def _lightning_cli(args: list[str]):
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from mocapfix.data.datamodule import MotionDataModule
+    from mocapfix.training.monitor_check import MonitorCheck
     from mocapfix.training.predictions import WritePredictions
     from mocapfix.training.rng_state import RNGStateInCheckpoint
 
@@ -66,6 +67,7 @@ def _lightning_cli(args: list[str]):
                 # experiment) would write last-v1.ckpt beside it and leave last.ckpt stale.
                 extra.append(ModelCheckpoint(dirpath=dirpath, filename="best-{epoch}-{step}", monitor=cfg.monitor,
                                              mode="min", save_top_k=1, save_last=True, enable_version_counter=False))
+                extra.append(MonitorCheck(cfg.monitor))
                 if cfg.checkpoint_every_n_steps:
                     extra.append(ModelCheckpoint(dirpath=dirpath, every_n_train_steps=cfg.checkpoint_every_n_steps,
                                                  save_top_k=0, save_last=True, enable_version_counter=False))

@@ -269,3 +269,11 @@ def test_loss_token_settings_are_checked_and_clean_tokens_follow_the_generator()
     x = torch.from_numpy(generate_clips(1, 1.0, fps=10, seed=1)[0].positions[:10])[None].repeat(8, 1, 1, 1)
     scored = [m._corrupt_and_predict(x, torch.Generator().manual_seed(3))[4] for _ in range(2)]
     assert torch.equal(scored[0], scored[1])  # validation's generator draws the clean tokens too
+
+
+def test_a_misspelt_monitor_is_one_line_before_training(tmp_path, capsys):
+    rc = run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "mon",
+                  "--monitor", "val/mpjpe", "--trainer.max_steps", "4"], tmp_path)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and "--monitor val/mpjpe: the model logs no such metric" in err[-1] and "val/mpjpe_mm" in err[-1]
+    assert "Traceback" not in "".join(err)
