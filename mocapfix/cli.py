@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 import os
 import pickle
+import signal
 import sys
 from pathlib import Path
 
@@ -21,6 +22,7 @@ def _lightning_cli(args: list[str]):
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from mocapfix.data.datamodule import MotionDataModule
+    from mocapfix.training.interrupt_checkpoint import CheckpointOnInterrupt
     from mocapfix.training.monitor_check import MonitorCheck
     from mocapfix.training.predictions import WritePredictions
     from mocapfix.training.rng_state import RNGStateInCheckpoint
@@ -68,6 +70,7 @@ def _lightning_cli(args: list[str]):
                 extra.append(ModelCheckpoint(dirpath=dirpath, filename="best-{epoch}-{step}", monitor=cfg.monitor,
                                              mode="min", save_top_k=1, save_last=True, enable_version_counter=False))
                 extra.append(MonitorCheck(cfg.monitor))
+                extra.append(CheckpointOnInterrupt(dirpath / "last.ckpt"))
                 if cfg.checkpoint_every_n_steps:
                     extra.append(ModelCheckpoint(dirpath=dirpath, every_n_train_steps=cfg.checkpoint_every_n_steps,
                                                  save_top_k=0, save_last=True, enable_version_counter=False))
@@ -154,8 +157,13 @@ def main(argv: list[str] | None = None) -> int:
                   "       mocapfix inspect FILE... [--json]\n"
                   "       mocapfix fix INPUT... --ckpt CKPT [-o OUT | --out-dir DIR] [--mode infill|denoise|both]\n"
                   "       mocapfix demo\n")
+        from lightning.pytorch.utilities.exceptions import SIGTERMException
         try:
             _lightning_cli(argv)
+        except SIGTERMException:  # a SystemExit without a code: the shell would read success
+            print(f"mocapfix {command}: stopped by SIGTERM (a fit keeps its state in checkpoints/<experiment>/"
+                  "last.ckpt)", file=sys.stderr)
+            return 128 + signal.SIGTERM
         except ValueError as e:  # the project's input checks (MotionFileError is one) say file and problem
             if os.environ.get("MOCAPFIX_TRACEBACK"):
                 raise

@@ -2,8 +2,11 @@
 from __future__ import annotations
 
 import json
+import os
 import pickle
+import signal
 
+import lightning as L
 import numpy as np
 import pytest
 import torch
@@ -277,3 +280,22 @@ def test_a_misspelt_monitor_is_one_line_before_training(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and "--monitor val/mpjpe: the model logs no such metric" in err[-1] and "val/mpjpe_mm" in err[-1]
     assert "Traceback" not in "".join(err)
+
+
+class SigtermAtStep3(L.Callback):
+    """What a scheduler's SIGTERM does in the middle of training."""
+
+    def on_train_batch_end(self, trainer, *args):
+        if trainer.global_step == 3:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+
+def test_sigterm_during_fit_keeps_the_step_reached_and_exits_nonzero(tmp_path, capsys):
+    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "term",
+              "--trainer.val_check_interval", "2"]
+    rc = run_cli([*common, "--trainer.max_steps", "100", "--trainer.callbacks+=test_xmae_training.SigtermAtStep3"],
+                 tmp_path)
+    assert rc == 128 + signal.SIGTERM and "stopped by SIGTERM" in capsys.readouterr().err
+    last = tmp_path / "checkpoints" / "term" / "last.ckpt"
+    assert torch.load(last, map_location="cpu", weights_only=True)["global_step"] == 3  # not 2, the last validation
+    assert run_cli([*common, "--trainer.max_steps", "5", "--ckpt_path", "last"], tmp_path) == 0
