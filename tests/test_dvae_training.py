@@ -153,3 +153,8 @@ def test_optimizer_is_adamax_or_adam():
         assert type(opt) is cls and opt.param_groups[0]["lr"] == 3e-4
     with pytest.raises(ValueError, match="optimizer"):
         MotionDVAEModule(optimizer="sgd", **sizes)
+
+
+def test_group_norm_setting_names_its_options():
+    with pytest.raises(ValueError, match=r"mlp_hidden \(20\) must be a multiple of norm_groups \(16\)"):
+        MotionDVAEModule(mlp_hidden=20)

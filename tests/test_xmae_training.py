@@ -262,6 +262,8 @@ def test_training_gaps_apply_in_training_only():
 
 
 def test_loss_token_settings_are_checked_and_clean_tokens_follow_the_generator():
+    with pytest.raises(ValueError, match="max_displacement_m must be >= 0"):
+        XMAEModule(max_displacement_m=-1.0)
     with pytest.raises(ValueError, match="no token would be scored"):
         XMAEModule(mask_ratio=0.0, displace_ratio=0.0)
     with pytest.raises(ValueError, match="clean_loss_ratio 0.5"):

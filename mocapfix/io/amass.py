@@ -132,8 +132,9 @@ def read_amass(path, body_model_path: str | None = None, gender: str | None = No
     (72 SMPL, 156 SMPL-H, 165 SMPL-X) and the gender the file's, unless `gender` is given."""
     path = Path(path)
     if body_model_path is None:
-        raise MotionFileError(path, "AMASS positions need an SMPL-H body model: pass body_model_path "
-                                    "(your model file or the folder holding smplh/SMPLH_<GENDER>.pkl)")
+        raise MotionFileError(path, "AMASS positions need an SMPL-H body model: give its path (--body-model "
+                                    "for inspect and fix, data.body_model_path for training: your model file "
+                                    "or the folder holding smplh/SMPLH_<GENDER>.pkl)")
     smplx = _import_smplx(path)
     import torch  # after smplx: a clear message when the extra is missing
 

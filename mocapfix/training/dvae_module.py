@@ -168,6 +168,9 @@ class MotionDVAEModule(L.LightningModule):
             raise ValueError(f"optimizer must be 'adamax' or 'adam', got {optimizer!r}")
         if rotation_reference not in ("mean", "identity"):
             raise ValueError(f"rotation_reference must be 'mean' or 'identity', got {rotation_reference!r}")
+        if norm_groups < 1 or mlp_hidden % norm_groups:
+            raise ValueError(f"mlp_hidden ({mlp_hidden}) must be a multiple of norm_groups ({norm_groups}): "
+                             "the MLPs' GroupNorm splits their hidden units into that many groups")
         super().__init__()
         self.save_hyperparameters()
         self.net: MotionDVAE | None = None

@@ -92,6 +92,8 @@ class XMAEModule(L.LightningModule):
         super().__init__()
         if compile_mode not in COMPILE_MODES:
             raise ValueError(f"compile_mode must be one of {COMPILE_MODES}, got {compile_mode!r}")
+        if max_displacement_m < 0:
+            raise ValueError(f"max_displacement_m must be >= 0 (a distance in metres), got {max_displacement_m}")
         clean = 1.0 - mask_ratio - displace_ratio  # the share of tokens left observed and clean
         if not 0.0 <= clean_loss_ratio <= clean + 1e-9:
             raise ValueError(f"clean_loss_ratio {clean_loss_ratio} must be in [0, 1 - mask_ratio - displace_ratio "
