@@ -2,6 +2,7 @@
 resume, and the positions state on data without rotations."""
 from __future__ import annotations
 
+import json
 import shutil
 from types import SimpleNamespace
 
@@ -158,3 +159,13 @@ def test_optimizer_is_adamax_or_adam():
 def test_group_norm_setting_names_its_options():
     with pytest.raises(ValueError, match=r"mlp_hidden \(20\) must be a multiple of norm_groups \(16\)"):
         MotionDVAEModule(mlp_hidden=20)
+
+
+def test_prior_test_writes_eval_json(tmp_path, capsys):
+    common = ["--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU, "--experiment", "t"]
+    assert run_cli(["fit", *common, "--trainer.max_steps", "1", "--trainer.val_check_interval", "1"], tmp_path) == 0
+    capsys.readouterr()
+    assert run_cli(["test", *common, "--ckpt_path", tmp_path / "checkpoints" / "t" / "last.ckpt"], tmp_path) == 0
+    path = capsys.readouterr().out.strip().splitlines()[-1].removeprefix("eval.json: ")
+    [row] = json.loads((tmp_path / path).read_text())
+    assert row["method"] == "dvae_prior" and row["mpjpe_mm"] > 0

@@ -12,6 +12,7 @@ hyperparameters so a checkpoint alone rebuilds them (the denoising stage loads i
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import NamedTuple
 
 import lightning as L
@@ -19,6 +20,7 @@ import torch
 
 from mocapfix.data.datamodule import complete_windows
 from mocapfix.evaluation.metrics import MPJPE
+from mocapfix.evaluation.tasks import write_eval_json
 from mocapfix.models.body import build_body_model
 from mocapfix.models.dvae import MotionDVAE, gaussian_kl
 from mocapfix.models.dvae_state import MotionState, mean_joint_rotations, velocity_mask
@@ -307,6 +309,18 @@ class MotionDVAEModule(L.LightningModule):
 
     def test_step(self, batch, batch_idx):
         self._evaluate(batch, "test")
+
+    def on_test_epoch_end(self):
+        # The prior's own test: how well it reconstructs clean windows (the floor of the
+        # denoising stage's MPJPE), in eval.json as XMAE's and the denoiser's tables are.
+        if not self.test_mpjpe.update_called:
+            return
+        rows = [{"task": "reconstruction", "part": "full", "method": "dvae_prior",
+                 "mpjpe_mm": round(float(self.test_mpjpe.compute()), 2)}]
+        if self.trainer.is_global_zero:
+            log_dir = Path(self.logger.log_dir if self.logger and self.logger.log_dir
+                           else self.trainer.default_root_dir)
+            self.eval_json_path = write_eval_json(log_dir / "eval.json", rows)
 
     def predict_step(self, batch, batch_idx):
         raise ValueError("a Motion-DVAE prior checkpoint models clean motion and does not denoise: predict "
