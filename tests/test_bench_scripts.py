@@ -200,3 +200,36 @@ def test_shrink_checkpoint_keeps_weights_and_hparams(tmp_path):
         assert "optimizer_states" not in small and small["hyper_parameters"] == {"lr": 1e-4}
         assert small["state_dict"]["w"].dtype == dtype and small["state_dict"]["n"].dtype == torch.int64
         torch.testing.assert_close(small["state_dict"]["w"].float(), full["state_dict"]["w"], atol=1e-2, rtol=1e-2)
+
+
+def test_fast_path_accuracy_runs_fit_and_test_per_seed(tmp_path):
+    """Plumbing only (the plain path, two seeds of two steps, tiny model): each run's eval.json
+    comes back and the table compares paths by case."""
+    from cli_utils import SMALL_DATA, TINY
+    r = bench("fast_path_accuracy", "--device", "cpu", "--config", REPO / "configs" / "xmae.yaml", "--paths", "plain",
+              "--seeds", "0,1", "--jobs", "2", "--steps", "2", "--batch", "4", "--data-source", "synthetic", "--data-path", "none",
+              "--workdir", tmp_path / "runs", *TINY, *SMALL_DATA, "--model.init_args.eval_gaps_s", "[0.3]",
+              tmp_path=tmp_path)
+    assert [(run["path"], run["seed"]) for run in r["runs"]] == [("plain", 0), ("plain", 1)]
+    cases = {row["case"]: row for row in r["table"]}
+    assert "infill full 0.3 s" in cases and "noise full 2 cm" in cases
+    row = cases["infill full 0.3 s"]
+    assert len(row["plain"]) == 2 and row["plain_range"] == round(max(row["plain"]) - min(row["plain"]), 2)
+    assert (tmp_path / "runs" / "plain-seed1" / "checkpoints" / "run" / "last.ckpt").is_file()
+
+
+def test_fast_path_accuracy_compares_against_the_seed_range():
+    sys.path.insert(0, str(REPO / "bench"))
+    try:
+        from fast_path_accuracy import compare
+    finally:
+        sys.path.remove(str(REPO / "bench"))
+    rows = lambda value: [{"task": "infill", "part": "full", "gap_s": 0.5, "method": m, "mpjpe_mm": value}
+                          for m in ("xmae", "lerp")]
+    runs = [{"path": "plain", "rows": rows(20.0)}, {"path": "plain", "rows": rows(22.0)},
+            {"path": "fast", "rows": rows(23.0)}, {"path": "fast", "rows": rows(24.0)}]
+    (row,) = compare(runs, ["plain", "fast"])
+    assert row["case"] == "infill full 0.5 s" and row["plain_mean"] == 21.0 and row["fast_mean"] == 23.5
+    assert row["difference"] == 2.5 and row["plain_range"] == 2.0 and not row["within_seed_range"]
+    runs[0]["rows"] = rows(19.0)  # a wider spread between seeds: the same difference is noise
+    assert compare(runs, ["plain", "fast"])[0]["within_seed_range"]
