@@ -182,3 +182,27 @@ def test_split_of_path():
     assert amass_split_of("/data/AMASS/HumanEva/S1/walk_poses.npz") == "test"
     assert amass_split_of("/data/AMASS/SFU/0005/x.npz") == "val"
     assert amass_split_of("/data/other/x.npz") is None
+
+
+def test_betas_per_frame_are_one_body_shape(tmp_path, smplh_folder):
+    """(T, B) betas, the same on every frame, give the (B,) file's body (they were flattened: row 0
+    and part of row 1); rows that differ, or non-finite or non-numeric betas, are one-line errors."""
+    pytest.importorskip("smplx")
+    one, per_frame = tmp_path / "one.npz", tmp_path / "per_frame.npz"
+    d = _amass(one, T=4, pose_dim=156, num_betas=10, gender="female")  # a model with 16 components
+    np.savez(per_frame, **dict(d, betas=np.tile(d["betas"], (4, 1))))
+    [a] = read_amass(one, body_model_path=smplh_folder / "amass")
+    [b] = read_amass(per_frame, body_model_path=smplh_folder / "amass")
+    np.testing.assert_allclose(b.positions, a.positions, atol=1e-6)
+    assert b.meta["betas_in_file"] == b.meta["betas_used"] == 10
+    bad = tmp_path / "bad.npz"
+    for betas, match in ((np.tile(d["betas"], (4, 1)) + np.arange(4)[:, None], "change from frame to frame"),
+                         (np.full(10, np.nan), "not all finite"), (np.array(["abc"] * 10), "must be numbers"),
+                         (np.zeros((2, 2, 10)), "must be")):
+        np.savez(bad, **dict(d, betas=betas))
+        with pytest.raises(MotionFileError, match=match) as e:
+            read_amass(bad, body_model_path=smplh_folder / "amass")
+        assert str(e.value).startswith(str(bad)) and "\n" not in str(e.value)
+    np.savez(bad, **dict(d, poses=d["poses"] > 0))
+    with pytest.raises(MotionFileError, match="poses must be numbers"):
+        read_amass(bad, body_model_path=smplh_folder / "amass")

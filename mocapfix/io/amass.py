@@ -124,6 +124,24 @@ def load_body_model(model_file: Path) -> dict:
     return out
 
 
+def _body_shape(path, betas: np.ndarray) -> np.ndarray:
+    """betas as one (B,) vector. Some exports repeat it on every frame, (T, B): one body shape
+    still, as long as the rows agree (flattening would read row 0 plus part of row 1)."""
+    if betas.dtype.kind not in "iuf":
+        raise MotionFileError(path, f"betas must be numbers, got dtype {betas.dtype}")
+    if betas.ndim == 2 and len(betas) > 1:
+        if not np.allclose(betas, betas[:1], rtol=0, atol=1e-6, equal_nan=True):
+            raise MotionFileError(path, f"betas {betas.shape} change from frame to frame: one body shape per "
+                                        "file is supported")
+        betas = betas[:1]
+    if betas.ndim > 2 or betas.size == 0:
+        raise MotionFileError(path, f"betas must be (B,) or (frames, B), got {betas.shape}")
+    betas = betas.astype(np.float64).reshape(-1)
+    if not np.isfinite(betas).all():
+        raise MotionFileError(path, "betas (body shape) are not all finite")
+    return betas
+
+
 def read_amass(path, body_model_path: str | None = None, gender: str | None = None, groups=None) -> list[Clip]:
     """AMASS .npz -> one Clip (22 joints, metres, z up) with the rotations that reproduce it.
 
@@ -151,7 +169,9 @@ def read_amass(path, body_model_path: str | None = None, gender: str | None = No
         betas = npz_array(path, data, "betas") if "betas" in data.files else None
         file_gender = _npz_str(path, data, "gender")
         surface = _npz_str(path, data, "surface_model_type")
-    if poses.dtype.kind not in "iuf" or poses.ndim != 2 or poses.shape[1] < 3 * NUM_BODY_JOINTS \
+    if poses.dtype.kind not in "iuf":
+        raise MotionFileError(path, f"poses must be numbers (axis-angle, radians), got dtype {poses.dtype}")
+    if poses.ndim != 2 or poses.shape[1] < 3 * NUM_BODY_JOINTS \
             or poses.shape[1] % 3 or poses.shape[0] == 0:
         raise MotionFileError(path, f"poses must be (frames, 3 x joints) with at least 22 joints, got {poses.shape}")
     T = poses.shape[0]
@@ -161,7 +181,7 @@ def read_amass(path, body_model_path: str | None = None, gender: str | None = No
         raise MotionFileError(path, f"mocap framerate must be one positive number, got {fps!r}")
     if betas is None:
         raise MotionFileError(path, "no betas (body shape)")
-    betas = np.asarray(betas, dtype=np.float64).reshape(-1)
+    betas = _body_shape(path, betas)
     gender = (gender or file_gender or "").lower()
     if not gender:
         raise MotionFileError(path, "no gender in the file: pass gender= ('male', 'female' or 'neutral')")
