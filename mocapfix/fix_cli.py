@@ -132,10 +132,13 @@ class Progress:
 
 
 def _one_line(path, e: BaseException) -> str:
-    """MotionFileError reads "path: problem"; anything else gets the path and its type."""
+    """MotionFileError reads "path: problem"; anything else gets the path and its type. A
+    MotionFileError about another file (the body model) gets the input's path in front."""
     text = " ".join(str(e).split())
-    if isinstance(e, MotionFileError) or text.startswith(str(path)):
+    if text.startswith(str(path)):
         return text
+    if isinstance(e, MotionFileError):
+        return text if Path(e.path).resolve() == Path(path).resolve() else f"{path}: {text}"
     return f"{path}: {type(e).__name__}: {text}" if text else f"{path}: {type(e).__name__}"
 
 
@@ -255,6 +258,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.out and (len(args.paths) > 1 or Path(args.paths[0]).is_dir()):
         ap.error("-o/--out takes one input file; use --out-dir for several")
+    if args.out_dir and Path(args.out_dir).exists() and not Path(args.out_dir).is_dir():
+        ap.error(f"--out-dir {args.out_dir} is a file, not a folder")
     if args.batch_size < 1:
         ap.error("--batch-size must be at least 1")
     if not 0.0 <= args.overlap < 1.0:

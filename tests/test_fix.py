@@ -619,3 +619,27 @@ def test_precision_auto_and_bad_values():
     assert resolve_precision("auto", torch.device("cpu")) in ("fp32", "bf16")
     with pytest.raises(ValueError):
         resolve_precision("fp16", torch.device("cpu"))
+
+
+def test_wrong_command_lines_are_usage_errors(tmp_path, ckpt, motion, capsys):
+    """--out-dir naming a file and a non-positive --fps are the command line's fault (exit 2, one
+    message), not an error per input file (exit 1, repeated)."""
+    write_positions(tmp_path / "a.npz", motion[0], 30, SMPL)
+    (tmp_path / "afile").write_text("x")
+    for extra, message in ((["--out-dir", tmp_path / "afile"], "is a file, not a folder"),
+                           (["--fps", "0"], "--fps: must be a positive number"),
+                           (["--fps", "nan"], "--fps: must be a positive number")):
+        with pytest.raises(SystemExit) as e:
+            main(["fix", str(tmp_path / "a.npz"), "--ckpt", str(ckpt), *map(str, extra)])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and message in err and "a.npz" not in err
+
+
+def test_an_error_about_another_file_names_the_input_too(tmp_path):
+    from mocapfix.clip import MotionFileError
+    from mocapfix.fix_cli import _one_line
+    models = MotionFileError(tmp_path / "models", "no SMPLH model for gender 'robot'")
+    assert _one_line(tmp_path / "a.npz", models) == f"{tmp_path / 'a.npz'}: {tmp_path / 'models'}: no SMPLH model for gender 'robot'"
+    own = MotionFileError(tmp_path / "a.npz", "no betas (body shape)")
+    assert _one_line(tmp_path / "a.npz", own) == f"{tmp_path / 'a.npz'}: no betas (body shape)"
+    assert _one_line(tmp_path / "a.npz", ValueError("bad")) == f"{tmp_path / 'a.npz'}: ValueError: bad"

@@ -6,7 +6,9 @@ file should not pay for.
 """
 from __future__ import annotations
 
+import argparse
 import inspect
+import math
 from pathlib import Path
 
 from mocapfix.clip import Clip, MotionFileError
@@ -14,12 +16,23 @@ from mocapfix.clip import Clip, MotionFileError
 SOURCES = ("auto", "bvh", "positions", "h36m", "amass")
 
 
+def _frame_rate(text: str) -> float:
+    """--fps: a wrong command line (exit 2), not a failure of every file read with it."""
+    try:
+        fps = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(fps) and fps > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of frames per second, got {text}")
+    return fps
+
+
 def add_read_arguments(parser) -> None:
     """The reader options every file-taking command shares (inspect, fix): an argparse parser."""
     parser.add_argument("--source", default="auto", choices=SOURCES)
     parser.add_argument("--unit", default="auto", help="override the file's unit: m, cm, mm")
     parser.add_argument("--up-axis", default="auto", help="override the file's up axis: z, y")
-    parser.add_argument("--fps", type=float, default=None, help="frame rate for files that lack one")
+    parser.add_argument("--fps", type=_frame_rate, default=None, help="frame rate for files that lack one")
     parser.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
 _EXTENSIONS = {"bvh": (".bvh",), "positions": (".npz", ".csv"), "h36m": (".npz",), "amass": (".npz",),
                "auto": (".bvh", ".csv", ".npz")}
