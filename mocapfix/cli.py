@@ -110,14 +110,29 @@ def _lightning_cli(args: list[str]):
                 print(f"eval.json: {path}")
 
     torch.set_float32_matmul_precision("high")
-    return MocapCLI(
-        datamodule_class=MotionDataModule,
-        subclass_mode_model=True,
-        args=None if args == sys.argv[1:] else args,  # LightningCLI warns when given both
-        parser_kwargs={"parser_mode": "omegaconf"},
-        save_config_kwargs={"overwrite": True},
-        auto_configure_optimizers=False,
-    )
+    # LightningCLI reads sys.argv, and warns when it is given args beside a non-empty sys.argv (as
+    # for `mocapfix demo` or a call from Python): hand it the arguments as sys.argv for the run.
+    argv_before = sys.argv
+    sys.argv = [argv_before[0] if argv_before else "mocapfix", *args]
+    try:
+        return MocapCLI(
+            datamodule_class=MotionDataModule,
+            subclass_mode_model=True,
+            parser_kwargs={"parser_mode": "omegaconf"},
+            save_config_kwargs={"overwrite": True},
+            auto_configure_optimizers=False,
+        )
+    finally:
+        sys.argv = argv_before
+
+
+def _own_error(e: ValueError) -> BaseException:
+    """The error a model's or data module's own setting check raised. jsonargparse wraps one raised
+    while it builds the class in "Does not validate against any of the Union subtypes", followed
+    by every setting of the class: the user needs the line that names their setting."""
+    while str(e).startswith("Does not validate against any of the Union subtypes") and e.__cause__ is not None:
+        e = e.__cause__
+    return e
 
 
 class _StderrHandler(logging.StreamHandler):
@@ -151,7 +166,11 @@ def main(argv: list[str] | None = None) -> int:
     if command == "demo":
         from mocapfix.demo import main as demo_main
         return demo_main(argv[1:])
-    if command in LIGHTNING_COMMANDS or command in ("-h", "--help", "--version"):
+    if command in ("-V", "--version"):
+        from mocapfix import __version__
+        print(f"mocapfix {__version__}")
+        return 0
+    if command in LIGHTNING_COMMANDS or command in ("-h", "--help"):
         if command in ("-h", "--help"):
             print("usage: mocapfix {fit,validate,test,predict} --config FILE [--key.path value ...]\n"
                   "       mocapfix inspect FILE... [--json]\n"
@@ -167,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as e:  # the project's input checks (MotionFileError is one) say file and problem
             if os.environ.get("MOCAPFIX_TRACEBACK"):
                 raise
-            print(f"mocapfix {command}: {e}  (MOCAPFIX_TRACEBACK=1 for the traceback)", file=sys.stderr)
+            print(f"mocapfix {command}: {_own_error(e)}  (MOCAPFIX_TRACEBACK=1 for the traceback)", file=sys.stderr)
             return 2
         return 0
     print(f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect, fix or demo", file=sys.stderr)

@@ -222,6 +222,37 @@ def test_missing_data_is_one_line_naming_the_path(tmp_path, capsys):
     assert f"{missing}: no such file or folder" in err[-1] and "Traceback" not in "".join(err)
 
 
+def test_a_model_setting_error_is_its_own_line(tmp_path, capsys):
+    """A setting the module's constructor refuses: its message alone, not jsonargparse's union
+    error with every setting of the model dumped after it."""
+    rc = run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *QUIET, "--model.init_args.mask_ratio", "1.5"],
+                 tmp_path)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert err[0].startswith("mocapfix fit: mask_ratio must be in [0, 1]")
+
+
+def test_demo_finds_the_checkout_config_from_an_installed_package(tmp_path, monkeypatch):
+    """`pip install .` copies the package without configs/: the demo then takes the checkout in the
+    working folder, or --config, and says so when there is neither."""
+    import mocapfix.demo as demo
+    monkeypatch.setattr(demo, "CONFIG", tmp_path / "site-packages" / "configs" / "xmae.yaml")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit, match="run it in a checkout of the repository, or give --config"):
+        demo.find_config(None)
+    (tmp_path / "configs").mkdir()
+    (tmp_path / "configs" / "xmae.yaml").write_text("model: {}\n")
+    assert demo.find_config(None) == tmp_path / "configs" / "xmae.yaml"
+    with pytest.raises(SystemExit, match="other.yaml not found"):
+        demo.find_config("other.yaml")
+
+
+def test_version(capsys):
+    from mocapfix import __version__
+    from mocapfix.cli import main
+    assert main(["--version"]) == 0 and capsys.readouterr().out.strip() == f"mocapfix {__version__}"
+
+
 def test_wrong_key_is_a_short_error(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         run_cli(["fit", "--config", CONFIGS / "xmae.yaml", "--model.init_args.mask_ratoi", "0.5"], tmp_path)
@@ -264,6 +295,13 @@ def test_training_gaps_apply_in_training_only():
 def test_loss_token_settings_are_checked_and_clean_tokens_follow_the_generator():
     with pytest.raises(ValueError, match="max_displacement_m must be >= 0"):
         XMAEModule(max_displacement_m=-1.0)
+    with pytest.raises(ValueError, match="mask_ratio must be in"):
+        XMAEModule(mask_ratio=1.5)
+    with pytest.raises(ValueError, match=r"mask_ratio \+ displace_ratio must be at most 1"):
+        XMAEModule(mask_ratio=1.0, displace_ratio=0.05)
+    for sizes in (dict(enc_dim=30, head_dim=16), dict(dec_dim=40, head_dim=16), dict(head_dim=0)):
+        with pytest.raises(ValueError, match="must be multiples of head_dim"):
+            XMAEModule(**sizes)
     with pytest.raises(ValueError, match="no token would be scored"):
         XMAEModule(mask_ratio=0.0, displace_ratio=0.0)
     with pytest.raises(ValueError, match="clean_loss_ratio 0.5"):

@@ -92,6 +92,15 @@ class XMAEModule(L.LightningModule):
         super().__init__()
         if compile_mode not in COMPILE_MODES:
             raise ValueError(f"compile_mode must be one of {COMPILE_MODES}, got {compile_mode!r}")
+        if head_dim < 1 or enc_dim % head_dim or dec_dim % head_dim:
+            raise ValueError(f"enc_dim ({enc_dim}) and dec_dim ({dec_dim}) must be multiples of head_dim ({head_dim}): "
+                             "attention splits each width into heads of head_dim channels")
+        for name, ratio in (("mask_ratio", mask_ratio), ("displace_ratio", displace_ratio)):
+            if not 0.0 <= ratio <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1] (a fraction of all tokens), got {ratio}")
+        if mask_ratio + displace_ratio > 1.0:
+            raise ValueError(f"mask_ratio + displace_ratio must be at most 1 (fractions of the same tokens), "
+                             f"got {mask_ratio} + {displace_ratio}")
         if max_displacement_m < 0:
             raise ValueError(f"max_displacement_m must be >= 0 (a distance in metres), got {max_displacement_m}")
         clean = 1.0 - mask_ratio - displace_ratio  # the share of tokens left observed and clean
