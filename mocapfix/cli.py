@@ -111,9 +111,10 @@ def _lightning_cli(args: list[str]):
 
     torch.set_float32_matmul_precision("high")
     # LightningCLI reads sys.argv, and warns when it is given args beside a non-empty sys.argv (as
-    # for `mocapfix demo` or a call from Python): hand it the arguments as sys.argv for the run.
+    # for `mocapfix demo` or a call from Python): hand it the arguments as sys.argv for the run,
+    # under the name its usage lines should show (not __main__.py).
     argv_before = sys.argv
-    sys.argv = [argv_before[0] if argv_before else "mocapfix", *args]
+    sys.argv = ["mocapfix", *args]
     try:
         return MocapCLI(
             datamodule_class=MotionDataModule,
@@ -156,7 +157,16 @@ def main(argv: list[str] | None = None) -> int:
         handler.setFormatter(logging.Formatter("%(message)s"))
         logger.addHandler(handler)
     logger.setLevel(logging.INFO)
-    command = argv[0] if argv else "--help"
+    command = argv[0] if argv else None
+    if command in (None, "-h", "--help"):
+        print("usage: mocapfix {fit,validate,test,predict} --config FILE [--key.path value ...]\n"
+              "       mocapfix inspect FILE... [--json]\n"
+              "       mocapfix fix INPUT... --ckpt CKPT [-o OUT | --out-dir DIR] [--mode infill|denoise|both]\n"
+              "       mocapfix demo\n"
+              "       mocapfix --version\n"
+              "`mocapfix COMMAND --help` lists its options; `mocapfix fit --config FILE --print_config` every setting.",
+              file=sys.stdout if command else sys.stderr)
+        return 0 if command else 2
     if command == "inspect":
         from mocapfix.inspect import main as inspect_main
         return inspect_main(argv[1:])
@@ -170,12 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         from mocapfix import __version__
         print(f"mocapfix {__version__}")
         return 0
-    if command in LIGHTNING_COMMANDS or command in ("-h", "--help"):
-        if command in ("-h", "--help"):
-            print("usage: mocapfix {fit,validate,test,predict} --config FILE [--key.path value ...]\n"
-                  "       mocapfix inspect FILE... [--json]\n"
-                  "       mocapfix fix INPUT... --ckpt CKPT [-o OUT | --out-dir DIR] [--mode infill|denoise|both]\n"
-                  "       mocapfix demo\n")
+    if command in LIGHTNING_COMMANDS:
         from lightning.pytorch.utilities.exceptions import SIGTERMException
         try:
             _lightning_cli(argv)

@@ -339,3 +339,11 @@ def test_sigterm_during_fit_keeps_the_step_reached_and_exits_nonzero(tmp_path, c
     last = tmp_path / "checkpoints" / "term" / "last.ckpt"
     assert torch.load(last, map_location="cpu", weights_only=True)["global_step"] == 3  # not 2, the last validation
     assert run_cli([*common, "--trainer.max_steps", "5", "--ckpt_path", "last"], tmp_path) == 0
+
+
+def test_no_command_is_the_usage_and_a_usage_error(capsys):
+    from mocapfix.cli import main
+    assert main([]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.startswith("usage: mocapfix") and "Traceback" not in captured.err
+    assert main(["--help"]) == 0 and "mocapfix fix INPUT" in capsys.readouterr().out
