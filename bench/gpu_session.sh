@@ -12,6 +12,7 @@
 #   bash bench/gpu_session.sh profile        # issue 6: where the compiled XMAE training step's time goes (~2 min)
 #   bash bench/gpu_session.sh tune           # issue 6: the kernel-time levers: attention backends, max-autotune
 #   bash bench/gpu_session.sh gpu-tests      # the tests marked gpu (CUDA paths: CUDA graphs, bf16, resume across devices)
+#   bash bench/gpu_session.sh accuracy       # issue 6: XMAE test tables, fast path vs plain path, two seeds each
 #
 # A run longer than one call: the machine keeps checkpoints/ while it stays warm (~30 s between
 # calls), so back-to-back calls with RESUME=1 continue last.ckpt. MAX_TIME / PRIOR_TIME count the
@@ -28,7 +29,7 @@
 # STEPS / MAX_TIME (xmae), PRIOR_TIME / DENOISE_TIME (dvae) trim the runs to the call's 10 minutes.
 # Results land in $OUT (the device tool brings them back): eval tables, bench JSON, a small checkpoint.
 set -euo pipefail
-PART=${1:?usage: gpu_session.sh prepare|xmae|bench|profile|tune|gpu-tests|dvae|dvae-prior|dvae-denoise|dvae-speed}
+PART=${1:?usage: gpu_session.sh prepare|xmae|bench|profile|tune|gpu-tests|accuracy|dvae|dvae-prior|dvae-denoise|dvae-speed}
 if [ "$PART" = prepare ]; then  # on this machine, before the calls: what they carry
   mkdir -p .device_data .whl
   cp ../shared/bench/ref_xmae.py .device_data/
@@ -123,6 +124,15 @@ tune)
     -e "LOCAL_RANK" -e "Tip:" | tail -n 8
   $PY bench/inference.py --compile --compile-mode max-autotune --json-out "$OUT/inference-cuda-autotune.json" 2>&1 | tail -n 12
   ;;
+accuracy)
+  # Issue 6's "no regression in accuracy": paper-sized XMAE on Bandai, the plain path (fp32, eager,
+  # DataLoader) against the fast path (bf16, compiled, data on the GPU), two seeds each, both
+  # paths of a seed at once on the one GPU (the speed does not matter here). Not yet run on a GPU:
+  # the fp32 eager step is untimed there; STEPS=3000 fits the call's 10 minutes if it is under ~70 ms.
+  $PY bench/fast_path_accuracy.py --device cuda --steps "${STEPS:-3000}" --seeds "${SEEDS:-0,1}" --jobs 2 \
+    --data-source archive --data-path .device_data/bandai_pos30.npz --workdir /tmp/fast_path_accuracy \
+    --json-out "$OUT/fast_path_accuracy-cuda.json" "${EXTRA_ARGS[@]}" 2>&1 | tail -n 20
+  ;;
 dvae-speed)
   # a few minutes: is the prior's step faster compiled? (decides COMPILE=1 for dvae-prior)
   $PY bench/dvae_speed.py --compile --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10
@@ -165,6 +175,6 @@ dvae|dvae-prior|dvae-denoise)
   fi
   ;;
 *)
-  echo "unknown part $PART (xmae | bench | profile | tune | gpu-tests | dvae | dvae-prior | dvae-denoise | dvae-speed)" >&2; exit 2 ;;
+  echo "unknown part $PART (xmae | bench | profile | tune | gpu-tests | accuracy | dvae | dvae-prior | dvae-denoise | dvae-speed)" >&2; exit 2 ;;
 esac
 ls -la "$OUT"
