@@ -111,7 +111,9 @@ def compare(runs: list[dict], paths: list[str]) -> list[dict]:
             a, b = paths
             entry["difference"] = round(entry[f"{b}_mean"] - entry[f"{a}_mean"], 2)
             noise = max(entry[f"{a}_range"], entry[f"{b}_range"])
-            entry["within_seed_range"] = abs(entry["difference"]) <= noise
+            # one seed per path: no estimate of the noise, no verdict
+            few = min(len(by_path.get(a, [])), len(by_path.get(b, []))) < 2
+            entry["within_seed_range"] = None if few else abs(entry["difference"]) <= noise
         out.append(entry)
     return out
 
@@ -152,7 +154,7 @@ def main() -> None:
         columns += [("difference_cell", f"{paths[1]} - {paths[0]} mm"), ("verdict", "within seed range")]
     cells = [{"case": e["case"], **{f"{p}_cell": f"{e[p + '_mean']} ({e[p + '_range']})" for p in paths},
               "difference_cell": f"{e.get('difference', 0):+.2f}",
-              "verdict": "yes" if e.get("within_seed_range") else "no"} for e in table]
+              "verdict": {True: "yes", False: "no"}.get(e.get("within_seed_range"), "-")} for e in table]
     print_table(f"XMAE test MPJPE, {len(seeds)} seeds per path, {args.steps} steps of batch {args.batch}"
                 f"{' (small XMAE)' if args.small else ''}, {describe(args.device)['device']}", cells, columns)
     result = {"env": describe(args.device), "threads_per_run": args.threads or None, "jobs": args.jobs, "steps": args.steps, "batch": args.batch, "small": args.small,

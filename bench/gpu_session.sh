@@ -129,7 +129,7 @@ accuracy)
   # DataLoader) against the fast path (bf16, compiled, data on the GPU), two seeds each, both
   # paths of a seed at once on the one GPU (the speed does not matter here). Not yet run on a GPU:
   # the fp32 eager step is untimed there; STEPS=3000 fits the call's 10 minutes if it is under ~70 ms.
-  $PY bench/fast_path_accuracy.py --device cuda --steps "${STEPS:-3000}" --seeds "${SEEDS:-0,1}" --jobs 2 \
+  $PY bench/fast_path_accuracy.py --device "${DEVICE:-cuda}" --steps "${STEPS:-3000}" --seeds "${SEEDS:-0,1}" --jobs 2 \
     --data-source archive --data-path .device_data/bandai_pos30.npz --workdir /tmp/fast_path_accuracy \
     --json-out "$OUT/fast_path_accuracy-cuda.json" "${EXTRA_ARGS[@]}" 2>&1 | tail -n 20
   ;;

@@ -233,3 +233,4 @@ def test_fast_path_accuracy_compares_against_the_seed_range():
     assert row["difference"] == 2.5 and row["plain_range"] == 2.0 and not row["within_seed_range"]
     runs[0]["rows"] = rows(19.0)  # a wider spread between seeds: the same difference is noise
     assert compare(runs, ["plain", "fast"])[0]["within_seed_range"]
+    assert compare(runs[1:], ["plain", "fast"])[0]["within_seed_range"] is None  # one plain seed: no verdict
