@@ -157,7 +157,8 @@ def main() -> None:
               "verdict": {True: "yes", False: "no"}.get(e.get("within_seed_range"), "-")} for e in table]
     print_table(f"XMAE test MPJPE, {len(seeds)} seeds per path, {args.steps} steps of batch {args.batch}"
                 f"{' (small XMAE)' if args.small else ''}, {describe(args.device)['device']}", cells, columns)
-    result = {"env": describe(args.device), "threads_per_run": args.threads or None, "jobs": args.jobs, "steps": args.steps, "batch": args.batch, "small": args.small,
+    result = {"env": describe(args.device), "threads_per_run": args.threads or None, "jobs": args.jobs,
+              "steps": args.steps, "batch": args.batch, "small": args.small,
               "seeds": seeds, "paths": {p: PATHS[p] for p in paths}, "extra": args.extra,
               "data": {"source": args.data_source, "path": args.data_path}, "config": args.config,
               "table": table, "runs": runs}

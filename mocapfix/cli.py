@@ -191,7 +191,8 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as e:  # the project's input checks (MotionFileError is one) say file and problem
             if os.environ.get("MOCAPFIX_TRACEBACK"):
                 raise
-            print(f"mocapfix {command}: {_own_error(e)}  (MOCAPFIX_TRACEBACK=1 for the traceback)", file=sys.stderr)
+            print(f"mocapfix {command}: {_own_error(e)}  (MOCAPFIX_TRACEBACK=1 for the traceback)",
+                  file=sys.stderr)
             return 2
         return 0
     print(f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect, fix or demo", file=sys.stderr)

@@ -207,7 +207,8 @@ def test_fast_path_accuracy_runs_fit_and_test_per_seed(tmp_path):
     comes back and the table compares paths by case."""
     from cli_utils import SMALL_DATA, TINY
     r = bench("fast_path_accuracy", "--device", "cpu", "--config", REPO / "configs" / "xmae.yaml", "--paths", "plain",
-              "--seeds", "0,1", "--jobs", "2", "--steps", "2", "--batch", "4", "--data-source", "synthetic", "--data-path", "none",
+              "--seeds", "0,1", "--jobs", "2", "--steps", "2", "--batch", "4", "--data-source", "synthetic",
+              "--data-path", "none",
               "--workdir", tmp_path / "runs", *TINY, *SMALL_DATA, "--model.init_args.eval_gaps_s", "[0.3]",
               tmp_path=tmp_path)
     assert [(run["path"], run["seed"]) for run in r["runs"]] == [("plain", 0), ("plain", 1)]

@@ -639,7 +639,8 @@ def test_an_error_about_another_file_names_the_input_too(tmp_path):
     from mocapfix.clip import MotionFileError
     from mocapfix.fix_cli import _one_line
     models = MotionFileError(tmp_path / "models", "no SMPLH model for gender 'robot'")
-    assert _one_line(tmp_path / "a.npz", models) == f"{tmp_path / 'a.npz'}: {tmp_path / 'models'}: no SMPLH model for gender 'robot'"
+    assert _one_line(tmp_path / "a.npz", models) == \
+        f"{tmp_path / 'a.npz'}: {tmp_path / 'models'}: no SMPLH model for gender 'robot'"
     own = MotionFileError(tmp_path / "a.npz", "no betas (body shape)")
     assert _one_line(tmp_path / "a.npz", own) == f"{tmp_path / 'a.npz'}: no betas (body shape)"
     assert _one_line(tmp_path / "a.npz", ValueError("bad")) == f"{tmp_path / 'a.npz'}: ValueError: bad"
