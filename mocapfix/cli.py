@@ -43,8 +43,13 @@ def _lightning_cli(args: list[str]):
             # "last" to this experiment's last.ckpt first (none: Lightning starts from scratch).
             cfg = self.config.get(self.config.get("subcommand") or "", None)
             ckpt_path = cfg.get("ckpt_path") if cfg is not None else None
-            if ckpt_path == "last" and (Path("checkpoints") / cfg.experiment / "last.ckpt").is_file():
-                cfg.ckpt_path = ckpt_path = str(Path("checkpoints") / cfg.experiment / "last.ckpt")
+            last = Path("checkpoints") / cfg.experiment / "last.ckpt"
+            if ckpt_path == "last" and last.is_file():
+                cfg.ckpt_path = ckpt_path = str(last)
+            elif ckpt_path == "last" and self.config.get("subcommand") != "fit":
+                # fit starts afresh without one; evaluating an untrained model would look like a result
+                raise ValueError(f"{last}: no such checkpoint (--ckpt_path last reads checkpoints/<--experiment>/"
+                                 f"last.ckpt; --experiment is {cfg.experiment!r})")
             elif ckpt_path and ckpt_path not in ("last", "best", "hpc", "registry") and not Path(ckpt_path).is_file():
                 raise ValueError(f"{ckpt_path}: no such checkpoint file")
             try:

@@ -43,8 +43,12 @@ class Clip:
                                   f"skeleton has {self.skeleton.num_joints}")
         if not np.isfinite(self.fps) or self.fps <= 0:
             raise MotionFileError(self.source or self.name, f"fps must be positive, got {self.fps}")
-        # inf is never data: treat it as missing so it cannot leak into training or output.
-        self.positions[~np.isfinite(self.positions)] = np.nan
+        # inf is never data: treat it as missing so it cannot leak into training or output, and
+        # count it with the other absurd values (io/absurd.py).
+        inf = np.isinf(self.positions)
+        if inf.any():
+            self.meta = {**self.meta, "absurd_tokens": self.meta.get("absurd_tokens", 0) + int(inf.any(-1).sum())}
+            self.positions[inf] = np.nan
 
     @property
     def num_frames(self) -> int:

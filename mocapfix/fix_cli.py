@@ -24,7 +24,8 @@ from mocapfix.fixers import PRECISIONS, load_fixer
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import write_bvh_like
 from mocapfix.io.files import atomic_write
-from mocapfix.io.positions import UNITS, load_npz, npz_array, to_z_up, write_clips, write_positions
+from mocapfix.io.conventions import metres_per_unit, to_z_up
+from mocapfix.io.positions import load_npz, npz_array, write_clips, write_positions
 
 FIXED = ".fixed"          # default output: <stem>.fixed<ext> beside the input
 LONG_INPUT_S = 600.0      # progress is shown for inputs this long even when stderr is not a terminal
@@ -73,17 +74,17 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
     if fmt == "h36m":
         tree: dict = {}
         for c in clips:
-            scale = UNITS.get(c.meta.get("unit", "m"), 1.0)  # back to the file's unit
+            scale = metres_per_unit(c.meta)  # back to the file's unit
             tree.setdefault(c.meta["subject"], {})[c.meta["action"]] = (c.positions / scale).astype(np.float32)
         atomic_write(target, lambda f: np.savez_compressed(f, positions_3d=np.array(tree, dtype=object)))
         return
     m = clips[0].meta
-    if fmt == "positions-npz" and m.get("unit") in UNITS and m.get("unit") != "m":
+    if fmt == "positions-npz" and metres_per_unit(m) != 1.0:
         # Metres -> cm/mm -> metres is not exact in float32 (1 value in 8 is off by an ulp): tokens
         # fix left alone are written from the file's own numbers, so they come back bit-identical.
         with load_npz(Path(inputs[0].source)) as data:
             raw = npz_array(Path(inputs[0].source), data, "positions").astype(np.float64)
-        raw = to_z_up(raw.reshape((-1,) + raw.shape[-3:]) * UNITS[m["unit"]], m.get("up_axis", "z"))
+        raw = to_z_up(raw.reshape((-1,) + raw.shape[-3:]) * metres_per_unit(m), m.get("up_axis", "z"))
         new = np.stack([c.positions for c in clips]).astype(np.float64)              # (P, T, J, 3)
         old = np.stack([c.positions for c in inputs])
         same = ((new == old) & np.isfinite(old)).all(-1, keepdims=True)

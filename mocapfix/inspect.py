@@ -57,7 +57,12 @@ def motion_stats(clips: list[Clip]) -> dict:
         "joint_names": list(skel.joint_names),
         "skeleton": skel.name,
         "unit": c0.meta.get("unit", "?"),
+        "unit_source": c0.meta.get("unit_source", "?"),
+        "stature_m": _nanmean([c.meta.get("stature_m", math.nan) for c in clips]),
         "up_axis": c0.meta.get("up_axis", "?"),
+        "dropped_root": c0.meta.get("dropped_root"),
+        "absurd_tokens": sum(int(c.meta.get("absurd_tokens", 0)) for c in clips),
+        "warnings": sorted({c.meta["warning"] for c in clips if c.meta.get("warning")}),
         "missing_tokens": missing,
         "missing_pct": 100.0 * missing / tokens if tokens else 0.0,
         "hip_joint": skel.joint_names[hip],
@@ -78,7 +83,8 @@ def _num(v: float, fmt: str) -> str:
 def _table(rows: list[dict]) -> str:
     cols = [("file", "file", "s"), ("format", "format", "s"), ("people", "people", "d"), ("frames", "frames", "d"),
             ("fps", "fps", ".4g"), ("dur s", "duration_s", ".1f"), ("joints", "joints", "d"), ("unit", "unit", "s"),
-            ("up", "up_axis", "s"), ("missing %", "missing_pct", ".2f"), ("hip m", "hip_height_m", ".3f"),
+            ("stature m", "stature_m", ".2f"), ("up", "up_axis", "s"), ("missing %", "missing_pct", ".2f"),
+            ("absurd", "absurd_tokens", "d"), ("hip m", "hip_height_m", ".3f"),
             ("limb mm", "limb_length_mm", ".1f"), ("sigma mm", "limb_sigma_mm", ".2f")]
     cells = [[h for h, _, _ in cols]]
     for r in rows:
@@ -86,6 +92,20 @@ def _table(rows: list[dict]) -> str:
     widths = [max(len(row[i]) for row in cells) for i in range(len(cols))]
     lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths)))
              for row in cells]
+    # how each unit was found, once per distinct way (a body's scale estimate says its number)
+    how: dict[tuple, list[str]] = {}
+    for r in rows:
+        how.setdefault((r["unit"], r["unit_source"]), []).append(r["file"])
+    for (unit, source), files in how.items():
+        which = files[0] if len(files) == 1 else f"{len(files)} files"
+        lines.append(f"unit {unit} ({which}): {source}")
+    for r in rows:
+        if r["dropped_root"]:
+            lines.append(f"{r['file']}: root {r['dropped_root']!r} left out (a helper joint: one child, never turns)")
+        if r["absurd_tokens"]:
+            lines.append(f"{r['file']}: {r['absurd_tokens']} absurd joint positions (non-finite or far outside "
+                         "the body) read as missing")
+        lines.extend(f"warning: {w}" for w in r["warnings"])
     # joint names once per distinct skeleton: too long for a column
     seen: dict[tuple, list[str]] = {}
     for r in rows:

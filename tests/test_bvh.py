@@ -143,7 +143,7 @@ def test_unusual_channels_match_reference_fk(tmp_path):
     assert clip.skeleton.joint_names == ("Hips", "Spine", "Head", "LeftUpLeg", "LeftFoot")  # End Sites are no joints
     assert clip.skeleton.parents == (-1, 0, 1, 0, 3)
     assert clip.fps == pytest.approx(25.0) and clip.name == "odd" and clip.source == str(f)
-    assert clip.meta == {"format": "bvh", "unit": "cm", "up_axis": "y", "frame_time": 0.04}
+    assert clip.meta == {"format": "bvh", "unit": "cm", "unit_source": "option", "up_axis": "y", "frame_time": 0.04}
     np.testing.assert_allclose(clip.positions, ref @ CM_Y_UP.T, atol=1e-5)
     # metres, z up: the same numbers
     raw = read_bvh(f, unit="m", up_axis="z")[0]
@@ -289,13 +289,18 @@ def test_bandai_reference_fk(bandai_files):
     for f in bandai_files[::120] + [f for f in bandai_files if f.name == "dataset-1_dash_normal_001.bvh"]:
         text = f.read_text()
         names, ref = reference_fk(text)
-        clip = read_bvh(f)[0]
+        clip = read_bvh(f, keep_joints=names)[0]
         assert clip.skeleton.joint_names == tuple(names) and len(names) == 22
         np.testing.assert_allclose(clip.positions, ref @ CM_Y_UP.T, atol=1e-5)
         # with joint_Root kept, Hips' moving translation has no constant offset: no rotations
         assert not clip.has_rotations and "joint_Root" in clip.meta["no_rotations"]
         rerooted = read_bvh(f, drop_joints=["joint_Root"])[0]
         np.testing.assert_allclose(rerooted.positions, clip.positions[:, 1:], atol=1e-6)
+        # joint_Root is a helper (one child, a rotation that never changes): dropped unasked
+        default = read_bvh(f)[0]
+        assert default.meta["dropped_root"] == "joint_Root" and default.has_rotations
+        np.testing.assert_array_equal(default.positions, rerooted.positions)
+        np.testing.assert_array_equal(default.rotations, rerooted.rotations)
 
 
 def test_every_bandai_clip(bandai_files):

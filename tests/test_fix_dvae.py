@@ -230,9 +230,11 @@ def test_fix_bandai_bvh_with_a_rotations_state_dvae_writes_the_inputs_hierarchy(
     assert rc == 0, err
     target = tmp_path / bandai_file.name  # BVH stays BVH
     assert f"-> {target}:" in out and "(denoise, motion-dvae)" in out and "positions" not in out.split(";", 1)[-1]
-    inp = read_bvh(bandai_file)[0]
+    # every joint of the file, joint_Root too (the reader leaves the helper root out unasked)
+    whole = [read_bvh(bandai_file)[0].meta["dropped_root"], *read_bvh(bandai_file)[0].skeleton.joint_names]
+    inp = read_bvh(bandai_file, keep_joints=whole)[0]
     # the input's unit and up axis: guessing them from an untrained model's poses could go either way
-    res = read_bvh(target, unit=inp.meta["unit"], up_axis=inp.meta["up_axis"])[0]
+    res = read_bvh(target, unit=inp.meta["unit"], up_axis=inp.meta["up_axis"], keep_joints=whole)[0]
     # the input's hierarchy, text for text: joints (joint_Root too), offsets, channels, End Sites
     assert target.read_text().split("MOTION")[0] == bandai_file.read_text().split("MOTION")[0]
     assert (res.skeleton.joint_names, res.skeleton.parents) == (inp.skeleton.joint_names, inp.skeleton.parents)
@@ -246,18 +248,19 @@ def test_fix_bandai_bvh_with_a_rotations_state_dvae_writes_the_inputs_hierarchy(
     again = read_bvh(target, drop_joints=["joint_Root"])[0]
     assert again.has_rotations
 
-    # positions instead, on request: the input's 22 joints, joint_Root passed through
+    # positions instead, on request: the input's body joints (the helper joint_Root is left out)
     rc, out, err = fix([bandai_file, "--ckpt", rotations_ckpt, "--mode", "both", "-o", tmp_path / "w.npz"], capsys)
     assert rc == 0, err
     assert "positions .npz/.csv: rotations are written to .bvh, from a BVH input" in out
     back = read_motion(tmp_path / "w.npz")[0]
-    assert back.positions.shape == inp.positions.shape and np.isfinite(back.positions).all()
-    np.testing.assert_allclose(back.positions, res.positions, atol=1e-4)  # the same motion as the BVH
+    assert back.skeleton.joint_names == inp.skeleton.joint_names[1:] and np.isfinite(back.positions).all()
+    np.testing.assert_allclose(back.positions, res.positions[:, 1:], atol=1e-4)  # the same motion as the BVH
     # infill: rotation data has no missing token; the output is the input's motion
     rc, out, err = fix([bandai_file, "--ckpt", rotations_ckpt, "-o", tmp_path / "same.bvh"], capsys)
     assert rc == 0, err
     assert "nothing to fill" in out
-    np.testing.assert_allclose(read_bvh(tmp_path / "same.bvh")[0].positions, inp.positions, atol=1e-4)
+    np.testing.assert_allclose(read_bvh(tmp_path / "same.bvh", keep_joints=whole)[0].positions, inp.positions,
+                               atol=1e-4)
 
 
 def test_wrong_inputs_for_a_dvae_are_one_line_errors(tmp_path, bandai_file, positions_ckpt, rotations_ckpt,

@@ -315,7 +315,23 @@ class MotionDataModule(L.LightningDataModule):
             if s == "train" and len(ds):
                 self._drop_mostly_missing(ds)
             self.datasets[s] = ds
+            self._name_idle_clips(self.clips[s], ds, s)
         log.info("windows: %s", {s: len(d) for s, d in self.datasets.items()})
+
+    def _name_idle_clips(self, clips: list[Clip], ds: WindowDataset, split: str) -> None:
+        """One line per clip that gives its split no window, with the reason: a user who hands
+        over a folder should not find out from the numbers that half of it was never used."""
+        used = torch.bincount(ds.clip_index, minlength=len(clips)) if len(clips) else torch.zeros(0)
+        for c, n in zip(clips, used.tolist()):
+            if n:
+                continue
+            if c.num_frames < ds.window:
+                why = f"shorter than one window ({c.num_frames} frames at {c.fps:g} fps < {ds.window})"
+            elif c.missing_mask().all():
+                why = "every joint missing in every frame"
+            else:
+                why = f"every window misses more than {self.hparams.max_missing_fraction:.0%} of its joints"
+            log.warning("warning: %s: contributes nothing to the %s split: %s", c.source or c.name, split, why)
 
     def _require_rotations(self, clips: list[Clip]) -> None:
         """with_rotations on data where some clips have rotations and some not (a BVH with a

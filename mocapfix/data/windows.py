@@ -98,7 +98,8 @@ def split_of(source: str, val_fraction: float, test_fraction: float, seed: int,
 # meta field), so caches written by older code are parsed again instead of served stale.
 # 2: session 8 (BVH fps from the printed frame time, csv fps and times).
 # 3: session 9 (AMASS betas stored per frame were flattened: another body).
-CACHE_VERSION = 3
+# 4: units from the body (any metres per unit), absurd values as missing, helper roots left out.
+CACHE_VERSION = 4
 
 
 def cache_key(files: list[Path], options: dict) -> str:

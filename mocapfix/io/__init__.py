@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import logging
 import math
+import os
 from pathlib import Path
 
 from mocapfix.clip import Clip, MotionFileError
 
+log = logging.getLogger(__name__)
 SOURCES = ("auto", "bvh", "positions", "h36m", "amass")
 
 
@@ -30,7 +33,8 @@ def _frame_rate(text: str) -> float:
 def add_read_arguments(parser) -> None:
     """The reader options every file-taking command shares (inspect, fix): an argparse parser."""
     parser.add_argument("--source", default="auto", choices=SOURCES)
-    parser.add_argument("--unit", default="auto", help="override the file's unit: m, cm, mm")
+    parser.add_argument("--unit", default="auto",
+                        help="the file's unit: m, cm, mm, inch or metres per file unit (0.0564); auto: from the body")
     parser.add_argument("--up-axis", default="auto", help="override the file's up axis: z, y")
     parser.add_argument("--fps", type=_frame_rate, default=None, help="frame rate for files that lack one")
     parser.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
@@ -94,7 +98,25 @@ def read_motion(path, source: str = "auto", **options) -> list[Clip]:
         source = detect_source(path)
     reader = _reader(source)
     accepted = inspect.signature(reader).parameters
-    return reader(path, **{k: v for k, v in options.items() if k in accepted})
+    clips = reader(path, **{k: v for k, v in options.items() if k in accepted})
+    return [_checked(c) for c in clips]
+
+
+def _checked(clip: Clip) -> Clip:
+    """What every reader's clip goes through: absurd values made missing (io/absurd.py), the
+    body's stature in meta, and a warning when that is not a human height (a wrong unit)."""
+    from mocapfix.io.absurd import drop_absurd
+    from mocapfix.io.conventions import stature_m, stature_warning
+
+    names, parents = clip.skeleton.joint_names, clip.skeleton.parents
+    stature = stature_m(clip.positions, names, parents)
+    clip = drop_absurd(clip, stature)
+    clip.meta["stature_m"] = stature
+    warning = stature_warning(stature, clip.meta, clip.source or clip.name)
+    if warning:
+        clip.meta["warning"] = warning
+        log.warning("warning: %s", warning)
+    return clip
 
 
 def list_motion_files(path, source: str = "auto") -> list[Path]:
@@ -107,5 +129,10 @@ def list_motion_files(path, source: str = "auto") -> list[Path]:
     if not path.is_dir():
         raise MotionFileError(path, "no such file or folder")
     exts = _EXTENSIONS[source]
-    return sorted(p for p in path.rglob("*") if p.is_file() and p.suffix.lower() in exts
-                  and p.name.lower() not in _NOT_MOTION and not p.name.startswith("."))
+
+    def unreadable(e: OSError):  # rglob would skip such a folder without a word
+        raise MotionFileError(e.filename or path, f"cannot read this folder ({e.strerror or type(e).__name__})")
+
+    found = [Path(root) / name for root, _, names in os.walk(path, onerror=unreadable) for name in names]
+    return sorted(p for p in found if p.suffix.lower() in exts and p.name.lower() not in _NOT_MOTION
+                  and not p.name.startswith(".") and p.is_file())

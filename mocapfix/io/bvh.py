@@ -22,12 +22,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocapfix.clip import Clip, MotionFileError
+from mocapfix.io.conventions import guess_up_axis, metres_per_unit, resolve_unit
 from mocapfix.io.files import atomic_write
 from mocapfix.skeleton import Skeleton, guess_groups
 
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}
 # y-up -> z-up is a +90 degree rotation about x: (x, y, z) -> (x, -z, y). Right-handed (det +1),
-# so rotations stay rotations and left stays left.
+# so rotations stay rotations and left stays left (conventions.to_z_up as a matrix).
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 AXES = {"y": Y_UP_TO_Z_UP, "z": np.eye(3)}
 FK_TOLERANCE_M = 1e-4  # rotations are kept only if their FK reproduces the positions this well
@@ -35,11 +35,12 @@ FK_TOLERANCE_M = 1e-4  # rotations are kept only if their FK reproduces the posi
 _CHANNEL = re.compile(r"^([XYZ])(position|rotation)$", re.I)
 
 
-def read_bvh(path, unit: str = "auto", up_axis: str = "auto", groups: dict | None = None,
+def read_bvh(path, unit: str | float = "auto", up_axis: str = "auto", groups: dict | None = None,
              keep_joints: list[str] | None = None, drop_joints: list[str] | None = None) -> list[Clip]:
     """One BVH file -> [Clip] (a list, like every reader) in metres, z up.
 
-    unit: "m" | "cm" | "mm" | "inch" | "auto" (from the leg length); up_axis: "y" | "z" | "auto".
+    unit: "m" | "cm" | "mm" | "inch" | metres per file unit | "auto" (from the body's limbs,
+        conventions.resolve_unit); up_axis: "y" | "z" | "auto" (head above pelvis).
     groups: explicit limb groups {name: joint names or indices of the returned skeleton};
         guessed from the joint names when None.
     keep_joints / drop_joints: joint names to keep / to remove (Clip.select_joints, here where
@@ -47,7 +48,9 @@ def read_bvh(path, unit: str = "auto", up_axis: str = "auto", groups: dict | Non
         the root carries a moving translation, as Bandai Namco's Hips does under joint_Root:
         no constant bone offsets reproduce such a tree, so with it whole the clip comes without
         rotations rather than with wrong ones (meta["no_rotations"] says why), and
-        drop_joints=["joint_Root"] makes Hips the root and the rotations exact.
+        drop_joints=["joint_Root"] makes Hips the root and the rotations exact. A root like that
+        (one child, a rotation that never changes: a helper that carries or holds the body, not
+        a joint of it) is dropped without being named, unless keep_joints keeps it.
     """
     path = Path(path)
     names, parents, offsets, channels, data, frame_time = _parse(path)
@@ -57,13 +60,11 @@ def read_bvh(path, unit: str = "auto", up_axis: str = "auto", groups: dict | Non
         local_r, local_t = _local_transforms(offsets, channels, data)
         pos = _forward_kinematics(local_r, local_t, parents)  # (T, J, 3) file units, file axes
 
-    unit = _guess_unit(path, names, parents, local_t) if unit == "auto" else unit
-    up_axis = _guess_up_axis(names, parents, pos) if up_axis == "auto" else up_axis
-    if unit not in UNITS:
-        raise MotionFileError(path, f"unknown unit {unit!r}; use one of {sorted(UNITS)} or 'auto'")
+    unit = resolve_unit(path, unit, None, pos, names, parents)
+    up_axis = guess_up_axis(pos, names, parents) if up_axis == "auto" else str(up_axis).lower()
     if up_axis not in AXES:
         raise MotionFileError(path, f"unknown up axis {up_axis!r}; use 'y', 'z' or 'auto'")
-    scale, C = UNITS[unit], AXES[up_axis]
+    scale, C = unit.metres, AXES[up_axis]
 
     # A global change of axes C (and scale s): p' = s C p, so local rotations become C R C^T and
     # every translation s C t.
@@ -73,7 +74,8 @@ def read_bvh(path, unit: str = "auto", up_axis: str = "auto", groups: dict | Non
         local_t = scale * local_t @ C.T
 
     skeleton = Skeleton(names, parents, {}, path.stem)
-    meta = {"format": "bvh", "unit": unit, "up_axis": up_axis, "frame_time": frame_time}
+    meta = {"format": "bvh", "unit": unit.name, "unit_source": unit.how,
+            "up_axis": up_axis, "frame_time": frame_time}
     clip = Clip(positions, 1.0 / frame_time, skeleton, path.stem, str(path), meta=meta)
 
     finite = np.isfinite(data).all()
@@ -90,12 +92,15 @@ def read_bvh(path, unit: str = "auto", up_axis: str = "auto", groups: dict | Non
     def rotvec() -> np.ndarray:  # (T, J, 3) float32
         return Rotation.from_matrix(local_r.reshape(-1, 3, 3)).as_rotvec().reshape(T, J, 3).astype(np.float32)
 
-    if keep_joints or drop_joints:
-        unknown = [n for n in list(keep_joints or []) + list(drop_joints or []) if n not in names]
-        if unknown:
-            raise MotionFileError(path, f"joints {unknown} not in this file (joints: {', '.join(names)})")
-        keep = [j for j, n in enumerate(names) if (not keep_joints or n in set(keep_joints))
-                and n not in set(drop_joints or [])]
+    unknown = [n for n in list(keep_joints or []) + list(drop_joints or []) if n not in names]
+    if unknown:
+        raise MotionFileError(path, f"joints {unknown} not in this file (joints: {', '.join(names)})")
+    keep = [j for j, n in enumerate(names) if (not keep_joints or n in set(keep_joints))
+            and n not in set(drop_joints or [])]
+    if 0 in keep and _helper_root(parents, local_r) and not (keep_joints and names[0] in keep_joints):
+        keep.remove(0)
+        meta["dropped_root"] = names[0]
+    if len(keep) < J:
         if finite:
             # These rotations are exact but the offsets may not be (see above); select_joints works
             # from the positions and the global rotations only, and checks its result.
@@ -123,6 +128,8 @@ def read_bvh(path, unit: str = "auto", up_axis: str = "auto", groups: dict | Non
         clip = clip.replace(rotations=rotvec(), root_translation=positions[:, 0].astype(np.float32),
                             offsets=offs.astype(np.float32))
 
+    if not finite:  # a non-finite channel leaves its joint and those below it missing in that frame
+        clip.meta["absurd_tokens"] = int(clip.missing_mask().sum())
     sk = clip.skeleton
     try:
         sk = sk.with_groups(groups) if groups is not None else Skeleton(
@@ -147,17 +154,17 @@ def write_bvh(path, clip: Clip, template: str | Path | None = None) -> None:
         raise MotionFileError(path, f"clip {clip.name!r} has no rotations; only rotation clips can be written as BVH")
     # The template is the file the clip came from (or one like it): its End Sites are copied as
     # they are, in its own units, which are the clip's meta unit and up axis.
-    end_sites, unit, up_axis = {}, clip.meta.get("unit"), clip.meta.get("up_axis")
+    meta = clip.meta
+    end_sites = {}
     if template is not None:
         template = Path(template)
         end_sites = _parse_hierarchy(template, _sections(template)[0])[4]
-        if unit is None or up_axis is None:
-            tmeta = read_bvh(template)[0].meta
-            unit, up_axis = unit or tmeta["unit"], up_axis or tmeta["up_axis"]
-    unit, up_axis = unit or "m", up_axis or "z"
-    if unit not in UNITS or up_axis not in AXES:
-        raise MotionFileError(path, f"cannot write unit {unit!r} / up axis {up_axis!r}")
-    scale, C = UNITS[unit], AXES[up_axis]
+        if "unit" not in meta or "up_axis" not in meta:
+            meta = {**read_bvh(template)[0].meta, **meta}
+    up_axis = meta.get("up_axis", "z")
+    if up_axis not in AXES:
+        raise MotionFileError(path, f"cannot write up axis {up_axis!r}")
+    scale, C = metres_per_unit(meta), AXES[up_axis]
     T, J = clip.rotations.shape[:2]
     parents, names = clip.skeleton.parents, clip.skeleton.joint_names
 
@@ -220,10 +227,10 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
     if clip.num_frames != T or abs(clip.fps * frame_time - 1.0) > 1e-4:
         raise MotionFileError(path, f"the clip has {clip.num_frames} frames at {clip.fps:g} fps, {template.name} "
                                     f"{T} at {1.0 / frame_time:g} fps: write_bvh_like keeps the template's frames")
-    unit, up_axis = clip.meta.get("unit", "m"), clip.meta.get("up_axis", "z")
-    if unit not in UNITS or up_axis not in AXES:
-        raise MotionFileError(path, f"cannot write unit {unit!r} / up axis {up_axis!r}")
-    scale, C = UNITS[unit], AXES[up_axis]
+    up_axis = clip.meta.get("up_axis", "z")
+    if up_axis not in AXES:
+        raise MotionFileError(path, f"cannot write up axis {up_axis!r}")
+    scale, C = metres_per_unit(clip.meta), AXES[up_axis]
     where = {n: j for j, n in enumerate(names)}
     unknown = [n for n in clip.skeleton.joint_names if n not in where]
     if unknown:
@@ -501,63 +508,13 @@ def _axis_rotation(axis: str, angle: np.ndarray) -> np.ndarray:
     return m
 
 
-# --- guessing units and up axis ---
+# --- helper joints ---
 
-def _pelvis(parents) -> int:
-    """The first joint where three or more chains start (legs + spine); the root otherwise."""
-    nchild = np.bincount(np.array([p for p in parents if p >= 0], dtype=np.int64), minlength=len(parents))
-    hits = np.flatnonzero(nchild >= 3)
-    return int(hits[0]) if hits.size else 0
-
-
-def _find(names, pattern: str) -> int | None:
-    for j, n in enumerate(names):
-        if re.search(pattern, n, re.I):
-            return j
-    return None
-
-
-def _guess_unit(path: Path, names, parents, local_t: np.ndarray) -> str:
-    """The unit that makes the leg (pelvis to ankle, along the bones) about 0.85 m long.
-
-    local_t: (T, J, 3) local translations in file units. Bone lengths do not depend on the pose.
-    Without a joint named like a foot, the sum of all constant bone lengths (about 4 m for a
-    human) stands in; translations that change over time are trajectories, not bones.
-    """
-    length = np.linalg.norm(local_t, axis=-1)  # (T, J)
-    with warnings.catch_warnings():  # all-NaN joints: their length stays NaN and is skipped
-        warnings.simplefilter("ignore", RuntimeWarning)
-        bone = length[0] if np.isfinite(length[0]).all() else np.nanmedian(length, axis=0)  # (J,)
-        bone[np.nanmax(length, axis=0) - np.nanmin(length, axis=0) > 1e-3 * np.abs(bone) + 1e-9] = np.nan
-    pelvis = _pelvis(parents)
-    foot = _find(names, r"foot|ankle")
-    size = np.nan
-    if foot is not None:
-        leg, j = 0.0, foot
-        while j > pelvis:
-            leg += bone[j]
-            j = parents[j]
-        if j == pelvis:
-            size, target, what = leg, 0.85, "leg length"
-    if not np.isfinite(size):
-        size, target, what = np.nansum(bone[1:]), 4.0, "total bone length"
-    unit = min(UNITS, key=lambda u: abs(np.log(max(size, 1e-12) * UNITS[u] / target)))
-    if not 0.4 < size * UNITS[unit] / target < 2.5:
-        raise MotionFileError(path, f"cannot guess the unit ({what} {size:.4g} in file units); pass unit=")
-    return unit
-
-
-def _guess_up_axis(names, parents, pos: np.ndarray) -> str:
-    """'y' or 'z': the axis along which the head sits above the pelvis (feet below it otherwise)."""
-    pelvis = _pelvis(parents)
-    mean = np.nanmean(pos, axis=0) if np.isfinite(pos).any() else np.zeros((len(names), 3))  # (J, 3)
-    head = _find(names, r"head")
-    head = _find(names, r"neck") if head is None else head
-    foot = _find(names, r"foot|ankle|toe")
-    if head is not None and head != pelvis:
-        d = mean[head] - mean[pelvis]
-    elif foot is not None and foot != pelvis:
-        d = mean[pelvis] - mean[foot]
-    else:
-        return "y"  # the BVH default
-    return "z" if abs(d[2]) > abs(d[1]) else "y"
+def _helper_root(parents, local_r: np.ndarray) -> bool:
+    """A root with one child and a rotation that never changes is a helper (Bandai Namco's
+    joint_Root, MotionBuilder's Reference): it holds or carries the body, and a body joint
+    placed there (at the origin, say) would be a joint of nothing."""
+    one_child = sum(p == 0 for p in parents) == 1
+    with np.errstate(invalid="ignore"):
+        fixed = bool(np.all(np.abs(local_r[:, 0] - local_r[0, 0]) < 1e-9))
+    return len(parents) > 2 and one_child and fixed

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from mocapfix.clip import Clip, MotionFileError
-from mocapfix.io.positions import UNITS, load_npz, npz_array
+from mocapfix.io.conventions import parse_unit
+from mocapfix.io.positions import load_npz, npz_array
 from mocapfix.skeleton import PRESETS
 
 H36M_FPS = 50.0
@@ -31,9 +32,7 @@ def read_h36m(path, unit: str = "auto", groups=None) -> list[Clip]:
     unit: the file's unit ("auto": metres, as VideoPose3D writes it; "mm" for the raw dataset's).
     groups: {group name: [joint names or indices]} replacing the preset's limb groups."""
     path = Path(path)
-    unit = "m" if unit == "auto" else unit
-    if unit not in UNITS:
-        raise MotionFileError(path, f"unknown unit {unit!r}; use one of {sorted(UNITS)} or 'auto'")
+    unit = parse_unit(unit, path) or parse_unit("m", path, "VideoPose3D's convention")
     # The dict is pickled: allow_pickle is needed (the file is the dataset's own format).
     with load_npz(path, allow_pickle=True) as data:
         if "positions_3d" not in data.files:
@@ -62,11 +61,12 @@ def read_h36m(path, unit: str = "auto", groups=None) -> list[Clip]:
                                             f"{pos.dtype} {pos.shape}")
             if pos.shape[1] == 32:
                 pos = pos[:, H36M_KEEP]
-            clips.append(Clip((pos * UNITS[unit]).astype(np.float32), H36M_FPS, skel, name=f"{subject}/{action}",
+            clips.append(Clip((pos * unit.metres).astype(np.float32), H36M_FPS, skel, name=f"{subject}/{action}",
                               source=str(path),
                               meta={"format": "h36m", "subject": str(subject), "action": str(action),
                                     "split": next((k for k, v in H36M_SPLIT.items() if str(subject) in v), None),
-                                    "unit": unit, "up_axis": "z"}))
+                                    "unit": unit.name,
+                                    "unit_source": unit.how, "up_axis": "z"}))
     if not clips:
         raise MotionFileError(path, "'positions_3d' holds no sequences")
     return clips

@@ -40,47 +40,12 @@ from pathlib import Path
 import numpy as np
 
 from mocapfix.clip import Clip, MotionFileError
+from mocapfix.io.conventions import from_z_up, guess_up_axis, metres_per_unit, parse_unit, resolve_unit, to_z_up
 from mocapfix.io.files import atomic_write
 from mocapfix.skeleton import PRESETS, Skeleton, guess_groups
 
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}  # metres per unit
-_UNIT_ALIASES = {"meters": "m", "metres": "m", "meter": "m", "metre": "m", "centimeters": "cm",
-                 "centimetres": "cm", "millimeters": "mm", "millimetres": "mm"}
 UP_AXES = ("z", "y")
 _SPECIAL_COLUMNS = ("person", "frame", "time")
-
-
-# --- units and axes (shared with the other readers) ---
-
-def to_z_up(x: np.ndarray, up_axis: str) -> np.ndarray:
-    """x: (..., 3) in a right-handed frame with `up_axis` up -> the same points, z up."""
-    if up_axis == "z":
-        return x
-    # y up (x right, z towards the viewer): rotate +90 deg about x, so y -> z and z -> -y.
-    return np.stack([x[..., 0], -x[..., 2], x[..., 1]], axis=-1)
-
-
-def from_z_up(x: np.ndarray, up_axis: str) -> np.ndarray:
-    """Inverse of to_z_up."""
-    if up_axis == "z":
-        return x
-    return np.stack([x[..., 0], x[..., 2], -x[..., 1]], axis=-1)
-
-
-def guess_unit(positions: np.ndarray, parents) -> str:
-    """positions: (..., T, J, 3) in an unknown unit -> "m", "cm" or "mm" from the median bone length.
-
-    Human bones are 0.05-0.5 m: the medians in m, cm and mm (~0.25, ~25, ~250) are far apart."""
-    p = np.asarray(parents)
-    child = np.nonzero(p >= 0)[0]
-    if len(child) == 0:
-        return "m"
-    lengths = np.linalg.norm(positions[..., child, :] - positions[..., p[child], :], axis=-1)
-    lengths = lengths[np.isfinite(lengths) & (lengths > 0)]
-    if lengths.size == 0:
-        return "m"
-    median = float(np.median(lengths))
-    return "m" if median < 2.0 else "cm" if median < 80.0 else "mm"
 
 
 def load_npz(path: Path, allow_pickle: bool = False):
@@ -147,26 +112,14 @@ def skeleton_from(path: Path, joint_names, parents, num_joints: int, groups=None
         raise MotionFileError(path, _one_line(e).split(": ", 1)[-1]) from None
 
 
-def _resolve_unit(path, unit_opt, unit_file, raw, parents) -> tuple[str, str]:
-    """-> (unit, where it came from): the reader's option, the file, or a guess."""
-    for unit, source in ((unit_opt, "option"), (unit_file, "file")):
-        if unit is not None and unit != "auto":
-            unit = str(unit).strip().lower()
-            unit = _UNIT_ALIASES.get(unit, unit)
-            if unit not in UNITS:
-                raise MotionFileError(path, f"unknown unit {unit!r} (from {source}); use one of {list(UNITS)}")
-            return unit, source
-    return guess_unit(raw, parents), "guessed"
-
-
-def _resolve_up(path, up_opt, up_file) -> str:
+def _resolve_up(path, up_opt, up_file, raw, skeleton) -> str:
     for up, source in ((up_opt, "option"), (up_file, "file")):
         if up is not None and up != "auto":
             up = str(up).lower()
             if up not in UP_AXES:
                 raise MotionFileError(path, f"unknown up axis {up!r} (from {source}); use 'z' or 'y'")
             return up
-    return "z"
+    return guess_up_axis(raw, skeleton.joint_names, skeleton.parents)
 
 
 def _check_fps(path, fps) -> float:
@@ -179,15 +132,18 @@ def _check_fps(path, fps) -> float:
     return fps
 
 
-def _clips(path: Path, raw: np.ndarray, fps: float, skeleton: Skeleton, unit: str, unit_source: str,
-           up_axis: str, fmt: str, layout: list[dict]) -> list[Clip]:
+def _clips(path: Path, raw: np.ndarray, fps: float, skeleton: Skeleton, unit_opt, unit_file, up_opt, up_file,
+           fmt: str, layout: list[dict]) -> list[Clip]:
     """raw: (P, T, J, 3) in the file's unit and axes -> P clips in metres, z up."""
-    pos = to_z_up(raw.astype(np.float64) * UNITS[unit], up_axis).astype(np.float32)
+    unit = resolve_unit(path, unit_opt, unit_file, raw, skeleton.joint_names, skeleton.parents)
+    up_axis = _resolve_up(path, up_opt, up_file, raw, skeleton)
+    with np.errstate(invalid="ignore", over="ignore"):
+        pos = to_z_up(raw.astype(np.float64) * unit.metres, up_axis).astype(np.float32)
     P = pos.shape[0]
     clips = []
     for i in range(P):
-        meta = {"format": fmt, "person": i, "people": P, "unit": unit, "unit_source": unit_source,
-                "up_axis": up_axis, **layout[i]}
+        meta = {"format": fmt, "person": i, "people": P, "unit": unit.name,
+                "unit_source": unit.how, "up_axis": up_axis, **layout[i]}
         name = path.stem + (f"#p{i}" if P > 1 else "")
         clips.append(Clip(pos[i], fps, skeleton, name=name, source=str(path), meta=meta))
     return clips
@@ -242,10 +198,9 @@ def read_positions_npz(path, unit: str = "auto", up_axis: str = "auto", fps: flo
                                             f"{names.shape}")
             names = [n.decode() if isinstance(n, bytes) else str(n) for n in names.tolist()]
         skel = skeleton_from(path, names, parents, J, groups)
-        unit, unit_source = _resolve_unit(path, unit, _npz_scalar_str(path, data, "unit"), raw, skel.parents)
-        up = _resolve_up(path, up_axis, _npz_scalar_str(path, data, "up_axis"))
+        unit_file, up_file = _npz_scalar_str(path, data, "unit"), _npz_scalar_str(path, data, "up_axis")
     layout = [{"squeeze": squeeze}] * raw.shape[0]
-    return _clips(path, raw, fps, skel, unit, unit_source, up, "positions-npz", layout)
+    return _clips(path, raw, fps, skel, unit, unit_file, up_axis, up_file, "positions-npz", layout)
 
 
 # --- csv ---
@@ -463,14 +418,13 @@ def read_positions_csv(path, unit: str = "auto", up_axis: str = "auto", fps: flo
             raise MotionFileError(path, f"'# parents=' must be comma-separated ints, got {comments['parents']!r}") \
                 from None
     skel = skeleton_from(path, names, parents, J, groups)
-    unit, unit_source = _resolve_unit(path, unit, comments.get("unit"), raw, skel.parents)
-    up = _resolve_up(path, up_axis, comments.get("up_axis", comments.get("up")))
     layout = [{"person_id": uniq[i], "person_column": "person" in special, "time_column": times is not None,
                "frame_column": "frame" in special, "first_frame": first_frame} for i in range(P)]
     if frame_times is not None:
         for i in range(P):
             layout[i]["times"] = frame_times[i].tolist()  # (T,) seconds, plain floats like the rest of meta
-    return _clips(path, raw, fps, skel, unit, unit_source, up, "positions-csv", layout)
+    return _clips(path, raw, fps, skel, unit, comments.get("unit"), up_axis, comments.get("up_axis", comments.get("up")),
+                  "positions-csv", layout)
 
 
 def read_positions(path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None,
@@ -522,12 +476,12 @@ def _format_time(t: float) -> str:
     return r[:-2] if r.endswith(".0") else r
 
 
-def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton, unit: str = "m",
+def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton, unit: str | float = "m",
                     up_axis: str = "z", *, squeeze: bool | None = None, person_ids: list | None = None,
                     person_column: bool | None = None, frame_column: bool = True, time_column: bool = True,
                     first_frame: int = 0, times: np.ndarray | None = None) -> Path:
     """Write positions (T, J, 3) or (P, T, J, 3), metres z up, NaN = missing, as .npz or .csv (by
-    the path's extension) in `unit` and `up_axis`. The layout options mirror what the readers put
+    the path's extension) in `unit` (a name or metres per unit) and `up_axis`. The layout options mirror what the readers put
     into clip.meta: squeeze (npz: (T, J, 3) for one person; default when P == 1), person_ids and
     person_column (csv; the column is written when P > 1 by default), frame/time columns,
     first_frame and times (csv: (T,) or (P, T) seconds of each row; default (first_frame + t) / fps)."""
@@ -538,10 +492,15 @@ def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton,
     if pos.ndim != 4 or pos.shape[-1] != 3 or pos.shape[2] != skeleton.num_joints:
         raise ValueError(f"positions must be (T, {skeleton.num_joints}, 3) or (P, T, {skeleton.num_joints}, 3), "
                          f"got {np.shape(positions)}")
-    if unit not in UNITS or up_axis not in UP_AXES:
-        raise ValueError(f"unit must be one of {list(UNITS)} and up_axis one of {list(UP_AXES)}")
+    if up_axis not in UP_AXES:
+        raise ValueError(f"up_axis must be one of {list(UP_AXES)}")
+    try:
+        scale = parse_unit(unit, path, "write_positions")
+    except MotionFileError as e:
+        raise ValueError(e.problem) from None
+    unit, scale = (scale.name, scale.metres) if scale is not None else ("m", 1.0)
     P, T, J, _ = pos.shape
-    out = from_z_up(pos, up_axis) / UNITS[unit]
+    out = from_z_up(pos, up_axis) / scale
     suffix = path.suffix.lower()
     if suffix == ".npz":
         squeeze = P == 1 if squeeze is None else squeeze and P == 1
@@ -571,7 +530,7 @@ def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton,
                 raise ValueError(f"times must be ({T},) or ({P}, {T}), got {np.shape(times)}") from None
             time_text = [[_format_time(t) for t in row] for row in seconds.tolist()]
         C = J * 3
-        cells = _format_numbers(out.reshape(-1), UNITS[unit])  # (P * T * C,) row-major
+        cells = _format_numbers(out.reshape(-1), scale)  # (P * T * C,) row-major
         for p in range(P):
             for t in range(T):
                 lead = ([ids[p]] if person_column else []) + ([str(first_frame + t)] if frame_column else []) + \
@@ -595,7 +554,7 @@ def write_clips(path, clips: list[Clip]) -> Path:
         if c.num_frames != c0.num_frames or c.fps != c0.fps or c.skeleton.parents != c0.skeleton.parents:
             raise ValueError("clips written to one positions file need the same frames, fps and skeleton")
     m = c0.meta
-    unit = m.get("unit", "m") if m.get("unit", "m") in UNITS else "m"
+    unit = m.get("unit", "m")
     up = m.get("up_axis", "z") if m.get("up_axis", "z") in UP_AXES else "z"
     from_csv = m.get("format") == "positions-csv"
     # The rows' times as read; a clip whose frames changed since (resampled) has no such times.
