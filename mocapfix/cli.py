@@ -109,6 +109,20 @@ def _lightning_cli(args: list[str]):
             if writer is not None and writer.path is not None and self.trainer.is_global_zero:
                 print(f"predictions: {writer.path}")
 
+        def after_validate(self):
+            # `validate --ckpt_path X` is the calibrate step: the fill policy measured on the val
+            # split goes into X, for fix and test (a checkpoint from before the policy gets one)
+            ckpt = self.config[self.subcommand].get("ckpt_path")
+            policy = getattr(self.model, "fill_policy", None)
+            if ckpt and policy is not None and self.trainer.is_global_zero and Path(ckpt).is_file():
+                import torch
+
+                from mocapfix.io.files import atomic_write
+                state = torch.load(ckpt, map_location="cpu", weights_only=True)
+                state["fill_policy"] = policy.to_dict()
+                atomic_write(Path(ckpt), lambda f: torch.save(state, f))
+                print(f"fill policy (val split) written into {ckpt}:\n  " + "\n  ".join(policy.describe()))
+
         def after_test(self):
             path = getattr(self.model, "eval_json_path", None)
             if path is not None and self.trainer.is_global_zero:

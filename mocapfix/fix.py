@@ -27,8 +27,9 @@ import roma
 import torch
 
 from mocapfix.clip import Clip, MotionFileError, check_human_scale
-from mocapfix.evaluation.baselines import lerp_infill
+from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill
 from mocapfix.evaluation.metrics import LimbSigma
+from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, suspect_tokens
 from mocapfix.fixers import Fixer, RotationFixer
 from mocapfix.io import read_motion
 from mocapfix.kinematics import fk_axis_angle
@@ -156,6 +157,7 @@ class FixReport:
     limb_sigma_after_mm: float
     windows: int                   # windows the model ran on
     notes: list[str] = field(default_factory=list)
+    filled_by: dict[str, int] = field(default_factory=dict)  # method -> missing tokens it filled (fill policy)
 
 
 def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: float = 0.5,
@@ -163,7 +165,14 @@ def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: fl
               ) -> tuple[list[Clip], FixReport]:
     """Fix the clips of one file; each keeps its skeleton, frames and fps (positions only: no
     rotations; a rotation model's clips go to fix_rotation_clips and keep their rotations).
-    progress(done, total) is called after each batch of windows."""
+    progress(done, total) is called after each batch of windows.
+
+    With the fixer's fill policy (a checkpoint calibrated on its val split, evaluation/policy.py)
+    each hole is filled by the method that was best for holes of its length and part, and in
+    denoise / both an observed token is replaced only where the model disagrees with it by more
+    than it does with clean data: such tokens are taken out and filled like holes (the model's
+    estimate with the wrong value in view is pulled towards it). Without a policy the model's
+    estimate is used everywhere the mode says."""
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if not 0.0 <= overlap < 1.0:
@@ -173,6 +182,42 @@ def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: fl
     check_human_scale(clips, clips[0].source or clips[0].name)
     if getattr(fixer, "state", "positions") == "rotations":
         return fix_rotation_clips(clips, fixer, mode, overlap, batch_size, progress)
+    policy: FillPolicy | None = getattr(fixer, "policy", None)
+    if policy is None or mode == "infill":
+        return _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy)
+
+    # Pass 1: the model's estimate of every token; the observed tokens it disagrees with are suspect.
+    estimates, first = _fix_positions(clips, fixer, "both", overlap, batch_size, progress, None)
+    masked, suspects = [], 0
+    for c, e in zip(clips, estimates):
+        idx = map_joints(c.skeleton, fixer.skeleton, c.source)
+        x = torch.from_numpy(c.positions[:, idx])
+        obs = ~torch.isnan(x).any(-1)
+        bad = suspect_tokens(policy, torch.from_numpy(e.positions[:, idx]), x, obs).numpy()   # (T, Jm)
+        suspects += int(bad.sum())
+        positions = c.positions.copy()
+        positions[:, idx] = np.where(bad[..., None], np.nan, positions[:, idx])
+        masked.append(c.replace(positions=positions))
+    # Pass 2: the holes and the suspect tokens filled by the policy; the rest stays bit-identical.
+    out, report = _fix_positions(masked, fixer, "infill", overlap, batch_size, progress, policy)
+    report.filled, report.replaced = report.filled - suspects, suspects
+    if mode == "denoise":  # holes of the input stay holes
+        out = [o.replace(positions=np.where(np.isnan(c.positions), np.nan, o.positions).astype(np.float32))
+               for o, c in zip(out, clips)]
+        report.filled = 0
+    report.windows += first.windows
+    report.limb_sigma_before_mm = first.limb_sigma_before_mm
+    report.notes.insert(0, f"{suspects} observed tokens replaced (the model disagreed by more than "
+                           f"{1000 * policy.replace_threshold_m:.0f} mm)" if policy.replace_threshold_m is not None
+                        else "the policy has no replace threshold: observed tokens kept")
+    return out, report
+
+
+def _fix_positions(clips: list[Clip], fixer: Fixer, mode: str, overlap: float, batch_size: int,
+                   progress: Callable[[int, int], None] | None, policy: FillPolicy | None
+                   ) -> tuple[list[Clip], FixReport]:
+    """fix_clips for a positions model, one pass: the model's estimate merged by mode (infill with
+    the fill policy where there is one)."""
     model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps
     source = clips[0].source or clips[0].name
     many = len(clips) > 1
@@ -266,6 +311,7 @@ def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: fl
 
     out_clips, notes = [], []
     filled = replaced = lerped = 0
+    filled_by: dict[str, int] = {}
     never = {}
     sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
     for k, c in enumerate(clips):
@@ -282,6 +328,8 @@ def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: fl
             resid = torch.from_numpy(np.where(obs[..., None], x - est, np.nan))
             resid = lerp_infill(resid[None], torch.from_numpy(obs)[None])[0].numpy()
             new = np.where(obs[..., None], x, est + resid)
+            if policy is not None:
+                new = _policy_fill(policy, x, obs, new, c.fps, model, filled_by)
         elif mode == "denoise":
             new = np.where(obs[..., None], est, np.nan)
         else:
@@ -318,8 +366,23 @@ def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: fl
     frames = sum(c.num_frames for c in clips) // people if clips[0].meta.get("format") != "h36m" else \
         sum(c.num_frames for c in clips)
     report = FixReport(frames, people, filled, replaced, float(sigma_before.compute()),
-                       float(sigma_after.compute()), len(rows), notes)
+                       float(sigma_after.compute()), len(rows), notes, filled_by)
     return out_clips, report
+
+
+def _policy_fill(policy: FillPolicy, x: np.ndarray, obs: np.ndarray, model_fill: np.ndarray, fps: float,
+                 skeleton: Skeleton, counts: dict[str, int]) -> np.ndarray:
+    """x: (T, J, 3) one clip's data, obs: (T, J), model_fill: (T, J, 3) the model's fill -> each
+    hole filled by the method the policy names for its length and part; counts[method] += tokens."""
+    xt, ot = torch.from_numpy(x)[None], torch.from_numpy(obs)[None]
+    fills = {"xmae": torch.from_numpy(model_fill)[None]}
+    fills.update({m: CLASSICAL[m](xt, ot, skeleton.parents) for m in policy.methods() if m in CLASSICAL})
+    out, chosen = apply_fill_policy(policy, xt, ot, fills, fps, skeleton)
+    names = list(fills)
+    for i, n in enumerate(torch.bincount(chosen[chosen >= 0], minlength=len(names)).tolist()):
+        if n:
+            counts[names[i]] = counts.get(names[i], 0) + n
+    return out[0].numpy()
 
 
 def _joints_missing_for_a_window(x_m: list[np.ndarray], W: int, overlap: float) -> int:

@@ -175,6 +175,10 @@ def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str 
     except Exception as e:
         print(f"error: {_one_line(ckpt, e)}", file=err)
         return 1
+    if fixer.kind == "xmae" and fixer.policy is None:
+        print(f"note: {ckpt} has no fill policy: the model fills every hole and replaces every token it is "
+              "asked to (`mocapfix validate --config CFG --ckpt_path CKPT` calibrates one on the val split)",
+              file=err)
     files, failed = _inputs(paths, source, err)
     written: dict[Path, Path] = {}
     for path, rel in files:
@@ -209,12 +213,15 @@ def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str 
         if clips[0].meta.get("format") in ("bvh", "amass") and target.suffix.lower() != ".bvh":
             notes.insert(0, "positions .npz/.csv: rotations are written to .bvh, from a BVH input" if rotations else
                          f"positions .npz/.csv: {fixer.kind.upper()} gives positions, not rotations")
+        if report.filled_by:
+            notes.insert(0, "filled by " + ", ".join(f"{m} {n}" for m, n in sorted(report.filled_by.items())))
         kind = "sequences" if clips[0].meta.get("format") == "h36m" else \
             "person" if report.people == 1 else "people"
         if as_json:
             print(json.dumps({"input": str(path), "output": str(target), "mode": mode, "model": fixer.kind,
                               "frames": report.frames, "people": report.people, "filled": report.filled,
-                              "replaced": report.replaced, "windows": report.windows,
+                              "replaced": report.replaced, "filled_by": report.filled_by,
+                              "windows": report.windows,
                               "limb_sigma_before_mm": _finite_or_none(report.limb_sigma_before_mm),
                               "limb_sigma_after_mm": _finite_or_none(report.limb_sigma_after_mm),
                               "seconds": round(elapsed, 3), "notes": notes}), file=out_stream, flush=True)

@@ -14,6 +14,7 @@ import torch
 
 from mocapfix.clip import MotionFileError
 from mocapfix.evaluation.baselines import lerp_infill
+from mocapfix.evaluation.policy import FillPolicy
 from mocapfix.inference import xmae_reconstruct
 from mocapfix.kinematics import fk_axis_angle
 from mocapfix.models.body import build_body_model
@@ -254,9 +255,9 @@ REFUSED = {"motion-dvae-prior": "a Motion-DVAE prior checkpoint; fix needs the d
                                 "(configs/motion_dvae_denoise*.yaml with model.init_args.prior_ckpt set to this file)"}
 
 
-def read_checkpoint(path) -> tuple[dict, dict]:
-    """A checkpoint -> (hyper_parameters, state_dict), loaded with weights_only=True (plain
-    values only: a checkpoint can never run code here). Anything else is a MotionFileError."""
+def read_checkpoint(path) -> dict:
+    """A checkpoint, loaded with weights_only=True (plain values only: a checkpoint can never run
+    code here), with a hyper_parameters and a state_dict dict. Anything else is a MotionFileError."""
     path = Path(path)
     if not path.is_file():
         raise MotionFileError(path, "no such checkpoint file" if not path.exists() else "is not a file")
@@ -270,20 +271,28 @@ def read_checkpoint(path) -> tuple[dict, dict]:
     if not isinstance(ckpt, dict) or not isinstance(ckpt.get("hyper_parameters"), dict) \
             or not isinstance(ckpt.get("state_dict"), dict):
         raise MotionFileError(path, "not a mocapfix checkpoint: no hyper_parameters and state_dict")
-    return ckpt["hyper_parameters"], ckpt["state_dict"]
+    return ckpt
 
 
 def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32") -> Fixer:
     """The Fixer for a checkpoint file (FIXERS: XMAE, the Motion-DVAE denoising stage).
     precision: fp32, bf16 or auto (resolve_precision; XMAE only)."""
-    hparams, state_dict = read_checkpoint(path)
+    ckpt = read_checkpoint(path)
+    hparams, state_dict = ckpt["hyper_parameters"], ckpt["state_dict"]
     kind = model_kind(hparams, state_dict)
     if kind in REFUSED:
         raise MotionFileError(path, REFUSED[kind])
     if kind not in FIXERS:
         raise MotionFileError(path, "not a mocapfix checkpoint of a model fix knows "
                                     f"({', '.join(FIXERS)}): no matching network weights")
-    return FIXERS[kind].from_checkpoint(path, hparams, state_dict, device, precision)
+    fixer = FIXERS[kind].from_checkpoint(path, hparams, state_dict, device, precision)
+    # which fill for which hole, calibrated on the val split (evaluation/policy.py); None: the
+    # model everywhere (checkpoints from before it, until `mocapfix validate --ckpt_path` adds one)
+    try:
+        fixer.policy = FillPolicy.from_dict(ckpt["fill_policy"]) if "fill_policy" in ckpt else None
+    except (KeyError, TypeError, ValueError) as e:
+        raise MotionFileError(path, f"the checkpoint's fill policy is malformed ({e})") from None
+    return fixer
 
 
 def xmae_checkpoint(net: XMAE, skeleton: Skeleton, fps: float, **sizes) -> dict:

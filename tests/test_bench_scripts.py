@@ -177,6 +177,26 @@ def test_fix_bandai(tmp_path, bandai_dir):
     assert rows["holes"]["lerp_mm"] < 200 < rows["displaced"]["lerp_mm"]
 
 
+def test_fix_policy_bandai(tmp_path, bandai_dir):
+    """Issue 18's denoising bars on Bandai's test split, with an untrained tiny model whose policy
+    replaces nothing (a threshold no disagreement reaches): clean clips come back unchanged and
+    displaced arms stay displaced."""
+    from mocapfix.data.datamodule import MotionDataModule
+    from mocapfix.evaluation.policy import FillPolicy
+    skeleton = MotionDataModule(source="bvh", path=str(bandai_dir), fps=30, cache_dir=str(tmp_path / "cache")) \
+        .load_clips()[0].skeleton
+    sizes = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16)
+    ckpt = xmae_checkpoint(XMAE(skeleton.num_joints, 30, **sizes), skeleton, 30.0, **sizes)
+    ckpt["fill_policy"] = FillPolicy([0.5], {"full": {"xmae": [50.0], "spline": [10.0]}}, 1e4).to_dict()
+    torch.save(ckpt, tmp_path / "m.ckpt")
+    r = bench("fix_policy_bandai", "--ckpt", tmp_path / "m.ckpt", "--path", bandai_dir, "--device", "cpu",
+              tmp_path=tmp_path)
+    rows = {x["case"]: x for x in r["rows"]}
+    assert r["clips"] > 10 and rows["clean clips"]["changed_pct"] == 0.0
+    assert rows["displaced arm tokens"]["after_mm"] == pytest.approx(rows["displaced arm tokens"]["before_mm"])
+    assert 500 <= rows["displaced arm tokens"]["before_mm"] <= 1000
+
+
 @pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_inference_cuda_graphs(tmp_path):

@@ -15,8 +15,9 @@ import torch
 import torch.nn as nn
 
 from mocapfix.data.corruption import uniform_like, xmae_training_input
-from mocapfix.evaluation.baselines import lerp_infill
+from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill
 from mocapfix.evaluation.metrics import MPJPE
+from mocapfix.evaluation.policy import Calibration, FillPolicy, apply_fill_policy, suspect_tokens
 from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows, write_eval_json
 from mocapfix.inference import xmae_reconstruct
 from mocapfix.models.xmae import XMAE
@@ -59,6 +60,7 @@ class XMAEModule(L.LightningModule):
         eval_gaps_s: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9),
         eval_noise_sigmas_m: tuple[float, ...] = (0.02, 0.05),
         eval_seed: int = 0,
+        calibration_windows: int = 512,
         figure_every_n_val: int = 1,
         skeleton: dict | None = None,
         window_fps: float | None = None,
@@ -87,6 +89,10 @@ class XMAEModule(L.LightningModule):
                 (None: the Trainer's estimated number of optimiser steps).
             val_gap_s: the full-skeleton gap logged every validation, XMAE beside Lerp.
             eval_gaps_s, eval_noise_sigmas_m: the `test` tables.
+            calibration_windows: val windows (the first ones) on which every validation measures
+                XMAE against the classical fills per hole length and part, and XMAE's disagreement
+                with clean tokens: the fill policy saved in each checkpoint (evaluation/policy.py).
+                0: no policy.
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
         """
         super().__init__()
@@ -112,6 +118,7 @@ class XMAEModule(L.LightningModule):
                              "(the loss is over masked, displaced and clean_loss_ratio tokens)")
         self.save_hyperparameters()
         self.net: XMAE | None = None
+        self.fill_policy: FillPolicy | None = None  # from the last validation, or the checkpoint
         if skeleton is not None and window_frames is not None:
             self._build()
 
@@ -209,11 +216,56 @@ class XMAEModule(L.LightningModule):
             self.log(f"val/gap{self.hparams.val_gap_s}s_mpjpe_mm/{name}", metric)
         if batch_idx == 0:
             self._figure_sample = (positions[0], gap.positions[0], gap.observed[0], xmae[0])
+        if self._calibration is not None and self._calibration.windows < self.hparams.calibration_windows \
+                and not self.trainer.sanity_checking:
+            self._calibrate(positions, self._generator(batch_idx))
+
+    # --- the fill policy (evaluation/policy.py) ---
+
+    def on_validation_epoch_start(self):
+        hp = self.hparams
+        self._calibration = Calibration(hp.eval_gaps_s) if hp.get("calibration_windows", 0) > 0 else None
+
+    def _calibrate(self, positions: torch.Tensor, generator: torch.Generator) -> None:
+        """XMAE and the classical fills on the infill tasks, and XMAE on the clean windows."""
+        observed = ~torch.isnan(positions).any(-1)
+        self._calibration.add_clean(xmae_reconstruct(self.net, positions, observed), positions, observed)
+        for t in paper_tasks(self.skeleton, self.hparams.eval_gaps_s, ()):
+            if t.task != "infill":
+                continue
+            c = t.corrupt(positions, self.hparams.window_fps, self.skeleton, generator)
+            scored = t.evaluated(c, positions)
+            for name, pred in self._fills(c.positions, c.observed).items():
+                self._calibration.add_infill(t.part.split("_")[-1], t.gap_s, name, pred, positions, scored)
+
+    def _fills(self, positions: torch.Tensor, observed: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Every candidate fill of the missing tokens: XMAE's and the classical ones."""
+        return {"xmae": xmae_reconstruct(self.net, positions, observed),
+                **{name: fill(positions, observed, self.skeleton.parents) for name, fill in CLASSICAL.items()}}
+
+    def _policy_output(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+        """What `fix --mode both` outputs for a window: suspect observed tokens taken out, then
+        every hole filled by the method the policy names."""
+        keep = observed & ~suspect_tokens(self.fill_policy, xmae_reconstruct(self.net, positions, observed),
+                                          positions, observed)
+        return apply_fill_policy(self.fill_policy, positions, keep, self._fills(positions, keep),
+                                 self.hparams.window_fps, self.skeleton)[0]
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        if self.fill_policy is not None:
+            checkpoint["fill_policy"] = self.fill_policy.to_dict()
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        if "fill_policy" in checkpoint:
+            self.fill_policy = FillPolicy.from_dict(checkpoint["fill_policy"])
 
     def on_validation_epoch_end(self):
         hp = self.hparams
         if self.trainer.sanity_checking:
             return
+        policy = self._calibration.compute() if self._calibration is not None else None
+        if policy is not None:
+            self.fill_policy = policy
         mpjpe = self.trainer.callback_metrics.get("val/mpjpe_mm")
         if mpjpe is not None:
             self.log("hp_metric", mpjpe)
@@ -226,10 +278,12 @@ class XMAEModule(L.LightningModule):
     # --- test: the paper's tables ---
 
     def on_test_epoch_start(self):
+        # "policy": what fix outputs (the fill policy of this checkpoint's validation)
+        self._methods = ("xmae", *CLASSICAL) + (("policy",) if self.fill_policy is not None else ())
         self._tasks = paper_tasks(self.skeleton, self.hparams.eval_gaps_s, self.hparams.eval_noise_sigmas_m)
         self._test_metrics = nn.ModuleDict({
             f"{t.key}|{m}|{rel}".replace(".", "_"): MPJPE(root_relative=rel == "rel")
-            for t in self._tasks for m in ("xmae", "lerp") for rel in ("abs", "rel")}).to(self.device)
+            for t in self._tasks for m in self._methods for rel in ("abs", "rel")}).to(self.device)
         self.eval_rows: list[dict] = []
 
     def test_step(self, batch, batch_idx):
@@ -238,9 +292,13 @@ class XMAEModule(L.LightningModule):
         for t in self._tasks:
             c = t.corrupt(positions, self.hparams.window_fps, self.skeleton, generator)
             scored = t.evaluated(c, positions)
-            preds = {"xmae": xmae_reconstruct(self.net, c.positions, c.observed),
-                     # Lerp fills the missing tokens and leaves the observed ones as given
-                     "lerp": lerp_infill(c.positions, c.observed)}
+            # the classical fills fill the missing tokens and leave the observed ones as given
+            preds = self._fills(c.positions, c.observed)
+            if self.fill_policy is not None and t.task == "infill":  # fix --mode infill
+                preds["policy"] = apply_fill_policy(self.fill_policy, c.positions, c.observed, preds,
+                                                    self.hparams.window_fps, self.skeleton)[0]
+            elif self.fill_policy is not None:                       # fix --mode both
+                preds["policy"] = self._policy_output(c.positions, c.observed)
             for m, pred in preds.items():
                 for rel in ("abs", "rel"):
                     self._test_metrics[f"{t.key}|{m}|{rel}".replace(".", "_")].update(pred.float(), positions.float(), scored)
@@ -248,7 +306,7 @@ class XMAEModule(L.LightningModule):
     def on_test_epoch_end(self):
         results = {}
         for t in self._tasks:
-            for m in ("xmae", "lerp"):
+            for m in self._methods:
                 k = f"{t.key}|{m}|".replace(".", "_")
                 results[(t.key, m)] = (float(self._test_metrics[k + "abs"].compute()),
                                        float(self._test_metrics[k + "rel"].compute()))
@@ -258,6 +316,8 @@ class XMAEModule(L.LightningModule):
             self.log(f"test/{r['task']}/{r['part']}/{param}/{r['method']}_mpjpe_mm", r["mpjpe_mm"])
         if self.trainer.is_global_zero:
             print("\n" + format_table(self.eval_rows))
+            if self.fill_policy is not None:
+                print("fill policy (val split):\n  " + "\n  ".join(self.fill_policy.describe()))
             log_dir = Path(self.logger.log_dir if self.logger and self.logger.log_dir else self.trainer.default_root_dir)
             self.eval_json_path = write_eval_json(log_dir / "eval.json", self.eval_rows)
 

@@ -1,0 +1,172 @@
+"""The fill policy: which method fills each hole, and which observed tokens a model may replace,
+decided on held-out data so that mocapfix never outputs worse than the best classical fill.
+
+A small model can lose to a cubic spline on short holes and win on long ones; a large one can
+lose at 0.1 s and win everywhere else. So the model's error and each classical fill's error are
+measured per hole length and body part on the validation split (Calibration, from a training
+module's validation) and stored in the checkpoint (FillPolicy.to_dict). `fix` and the test
+tables then fill each hole with the method that was best for holes of its length and part, and
+replace an observed token only where the model disagrees with it by more than the model ever
+does with clean data (replace_threshold_m).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from mocapfix.skeleton import Skeleton
+
+PARTS = ("full", "arm", "leg")
+CLEAN_QUANTILE = 0.995  # of the model's disagreement with clean observed tokens: above it, a token is suspect
+LEARNED = ("xmae",)     # the methods that are models; every other is a classical fill
+MODEL_MARGIN = 0.98     # a model fills a hole only where its val error is 2 % below the best classical fill's
+
+
+@dataclass
+class FillPolicy:
+    gaps_s: list[float]                                  # the hole lengths measured, ascending
+    error_mm: dict[str, dict[str, list[float]]]          # part -> method -> MPJPE per gap (val split)
+    replace_threshold_m: float | None = None             # None: never replace an observed token
+    windows: int = 0                                     # val windows it was measured on
+    notes: list[str] = field(default_factory=list)
+
+    def best(self, part: str, gap_s: float) -> str:
+        """The method with the lowest error for holes of this part, at the measured length nearest
+        gap_s; the model only where it beats the best classical fill by MODEL_MARGIN (in doubt,
+        the fill whose behaviour a user knows)."""
+        table = self.error_mm.get(part) or self.error_mm["full"]
+        i = min(range(len(self.gaps_s)), key=lambda k: abs(self.gaps_s[k] - gap_s))
+        classical = [m for m in table if m not in LEARNED]
+        best = min(classical, key=lambda m: table[m][i]) if classical else None
+        model = min((m for m in table if m in LEARNED), key=lambda m: table[m][i], default=None)
+        if best is None or (model is not None and table[model][i] < MODEL_MARGIN * table[best][i]):
+            return model
+        return best
+
+    def methods(self) -> list[str]:
+        return sorted({m for table in self.error_mm.values() for m in table})
+
+    def describe(self) -> list[str]:
+        """One line per part: the method chosen at each measured gap, with its error and the best
+        classical fill's."""
+        lines = []
+        for part, table in self.error_mm.items():
+            cells = []
+            for i, g in enumerate(self.gaps_s):
+                m = self.best(part, g)
+                classical = min(v[i] for k, v in table.items() if k not in LEARNED)
+                cells.append(f"{g:g}s {m} {table[m][i]:.1f} (classical {classical:.1f})")
+            lines.append(f"{part}: " + ", ".join(cells))
+        if self.replace_threshold_m is not None:
+            lines.append(f"observed tokens replaced where the model disagrees by more than "
+                         f"{1000 * self.replace_threshold_m:.0f} mm")
+        return lines
+
+    def to_dict(self) -> dict:
+        """Plain values (a checkpoint loaded with weights_only=True holds nothing else)."""
+        return {"gaps_s": list(self.gaps_s), "error_mm": self.error_mm, "replace_threshold_m": self.replace_threshold_m,
+                "windows": self.windows, "notes": list(self.notes)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FillPolicy":
+        return cls([float(g) for g in d["gaps_s"]], d["error_mm"], d.get("replace_threshold_m"),
+                   int(d.get("windows", 0)), list(d.get("notes", [])))
+
+
+def hole_frames(observed: torch.Tensor) -> torch.Tensor:
+    """observed: (B, T, J) bool -> (B, T, J) long: for a missing token, the length in frames of the
+    run of missing frames of its joint that it is in; 0 for observed tokens."""
+    B, T, J = observed.shape
+    t = torch.arange(T, device=observed.device).view(1, T, 1).expand(B, T, J)
+    prev = torch.where(observed, t, -1).cummax(dim=1).values                     # last observed at or before t
+    nxt = torch.where(observed, t, T).flip(1).cummin(dim=1).values.flip(1)       # first observed at or after t
+    return torch.where(observed, 0, nxt - prev - 1)
+
+
+def token_parts(observed: torch.Tensor, skeleton: Skeleton) -> torch.Tensor:
+    """observed: (B, T, J) -> (B, T, J) index into PARTS of the table a missing token is filled by:
+    "full" in frames that miss at least half the joints (a body-wide hole), else the limb the joint
+    belongs to (arm, leg), else "full"."""
+    B, T, J = observed.shape
+    limb = torch.zeros(J, dtype=torch.long, device=observed.device)
+    for group, members in skeleton.groups.items():
+        limb[list(members)] = PARTS.index(group.split("_")[-1])
+    body_wide = (~observed).float().mean(dim=-1, keepdim=True) >= 0.5             # (B, T, 1)
+    return torch.where(body_wide, 0, limb.view(1, 1, J).expand(B, T, J))
+
+
+def apply_fill_policy(policy: FillPolicy, positions: torch.Tensor, observed: torch.Tensor,
+                      fills: dict[str, torch.Tensor], fps: float, skeleton: Skeleton
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each missing token from the fill the policy names for its hole; observed tokens as given.
+
+    positions: (B, T, J, 3); observed: (B, T, J) bool; fills: method -> (B, T, J, 3), holding
+    every method the policy may name -> (B, T, J, 3), and (B, T, J) the index into list(fills)
+    of the fill each token took (-1 for observed tokens)."""
+    names = list(fills)
+    stacked = torch.stack([fills[m] for m in names])                              # (M, B, T, J, 3)
+    seconds = hole_frames(observed).float() / fps
+    parts = token_parts(observed, skeleton)
+    # the choice depends only on (part, nearest measured gap): a lookup table, not a per-token loop
+    edges = torch.tensor([(a + b) / 2 for a, b in zip(policy.gaps_s, policy.gaps_s[1:])], device=observed.device)
+    gap_index = torch.bucketize(seconds.contiguous(), edges)                      # (B, T, J) into gaps_s
+    table = torch.tensor([[names.index(policy.best(p, g)) for g in policy.gaps_s] for p in PARTS],
+                         device=observed.device)                                  # (parts, gaps)
+    choice = table[parts, gap_index]                                              # (B, T, J)
+    out = stacked.gather(0, choice[None, ..., None].expand(1, *choice.shape, 3))[0]
+    return torch.where(observed[..., None], positions, out), torch.where(observed, -1, choice)
+
+
+def suspect_tokens(policy: FillPolicy, estimate: torch.Tensor, positions: torch.Tensor,
+                   observed: torch.Tensor) -> torch.Tensor:
+    """(B, T, J) bool: observed tokens the model disagrees with by more than it does with clean data
+    (displaced or glitched joints); none without a calibrated threshold.
+    estimate: the model's estimate with every available token observed."""
+    if policy.replace_threshold_m is None:
+        return torch.zeros_like(observed)
+    far = (estimate.float() - torch.nan_to_num(positions.float())).norm(dim=-1) > policy.replace_threshold_m
+    return observed & far
+
+
+class Calibration:
+    """Accumulates, over validation batches, each method's error per (part, gap) on infill tasks
+    and the model's disagreement with clean observed tokens -> FillPolicy."""
+
+    def __init__(self, gaps_s):
+        self.gaps_s = sorted(float(g) for g in gaps_s)
+        self.sums: dict[tuple[str, float, str], list[float]] = {}  # (part, gap, method) -> [error sum m, count]
+        self.clean: list[torch.Tensor] = []
+        self.windows = 0
+
+    def add_infill(self, part: str, gap_s: float, method: str, pred: torch.Tensor, target: torch.Tensor,
+                   scored: torch.Tensor) -> None:
+        """pred, target: (B, T, J, 3) metres; scored: (B, T, J) bool (the filled tokens with truth)."""
+        err = (pred.float() - torch.nan_to_num(target.float())).norm(dim=-1)[scored]
+        s = self.sums.setdefault((part, float(gap_s), method), [0.0, 0])
+        s[0] += float(err.sum())
+        s[1] += int(err.numel())
+
+    def add_clean(self, estimate: torch.Tensor, positions: torch.Tensor, observed: torch.Tensor) -> None:
+        """The model's estimate of windows it saw whole: how far it strays from clean data."""
+        self.clean.append((estimate.float() - torch.nan_to_num(positions.float())).norm(dim=-1)[observed].cpu())
+        self.windows += len(positions)
+
+    def compute(self) -> FillPolicy | None:
+        if not self.sums:
+            return None
+        error: dict[str, dict[str, list[float]]] = {}
+        for part in PARTS:
+            methods = sorted({m for (p, _, m) in self.sums if p == part})
+            rows = {m: [1000.0 * self.sums[(part, g, m)][0] / max(self.sums[(part, g, m)][1], 1)
+                        if (part, g, m) in self.sums else float("inf") for g in self.gaps_s] for m in methods}
+            if rows:
+                error[part] = rows
+        threshold = None
+        if self.clean:
+            d = torch.cat(self.clean)
+            if d.numel():
+                # a sample is enough for the quantile (torch.quantile refuses very large inputs)
+                d = d[torch.randperm(d.numel(), generator=torch.Generator().manual_seed(0))[:1_000_000]]
+                threshold = float(torch.quantile(d.double(), CLEAN_QUANTILE))
+        return FillPolicy(self.gaps_s, error, threshold, self.windows)
