@@ -8,6 +8,7 @@ from __future__ import annotations
 import torch
 
 from mocapfix.data.corruption import denormalize, kept_index, normalize
+from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.models.xmae import XMAE
 
 
@@ -21,5 +22,14 @@ def xmae_reconstruct(net: XMAE, positions: torch.Tensor, observed: torch.Tensor)
     kept, padding = kept_index(observed)
     if not padding.any():  # every window has the same observed count (e.g. fully observed)
         padding = None     # no mask: the fastest attention kernels apply
-    out = net(x.reshape(B, T * J, 3), kept, padding).reshape(B, T, J, 3)
+    fill = xmae_fill(x, observed) if net.fill_input else None
+    out = net(x.reshape(B, T * J, 3), kept, padding, fill).reshape(B, T, J, 3)
     return denormalize(out.to(positions.dtype), offset)
+
+
+def xmae_fill(x: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+    """The classical fill an XMAE built with fill_input corrects: Lerp of the (normalised) tokens.
+    x: (B, T, J, 3), observed: (B, T, J) -> (B, T*J, 3). Lerp, not a spline: it runs on the device
+    in the training step, with no host round trip."""
+    B, T, J, _ = x.shape
+    return lerp_infill(x, observed).reshape(B, T * J, 3)

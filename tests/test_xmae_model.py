@@ -121,3 +121,26 @@ def test_bf16_autocast_keeps_coordinates_in_full_precision():
         out = net(x, kept)
     assert not torch.equal(a, b)
     assert out.dtype == torch.float32
+
+
+def test_fill_input_starts_at_the_fill_and_learns_a_correction():
+    """fill_input (not in the paper): the untrained network answers the Lerp fill exactly (its
+    correction head starts at zero), and one optimiser step moves it off."""
+    from mocapfix.evaluation.baselines import lerp_infill
+    from mocapfix.inference import xmae_reconstruct
+    torch.manual_seed(0)
+    net = XMAE(5, 6, enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64,
+               head_dim=16, fill_input=True)
+    g = torch.Generator().manual_seed(2)
+    x = torch.randn(3, 6, 5, 3, generator=g)
+    observed = torch.rand(3, 6, 5, generator=g) < 0.6
+    torch.testing.assert_close(xmae_reconstruct(net, x, observed), lerp_infill(x, observed), atol=1e-5, rtol=0)
+    opt = torch.optim.SGD(net.parameters(), lr=0.1)
+    (xmae_reconstruct(net, x, observed) - x).pow(2).mean().backward()
+    opt.step()
+    assert (xmae_reconstruct(net, x, observed) - lerp_infill(x, observed)).abs().max() > 1e-4
+    kept, pad = kept_index(observed)
+    with pytest.raises(ValueError, match="fill_input"):
+        net(x.reshape(3, 30, 3), kept, pad)                       # built with fill_input: a fill is needed
+    with pytest.raises(ValueError, match="cross"):
+        XMAE(5, 6, decoder="mae", fill_input=True)

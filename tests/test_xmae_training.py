@@ -347,3 +347,18 @@ def test_no_command_is_the_usage_and_a_usage_error(capsys):
     captured = capsys.readouterr()
     assert captured.err.startswith("usage: mocapfix") and "Traceback" not in captured.err
     assert main(["--help"]) == 0 and "mocapfix fix INPUT" in capsys.readouterr().out
+
+
+def test_fill_input_trains_resumes_and_fixes(tmp_path):
+    """The fill_input switch end to end: a checkpoint that fix loads as the same network."""
+    from mocapfix.fixers import load_fixer
+    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "fill",
+              "--model.init_args.fill_input", "true", "--trainer.val_check_interval", "2"]
+    assert run_cli([*common, "--trainer.max_steps", "2"], tmp_path) == 0
+    assert run_cli([*common, "--trainer.max_steps", "4", "--ckpt_path", "last"], tmp_path) == 0
+    fixer = load_fixer(tmp_path / "checkpoints" / "fill" / "last.ckpt")
+    assert fixer.net.fill_input
+    x = torch.randn(2, 30, 22, 3)
+    observed = torch.rand(2, 30, 22) < 0.5
+    out = fixer.estimate(x, observed)
+    assert out.shape == x.shape and torch.isfinite(out).all()

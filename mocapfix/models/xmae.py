@@ -106,11 +106,19 @@ class XMAE(nn.Module):
         head_dim: int = 64,
         decoder: str = "cross",
         position_unit_m: float = 0.1,
+        fill_input: bool = False,
     ):
         super().__init__()
         if decoder not in ("cross", "mae"):
             raise ValueError(f"decoder must be 'cross' (XMAE) or 'mae' (original MAE), got {decoder!r}")
+        if fill_input and decoder != "cross":
+            raise ValueError("fill_input needs the cross-attention decoder (decoder='cross')")
         self.num_joints, self.num_frames, self.decoder_type = num_joints, num_frames, decoder
+        # Not in the paper: with fill_input the decoder's queries also carry a classical fill of
+        # every token (inference.py: Lerp) and the network predicts the correction to it. A small
+        # network then starts from the interpolation instead of having to learn it, and spends its
+        # capacity on what interpolation gets wrong.
+        self.fill_input = fill_input
         # The network reads and writes positions in units of position_unit_m (default 0.1 m).
         # In metres, a joint's motion within a window (cm) is a tiny signal beside the metre-scale
         # body, and training sits at the mean pose for thousands of steps (docs/xmae-notes.md).
@@ -129,6 +137,8 @@ class XMAE(nn.Module):
             # with separate decoder encodings the cross-attention has to learn to align two
             # unrelated codes, and in practice it does not (the output collapses to a mean pose).
             self.mask_token = nn.Parameter(torch.zeros(enc_dim))
+            if fill_input:
+                self.fill_embed = nn.Linear(3, enc_dim)
         else:
             # original MAE: the decoder has its own positional encodings, added to mask tokens and
             # to the encoded tokens alike (MAE's decoder_pos_embed), which aligns them.
@@ -148,6 +158,8 @@ class XMAE(nn.Module):
             if p is not None:
                 nn.init.normal_(p, std=1.0)
         nn.init.normal_(self.mask_token, std=0.02)
+        if fill_input:  # the correction starts at zero: the untrained network answers the fill itself
+            nn.init.zeros_(self.head.weight)
 
     @staticmethod
     def _init_weights(m):
@@ -170,17 +182,23 @@ class XMAE(nn.Module):
             x = blk(x, key_padding=padding)
         return self.enc_to_dec(self.enc_norm(x))                                            # (B, K, Dd)
 
-    def decode(self, memory: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None) -> torch.Tensor:
+    def decode(self, memory: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None,
+               fill: torch.Tensor | None = None) -> torch.Tensor:
         B = memory.shape[0]
         if self.decoder_type == "cross":
             pos = self._positions(self.enc_pos_joint, self.enc_pos_time)                   # (N, D)
-            queries = self.enc_to_dec(self.mask_token + pos)[None]                          # (1, N, Dd)
-            # The queries are the same for every sample, and so is the first block's
-            # self-attention over them (the samples first differ in its cross-attention): run it
-            # once, not B times: attention over all J*T queries is the decoder's largest layer, and
-            # this one is 13 % of a training step's arithmetic (docs/performance.md).
             first = self.decoder[0]
-            x = first.attend_memory(first.attend_queries(queries).expand(B, -1, -1), memory, padding)  # (B, N, Dd)
+            if fill is None:
+                queries = self.enc_to_dec(self.mask_token + pos)[None]                      # (1, N, Dd)
+                # The queries are the same for every sample, and so is the first block's
+                # self-attention over them (the samples first differ in its cross-attention): run
+                # it once, not B times: attention over all J*T queries is the decoder's largest
+                # layer, and this one is 13 % of a training step's arithmetic (docs/performance.md).
+                x = first.attend_queries(queries).expand(B, -1, -1)                         # (B, N, Dd)
+            else:
+                fill_code = _full_precision(self.fill_embed, fill / self.position_unit_m)  # (B, N, D)
+                x = first.attend_queries(self.enc_to_dec(self.mask_token + pos + fill_code))
+            x = first.attend_memory(x, memory, padding)                                     # (B, N, Dd)
             for blk in self.decoder[1:]:
                 x = blk(x, memory, memory_padding=padding)
         else:  # MAE: encoded tokens replace the mask tokens at their own positions
@@ -193,17 +211,22 @@ class XMAE(nn.Module):
             x = x.scatter(1, index[..., None].expand(-1, -1, memory.shape[-1]), memory + pos[kept])[:, :-1]
             for blk in self.decoder:
                 x = blk(x)
-        return _full_precision(self.head, self.dec_norm(x)) * self.position_unit_m         # (B, N, 3) metres
+        out = _full_precision(self.head, self.dec_norm(x)) * self.position_unit_m          # (B, N, 3) metres
+        return out if fill is None else fill + out
 
-    def forward(self, tokens: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, tokens: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None = None,
+                fill: torch.Tensor | None = None) -> torch.Tensor:
         """tokens: (B, N, 3), N = T*J (t-major, joint fastest); kept: (B, K) observed token indices;
         padding: (B, K) True where a sample has fewer than K observed tokens (None: all real; pass
-        None when you know it, the attention then runs without a mask, on the fastest kernels).
+        None when you know it, the attention then runs without a mask, on the fastest kernels);
+        fill: (B, N, 3) a classical fill of every token, in the tokens' frame (fill_input only).
         Returns every token's 3D position (B, N, 3)."""
+        if (fill is not None) != self.fill_input:
+            raise ValueError("pass fill exactly when the network was built with fill_input")
         if padding is not None:
             # A sample with no observed token would attend to nothing (NaN): let it attend to one
             # zero-valued slot instead; its output is then the model's unconditional guess.
             # (Elementwise, not padding[padding.all(1), 0] = False: boolean indexing waits for the device.)
             first = torch.arange(padding.shape[1], device=padding.device) == 0             # (K,)
             padding = padding & ~(padding.all(1, keepdim=True) & first)
-        return self.decode(self.encode(tokens, kept, padding), kept, padding)
+        return self.decode(self.encode(tokens, kept, padding), kept, padding, fill)

@@ -19,7 +19,7 @@ from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.policy import Calibration, FillPolicy, apply_fill_policy, suspect_tokens
 from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows, write_eval_json
-from mocapfix.inference import xmae_reconstruct
+from mocapfix.inference import xmae_fill, xmae_reconstruct
 from mocapfix.models.xmae import XMAE
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.figures import log_validation_figure
@@ -43,6 +43,7 @@ class XMAEModule(L.LightningModule):
         head_dim: int = 64,
         decoder: str = "cross",
         position_unit_m: float = 0.1,
+        fill_input: bool = False,
         mask_ratio: float = 0.85,
         displace_ratio: float = 0.05,
         max_displacement_m: float = 1.0,
@@ -71,6 +72,8 @@ class XMAEModule(L.LightningModule):
             enc_* / dec_* / head_dim: widths and depths (paper Table 1 by default).
             decoder: "cross" (XMAE) or "mae" (original MAE decoder, ablation).
             position_unit_m: the network's internal position unit (inputs divided, outputs multiplied).
+            fill_input: not in the paper: the decoder also reads a Lerp fill of every token and the
+                network predicts the correction to it (models/xmae.py).
             mask_ratio, displace_ratio: fractions of all J*T tokens masked / displaced in training.
             max_displacement_m: radius of the ball displacement offsets are drawn from.
             clean_loss_ratio: fraction of all tokens kept clean AND put in the loss ("BERT masking": 0.05).
@@ -131,7 +134,8 @@ class XMAEModule(L.LightningModule):
     def _build(self) -> None:
         hp = self.hparams
         self.net = XMAE(len(hp.skeleton["parents"]), hp.window_frames, hp.enc_dim, hp.enc_depth, hp.enc_mlp_dim,
-                        hp.dec_dim, hp.dec_depth, hp.dec_mlp_dim, hp.head_dim, hp.decoder, hp.position_unit_m)
+                        hp.dec_dim, hp.dec_depth, hp.dec_mlp_dim, hp.head_dim, hp.decoder, hp.position_unit_m,
+                        hp.get("fill_input", False))
         if hp.get("compile_model"):
             # in place: parameter names (and so checkpoints) stay as without it
             self.net.compile(mode=hp.get("compile_mode", "default"))
@@ -174,7 +178,8 @@ class XMAEModule(L.LightningModule):
         x, target, c, offset, kept, padding = xmae_training_input(
             positions, hp.mask_ratio, hp.displace_ratio, hp.max_displacement_m, hp.fixed_kept_count,
             hp.rotate_augment and self.training, generator, hp.gap_ratio if self.training else 0.0)
-        pred = self.net(x, kept, padding).reshape(B, T, J, 3)
+        fill = xmae_fill(x.reshape(B, T, J, 3), c.observed) if self.net.fill_input else None
+        pred = self.net(x, kept, padding, fill).reshape(B, T, J, 3)
         has_truth = ~torch.isnan(target).any(-1)
         in_loss = (~c.observed | c.displaced) & has_truth
         if hp.clean_loss_ratio > 0:  # BERT masking: some clean observed tokens are scored too
