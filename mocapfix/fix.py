@@ -207,9 +207,8 @@ def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: fl
         report.filled = 0
     report.windows += first.windows
     report.limb_sigma_before_mm = first.limb_sigma_before_mm
-    report.notes.insert(0, f"{suspects} observed tokens replaced (the model disagreed by more than "
-                           f"{1000 * policy.replace_threshold_m:.0f} mm)" if policy.replace_threshold_m is not None
-                        else "the policy has no replace threshold: observed tokens kept")
+    report.notes.insert(0, f"replaced where the model disagreed by more than {1000 * policy.replace_threshold_m:.0f} mm"
+                        if policy.replace_threshold_m is not None else "no replace threshold: observed tokens kept")
     return out, report
 
 

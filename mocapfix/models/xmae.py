@@ -138,7 +138,7 @@ class XMAE(nn.Module):
             # unrelated codes, and in practice it does not (the output collapses to a mean pose).
             self.mask_token = nn.Parameter(torch.zeros(enc_dim))
             if fill_input:
-                self.fill_embed = nn.Linear(3, enc_dim)
+                self.fill_embed = nn.Linear(3, dec_dim)
         else:
             # original MAE: the decoder has its own positional encodings, added to mask tokens and
             # to the encoded tokens alike (MAE's decoder_pos_embed), which aligns them.
@@ -187,17 +187,15 @@ class XMAE(nn.Module):
         B = memory.shape[0]
         if self.decoder_type == "cross":
             pos = self._positions(self.enc_pos_joint, self.enc_pos_time)                   # (N, D)
+            queries = self.enc_to_dec(self.mask_token + pos)[None]                          # (1, N, Dd)
+            # The queries are the same for every sample, and so is the first block's
+            # self-attention over them (the samples first differ in its cross-attention): run it
+            # once, not B times: attention over all J*T queries is the decoder's largest layer, and
+            # this one is 13 % of a training step's arithmetic (docs/performance.md).
             first = self.decoder[0]
-            if fill is None:
-                queries = self.enc_to_dec(self.mask_token + pos)[None]                      # (1, N, Dd)
-                # The queries are the same for every sample, and so is the first block's
-                # self-attention over them (the samples first differ in its cross-attention): run
-                # it once, not B times: attention over all J*T queries is the decoder's largest
-                # layer, and this one is 13 % of a training step's arithmetic (docs/performance.md).
-                x = first.attend_queries(queries).expand(B, -1, -1)                         # (B, N, Dd)
-            else:
-                fill_code = _full_precision(self.fill_embed, fill / self.position_unit_m)  # (B, N, D)
-                x = first.attend_queries(self.enc_to_dec(self.mask_token + pos + fill_code))
+            x = first.attend_queries(queries).expand(B, -1, -1)                             # (B, N, Dd)
+            if fill is not None:  # each query learns its token's fill after the shared part
+                x = x + _full_precision(self.fill_embed, fill / self.position_unit_m).to(x.dtype)
             x = first.attend_memory(x, memory, padding)                                     # (B, N, Dd)
             for blk in self.decoder[1:]:
                 x = blk(x, memory, memory_padding=padding)

@@ -122,6 +122,7 @@ class XMAEModule(L.LightningModule):
         self.save_hyperparameters()
         self.net: XMAE | None = None
         self.fill_policy: FillPolicy | None = None  # from the last validation, or the checkpoint
+        self._calibration: Calibration | None = None  # the running validation's measurements
         if skeleton is not None and window_frames is not None:
             self._build()
 
