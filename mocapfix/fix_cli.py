@@ -11,7 +11,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -23,8 +25,8 @@ from mocapfix.fix import MODES, fix_clips, map_joints, rotation_clips
 from mocapfix.fixers import PRECISIONS, load_fixer
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import write_bvh_like
-from mocapfix.io.files import atomic_write
 from mocapfix.io.conventions import metres_per_unit, to_z_up
+from mocapfix.io.files import atomic_write
 from mocapfix.io.positions import load_npz, npz_array, write_clips, write_positions
 
 FIXED = ".fixed"          # default output: <stem>.fixed<ext> beside the input
@@ -274,14 +276,35 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--overlap must be in [0, 1)")
     if args.device == "cuda" and not torch.cuda.is_available():
         ap.error("--device cuda, but no CUDA device is available")
+    # SIGTERM (a scheduler's time limit, `kill`) ends the run the way Ctrl-C does: as an exception,
+    # so the output being written loses its temporary file (atomic_write) instead of the process
+    # dying with it on disk.
+    previous = signal.signal(signal.SIGTERM, _terminated) \
+        if threading.current_thread() is threading.main_thread() else None
     try:
         return fix_files(args.paths, args.ckpt, args.out, args.out_dir, args.mode, _device(args.device),
                          args.batch_size, args.overlap, args.force, args.source, args.progress, args.json,
                          precision=args.precision, unit=args.unit, up_axis=args.up_axis, fps=args.fps,
                          body_model_path=args.body_model)
     except KeyboardInterrupt:  # outputs are renamed into place whole: nothing half-written is left
-        print("mocapfix fix: interrupted", file=sys.stderr)
+        print("mocapfix fix: interrupted (outputs written so far are whole; the one in progress was not written)",
+              file=sys.stderr)
         return 130
+    except _Terminated:
+        print("mocapfix fix: stopped by SIGTERM (outputs written so far are whole; the one in progress was not "
+              "written)", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class _Terminated(BaseException):
+    """SIGTERM, raised where the program is: not an Exception, so no per-file handler swallows it."""
+
+
+def _terminated(signum, frame):
+    raise _Terminated()
 
 
 if __name__ == "__main__":

@@ -645,3 +645,33 @@ def test_an_error_about_another_file_names_the_input_too(tmp_path):
     own = MotionFileError(tmp_path / "a.npz", "no betas (body shape)")
     assert _one_line(tmp_path / "a.npz", own) == f"{tmp_path / 'a.npz'}: no betas (body shape)"
     assert _one_line(tmp_path / "a.npz", ValueError("bad")) == f"{tmp_path / 'a.npz'}: ValueError: bad"
+
+
+def test_sigterm_stops_fix_with_one_line_exit_143_and_no_temp_files(tmp_path, ckpt):
+    """A scheduler's SIGTERM mid-run: the outputs written so far are whole, no hidden temporary
+    file is left, one line says so, and the exit code is 143."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    clips = generate_clips(24, 30.0, fps=30, seed=3)
+    for i, c in enumerate(clips):
+        pos = c.positions.copy()
+        pos[::7, 5] = np.nan
+        write_positions(tmp_path / f"take{i:02d}.npz", pos, 30, SMPL)
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    proc = subprocess.Popen([sys.executable, "-m", "mocapfix", "fix", str(tmp_path), "--ckpt", str(ckpt),
+                             "--out-dir", str(tmp_path / "out"), "--progress", "never"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    first = proc.stdout.readline()                     # the first file is done: the run is under way
+    assert "->" in first, proc.stderr.read()
+    time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert "stopped by SIGTERM" in err and "Traceback" not in err
+    outputs = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert outputs and not any(n.startswith(".") for n in outputs) and len(outputs) < 24
+    for name in outputs:                               # every file there is whole
+        assert np.isfinite(read_motion(tmp_path / "out" / name)[0].positions).all()
