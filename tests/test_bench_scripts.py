@@ -177,6 +177,13 @@ def test_fix_bandai(tmp_path, bandai_dir):
     assert rows["holes"]["lerp_mm"] < 200 < rows["displaced"]["lerp_mm"]
 
 
+def test_units_bandai(tmp_path, bandai_dir):
+    r = bench("units_bandai", "--path", bandai_dir, "--every", "192", tmp_path=tmp_path)
+    rows = {x["written_in"]: x for x in r["rows"]}
+    assert r["files"] == 2 and rows["inch"]["unit_found"] == "inch" and rows["mm"]["up_axis_right"] == "4 of 4"
+    assert 0.95 < rows["0.0564"]["hip_ratio_min"] <= rows["0.0564"]["hip_ratio_max"] < 1.05
+
+
 def test_fix_policy_bandai(tmp_path, bandai_dir):
     """Issue 18's denoising bars on Bandai's test split, with an untrained tiny model whose policy
     replaces nothing (a threshold no disagreement reaches): clean clips come back unchanged and
