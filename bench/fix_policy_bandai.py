@@ -50,15 +50,17 @@ def main(argv=None) -> int:
     ap.add_argument("--path", default=str(DEFAULT_BVH), help="the BVH folder the checkpoint was trained on")
     ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--max-clips", type=int, default=None, help="the first N test clips only (a smoke run)")
+    ap.add_argument("--cache-dir", default=None, help="the data module's parsed-clips cache (default: none)")
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
     device = pick_device(args.device)
     fixer = load_fixer(args.ckpt, device)
     if fixer.policy is None:
         raise SystemExit(f"{args.ckpt} has no fill policy: `mocapfix validate --ckpt_path` calibrates one")
-    dm = MotionDataModule(source="bvh", path=args.path, fps=30, cache_dir=None)
+    dm = MotionDataModule(source="bvh", path=args.path, fps=30, cache_dir=args.cache_dir)
     dm.setup("test")
-    clips = dm.clips["test"]
+    clips = dm.clips["test"][:args.max_clips]
     rng = np.random.default_rng(args.seed)
 
     t0 = time.perf_counter()

@@ -249,13 +249,16 @@ class XMAEModule(L.LightningModule):
         return {"xmae": xmae_reconstruct(self.net, positions, observed),
                 **{name: fill(positions, observed, self.skeleton.parents) for name, fill in CLASSICAL.items()}}
 
-    def _policy_output(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+    def _policy_output(self, positions: torch.Tensor, observed: torch.Tensor,
+                       fills: dict[str, torch.Tensor]) -> torch.Tensor:
         """What `fix --mode both` outputs for a window: suspect observed tokens taken out, then
-        every hole filled by the method the policy names."""
-        keep = observed & ~suspect_tokens(self.fill_policy, xmae_reconstruct(self.net, positions, observed),
-                                          positions, observed)
-        return apply_fill_policy(self.fill_policy, positions, keep, self._fills(positions, keep),
-                                 self.hparams.window_fps, self.skeleton)[0]
+        every hole filled by the method the policy names. fills: _fills(positions, observed)."""
+        suspect = suspect_tokens(self.fill_policy, fills["xmae"], positions, observed)
+        keep = observed & ~suspect
+        if suspect.any():  # other holes: fill again
+            fills = self._fills(positions, keep)
+        return apply_fill_policy(self.fill_policy, positions, keep, fills, self.hparams.window_fps,
+                                 self.skeleton)[0]
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.fill_policy is not None:
@@ -304,7 +307,7 @@ class XMAEModule(L.LightningModule):
                 preds["policy"] = apply_fill_policy(self.fill_policy, c.positions, c.observed, preds,
                                                     self.hparams.window_fps, self.skeleton)[0]
             elif self.fill_policy is not None:                       # fix --mode both
-                preds["policy"] = self._policy_output(c.positions, c.observed)
+                preds["policy"] = self._policy_output(c.positions, c.observed, preds)
             for m, pred in preds.items():
                 for rel in ("abs", "rel"):
                     self._test_metrics[f"{t.key}|{m}|{rel}".replace(".", "_")].update(pred.float(), positions.float(), scored)
