@@ -30,4 +30,6 @@ def main(argv: list[str] | None = None) -> int:
     return cli_main(["fit", "--config", str(config), "--experiment", args.experiment,
                      "--trainer.max_steps", str(args.steps), "--trainer.accelerator", "cpu",
                      "--trainer.val_check_interval", str(min(100, args.steps)),
-                     "--model.init_args.warmup_steps", str(max(1, args.steps // 10))])
+                     "--model.init_args.warmup_steps", str(max(1, args.steps // 10)),
+                     # the fill policy from a few val windows: the paper-sized network is slow on a CPU
+                     "--model.init_args.calibration_windows", "32"])

@@ -162,7 +162,8 @@ def test_fit_on_a_folder_with_absurd_values_stays_finite_and_fix_fills_them(band
     assert all(torch.isfinite(v).all() for v in state.values() if v.is_floating_point())
 
     from mocapfix.fix_cli import main as fix_main
-    assert fix_main([str(data / "a.bvh"), "--ckpt", str(ckpt), "--out-dir", str(tmp_path / "out"), "--progress", "never"]) == 0
+    assert fix_main([str(data / "a.bvh"), "--ckpt", str(ckpt), "--out-dir", str(tmp_path / "out"),
+                     "--progress", "never"]) == 0
     [fixed] = read_motion(tmp_path / "out" / "a.npz")
     assert not fixed.missing_mask().any()                           # the absurd frames were filled
     pos = fixed.positions

@@ -175,8 +175,8 @@ def stature_warning(stature: float, meta: dict, source) -> str | None:
     if not math.isfinite(stature) or lo <= stature <= hi:
         return None
     return (f"{source}: the body is {stature:.2f} m tall (from its limbs), outside {lo}-{hi} m, read with unit "
-            f"{meta.get('unit', 'm')} ({meta.get('unit_source', 'reader')}); if that is wrong, give the file's unit (--unit or data.unit: a name or "
-            "metres per file unit)")
+            f"{meta.get('unit', 'm')} ({meta.get('unit_source', 'reader')}); if that is wrong, give the file's "
+            "unit (--unit or data.unit: a name or metres per file unit)")
 
 
 # --- up axis ---

@@ -61,7 +61,7 @@ class XMAEModule(L.LightningModule):
         eval_gaps_s: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9),
         eval_noise_sigmas_m: tuple[float, ...] = (0.02, 0.05),
         eval_seed: int = 0,
-        calibration_windows: int = 512,
+        calibration_windows: int = 256,
         figure_every_n_val: int = 1,
         skeleton: dict | None = None,
         window_fps: float | None = None,
@@ -93,9 +93,9 @@ class XMAEModule(L.LightningModule):
             val_gap_s: the full-skeleton gap logged every validation, XMAE beside Lerp.
             eval_gaps_s, eval_noise_sigmas_m: the `test` tables.
             calibration_windows: val windows (the first ones) on which every validation measures
-                XMAE against the classical fills per hole length and part, and XMAE's disagreement
-                with clean tokens: the fill policy saved in each checkpoint (evaluation/policy.py).
-                0: no policy.
+                XMAE against the classical fills per hole length and part (left limbs), and XMAE's
+                disagreement with clean tokens: the fill policy saved in each checkpoint
+                (evaluation/policy.py). 0: no policy.
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
         """
         super().__init__()
@@ -237,7 +237,7 @@ class XMAEModule(L.LightningModule):
         observed = ~torch.isnan(positions).any(-1)
         self._calibration.add_clean(xmae_reconstruct(self.net, positions, observed), positions, observed)
         for t in paper_tasks(self.skeleton, self.hparams.eval_gaps_s, ()):
-            if t.task != "infill":
+            if t.task != "infill" or t.part.startswith("right"):  # one side per limb: the policy has no side
                 continue
             c = t.corrupt(positions, self.hparams.window_fps, self.skeleton, generator)
             scored = t.evaluated(c, positions)
