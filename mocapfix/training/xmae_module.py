@@ -222,9 +222,9 @@ class XMAEModule(L.LightningModule):
             self.log(f"val/gap{self.hparams.val_gap_s}s_mpjpe_mm/{name}", metric)
         if batch_idx == 0:
             self._figure_sample = (positions[0], gap.positions[0], gap.observed[0], xmae[0])
-        if self._calibration is not None and self._calibration.windows < self.hparams.calibration_windows \
-                and not self.trainer.sanity_checking:
-            self._calibrate(positions, self._generator(batch_idx))
+        room = self.hparams.calibration_windows - (self._calibration.windows if self._calibration else 0)
+        if self._calibration is not None and room > 0 and not self.trainer.sanity_checking:
+            self._calibrate(positions[:room], self._generator(batch_idx))
 
     # --- the fill policy (evaluation/policy.py) ---
 
