@@ -17,18 +17,19 @@ import numpy as np
 from scipy.ndimage import median_filter
 
 from mocapfix.clip import Clip
+from mocapfix.io.conventions import REFERENCE_STATURE_M
 
 MIN_REACH_M = 3.0    # a joint farther than max(this, 1.5 statures) from its body's median joint
 MIN_JUMP_M = 3.0     # a frame farther than max(this, 2 statures) from the running median: 12 m/s for 0.25 s
 MEDIAN_WINDOW_S = 0.5
 
 
-def absurd_mask(positions: np.ndarray, fps: float, stature_m: float = 1.7) -> np.ndarray:
+def absurd_mask(positions: np.ndarray, fps: float, stature_m: float = REFERENCE_STATURE_M) -> np.ndarray:
     """positions: (T, J, 3) metres, NaN = missing -> (T, J) bool, True where a seen joint is absurd."""
     pos = positions.astype(np.float64)                          # 1e30 squared overflows float32
     T, J, _ = pos.shape
     seen = np.isfinite(pos).all(axis=-1)                        # (T, J)
-    stature = stature_m if np.isfinite(stature_m) else 1.7
+    stature = stature_m if np.isfinite(stature_m) else REFERENCE_STATURE_M
     with np.errstate(invalid="ignore", over="ignore"):
         moves = np.nanmax(np.where(seen[..., None], pos, -np.inf), axis=0) - \
             np.nanmin(np.where(seen[..., None], pos, np.inf), axis=0)  # (J, 3)
