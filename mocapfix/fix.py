@@ -29,7 +29,7 @@ import torch
 from mocapfix.clip import Clip, MotionFileError, check_human_scale
 from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill
 from mocapfix.evaluation.metrics import LimbSigma
-from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, suspect_tokens
+from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, policy_names, suspect_tokens
 from mocapfix.fixers import Fixer, RotationFixer
 from mocapfix.io import read_motion
 from mocapfix.kinematics import fk_axis_angle
@@ -377,7 +377,7 @@ def _policy_fill(policy: FillPolicy, x: np.ndarray, obs: np.ndarray, model_fill:
     fills = {"xmae": torch.from_numpy(model_fill)[None]}
     fills.update({m: CLASSICAL[m](xt, ot, skeleton.parents) for m in policy.methods() if m in CLASSICAL})
     out, chosen = apply_fill_policy(policy, xt, ot, fills, fps, skeleton)
-    names = list(fills)
+    names = policy_names(policy, fills)
     for i, n in enumerate(torch.bincount(chosen[chosen >= 0], minlength=len(names)).tolist()):
         if n:
             counts[names[i]] = counts.get(names[i], 0) + n

@@ -92,6 +92,30 @@ def test_apply_fill_policy_takes_the_best_method_per_hole_length():
     assert FillPolicy.from_dict(json.loads(json.dumps(policy.to_dict()))) == policy
 
 
+def test_a_blend_of_two_fills_is_measured_and_taken_where_it_is_best():
+    """Two fills that err in opposite directions: their mean is exact, and the policy takes it;
+    a blend with the model counts as the model (it needs MODEL_MARGIN over every classical one)."""
+    from mocapfix.evaluation.policy import Calibration, blends
+    truth = torch.zeros(2, 30, 22, 3)
+    obs = torch.ones(2, 30, 22, dtype=torch.bool)
+    obs[:, 10:25, 21] = False
+    fills = {"spline": truth + 0.02, "limb": truth - 0.02, "xmae": truth + 0.01}
+    assert set(blends(fills)) == {"spline", "limb", "xmae", "limb+spline", "limb+xmae", "spline+xmae"}
+    cal = Calibration([0.5])
+    for part in ("full", "arm", "leg"):
+        cal.add_fills(part, 0.5, fills, truth, ~obs)
+    policy = cal.compute()
+    assert policy.error_mm["arm"]["limb+spline"][0] == pytest.approx(0.0, abs=1e-4)
+    assert policy.best("arm", 0.5) == "limb+spline" and policy.methods() == ["limb", "spline", "xmae"]
+    out, chosen = apply_fill_policy(policy, truth, obs, fills, 30.0, SMPL)
+    assert out[~obs].abs().max() < 1e-6 and (chosen[~obs] == 3).all()      # the blend, after the 3 singles
+    # the model's blend is 5 mm at best against the classical blend's 0: never taken
+    assert "xmae" not in policy.best("leg", 0.5)
+    # a blend no better than its best single fill: the single one (in doubt, the simpler)
+    tie = FillPolicy([0.5], {"full": {"limb": [10.0], "spline": [12.0], "limb+spline": [9.95]}})
+    assert tie.best("full", 0.5) == "limb"
+
+
 def test_suspects_are_the_tokens_the_model_disagrees_with_beyond_the_threshold():
     policy = FillPolicy([0.5], {"full": {"xmae": [1.0]}}, replace_threshold_m=0.1)
     pos = torch.zeros(1, 4, 3, 3)

@@ -8,6 +8,10 @@ module's validation) and stored in the checkpoint (FillPolicy.to_dict). `fix` an
 tables then fill each hole with the method that was best for holes of its length and part, and
 replace an observed token only where the model disagrees with it by more than the model ever
 does with clean data (replace_threshold_m).
+
+A candidate is a single method ("spline") or the mean of two ("limb+spline"): two fills that err
+in different directions average to a smaller error than either (a spline overshoots where the
+limb fill bends), and which pair that is differs by hole length and part, so it is measured too.
 """
 from __future__ import annotations
 
@@ -21,6 +25,28 @@ PARTS = ("full", "arm", "leg")
 CLEAN_QUANTILE = 0.995  # of the model's disagreement with clean observed tokens: above it, a token is suspect
 LEARNED = ("xmae",)     # the methods that are models; every other is a classical fill
 MODEL_MARGIN = 0.98     # a model fills a hole only where its val error is 2 % below the best classical fill's
+BLEND = "+"             # "a+b": the mean of fills a and b
+BLEND_MARGIN = 0.99     # a blend of classical fills only where 1 % below the best single one (in doubt, the simpler)
+
+
+def components(method: str) -> list[str]:
+    """The single methods a candidate averages: "limb+spline" -> ["limb", "spline"]."""
+    return method.split(BLEND)
+
+
+def is_learned(method: str) -> bool:
+    """A candidate with a model in it (a model alone, or a model averaged with a classical fill)."""
+    return any(m in LEARNED for m in components(method))
+
+
+def blends(fills: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """fills: method -> (..., 3) -> the same plus the mean of every pair, named "a+b" (sorted)."""
+    names = sorted(fills)
+    out = dict(fills)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            out[a + BLEND + b] = 0.5 * (fills[a] + fills[b])
+    return out
 
 
 @dataclass
@@ -33,19 +59,25 @@ class FillPolicy:
 
     def best(self, part: str, gap_s: float) -> str:
         """The method with the lowest error for holes of this part, at the measured length nearest
-        gap_s; the model only where it beats the best classical fill by MODEL_MARGIN (in doubt,
-        the fill whose behaviour a user knows)."""
+        gap_s; a blend of classical fills only where it beats the best single one by BLEND_MARGIN,
+        the model (or a blend with it) only where it beats the best classical fill by MODEL_MARGIN
+        (in doubt, the fill whose behaviour a user knows)."""
         table = self.error_mm.get(part) or self.error_mm["full"]
         i = min(range(len(self.gaps_s)), key=lambda k: abs(self.gaps_s[k] - gap_s))
-        classical = [m for m in table if m not in LEARNED]
-        best = min(classical, key=lambda m: table[m][i]) if classical else None
-        model = min((m for m in table if m in LEARNED), key=lambda m: table[m][i], default=None)
+        singles = [m for m in table if not is_learned(m) and BLEND not in m]
+        mixed = [m for m in table if not is_learned(m) and BLEND in m]
+        best = min(singles, key=lambda m: table[m][i]) if singles else None
+        blend = min(mixed, key=lambda m: table[m][i]) if mixed else None
+        if best is None or (blend is not None and table[blend][i] < BLEND_MARGIN * table[best][i]):
+            best = blend
+        model = min((m for m in table if is_learned(m)), key=lambda m: table[m][i], default=None)
         if best is None or (model is not None and table[model][i] < MODEL_MARGIN * table[best][i]):
             return model
         return best
 
     def methods(self) -> list[str]:
-        return sorted({m for table in self.error_mm.values() for m in table})
+        """The single methods its candidates are made of (the fills a caller computes)."""
+        return sorted({c for table in self.error_mm.values() for m in table for c in components(m)})
 
     def describe(self) -> list[str]:
         """One line per part: the method chosen at each measured gap, with its error and the best
@@ -55,7 +87,7 @@ class FillPolicy:
             cells = []
             for i, g in enumerate(self.gaps_s):
                 m = self.best(part, g)
-                classical = min(v[i] for k, v in table.items() if k not in LEARNED)
+                classical = min(v[i] for k, v in table.items() if not is_learned(k))
                 cells.append(f"{g:g}s {m} {table[m][i]:.1f} (classical {classical:.1f})")
             lines.append(f"{part}: " + ", ".join(cells))
         if self.replace_threshold_m is not None:
@@ -102,10 +134,10 @@ def apply_fill_policy(policy: FillPolicy, positions: torch.Tensor, observed: tor
     """Each missing token from the fill the policy names for its hole; observed tokens as given.
 
     positions: (B, T, J, 3); observed: (B, T, J) bool; fills: method -> (B, T, J, 3), holding
-    every method the policy may name -> (B, T, J, 3), and (B, T, J) the index into list(fills)
-    of the fill each token took (-1 for observed tokens)."""
-    names = list(fills)
-    stacked = torch.stack([fills[m] for m in names])                              # (M, B, T, J, 3)
+    every single method of policy.methods() -> (B, T, J, 3), and (B, T, J) the index into
+    policy_names(policy, fills) of the candidate each token took (-1 for observed tokens)."""
+    names = policy_names(policy, fills)
+    stacked = torch.stack([_candidate(fills, m) for m in names])                  # (M, B, T, J, 3)
     seconds = hole_frames(observed).float() / fps
     parts = token_parts(observed, skeleton)
     # the choice depends only on (part, nearest measured gap): a lookup table, not a per-token loop
@@ -116,6 +148,18 @@ def apply_fill_policy(policy: FillPolicy, positions: torch.Tensor, observed: tor
     choice = table[parts, gap_index]                                              # (B, T, J)
     out = stacked.gather(0, choice[None, ..., None].expand(1, *choice.shape, 3))[0]
     return torch.where(observed[..., None], positions, out), torch.where(observed, -1, choice)
+
+
+def policy_names(policy: FillPolicy, fills: dict[str, torch.Tensor]) -> list[str]:
+    """The candidates apply_fill_policy may take: the single fills given, then the blends the
+    policy names (the index its `chosen` refers to)."""
+    chosen = {policy.best(p, g) for p in PARTS for g in policy.gaps_s}
+    return list(fills) + sorted(m for m in chosen if m not in fills)
+
+
+def _candidate(fills: dict[str, torch.Tensor], method: str) -> torch.Tensor:
+    parts = components(method)
+    return fills[method] if method in fills else sum(fills[m] for m in parts) / len(parts)
 
 
 def suspect_tokens(policy: FillPolicy, estimate: torch.Tensor, positions: torch.Tensor,
@@ -141,11 +185,18 @@ class Calibration:
 
     def add_infill(self, part: str, gap_s: float, method: str, pred: torch.Tensor, target: torch.Tensor,
                    scored: torch.Tensor) -> None:
-        """pred, target: (B, T, J, 3) metres; scored: (B, T, J) bool (the filled tokens with truth)."""
+        """pred, target: (B, T, J, 3) metres; scored: (B, T, J) bool (the filled tokens with truth).
+        Pass blends(fills) through add_fills to measure the pairs too."""
         err = (pred.float() - torch.nan_to_num(target.float())).norm(dim=-1)[scored]
         s = self.sums.setdefault((part, float(gap_s), method), [0.0, 0])
         s[0] += float(err.sum())
         s[1] += int(err.numel())
+
+    def add_fills(self, part: str, gap_s: float, fills: dict[str, torch.Tensor], target: torch.Tensor,
+                  scored: torch.Tensor) -> None:
+        """Every single fill and the mean of every pair of them (see the module's docstring)."""
+        for method, pred in blends(fills).items():
+            self.add_infill(part, gap_s, method, pred, target, scored)
 
     def add_clean(self, estimate: torch.Tensor, positions: torch.Tensor, observed: torch.Tensor) -> None:
         """The model's estimate of windows it saw whole: how far it strays from clean data."""
