@@ -1,12 +1,12 @@
 """Fixers: a trained checkpoint turned into something that estimates windows of motion, one
 class per checkpoint kind (XMAE; the Motion-DVAE denoising stage), and the loading that picks
-the class from the checkpoint's keys. Nothing here imports training code: a checkpoint holds
+the class by the kind the checkpoint names (models/build.py). Nothing here imports training code: a checkpoint holds
 everything a fixer needs (skeleton, fps, window, network sizes) as plain values, and it is
 loaded with weights_only=True. mocapfix.fix windows, blends and merges what a fixer estimates.
 """
 from __future__ import annotations
 
-import inspect
+import dataclasses
 from pathlib import Path
 from typing import Protocol
 
@@ -18,11 +18,12 @@ from mocapfix.evaluation.policy import FillPolicy
 from mocapfix.inference import xmae_reconstruct
 from mocapfix.kinematics import fk_axis_angle
 from mocapfix.models.body import build_body_model
-from mocapfix.models.dvae import InitialStatePredictor, MotionDVAE, NoisePredictor
+from mocapfix.models.build import build_model, checkpoint_entry
+from mocapfix.models.dvae import DVAEConfig, InitialStatePredictor, MotionDVAE, NoisePredictor
 from mocapfix.models.dvae_inference import (FIRST_FRAMES, Observation, infer_posterior, point_estimate,
                                             rotation_estimate, uses_noise_model)
 from mocapfix.models.dvae_state import STATES, MotionState, velocity_mask
-from mocapfix.models.xmae import XMAE
+from mocapfix.models.xmae import XMAE, XMAEConfig
 from mocapfix.skeleton import Skeleton
 
 
@@ -72,14 +73,17 @@ class XMAEFixer:
         self.precision = resolve_precision(precision, self.device)
 
     @classmethod
-    def from_checkpoint(cls, path, hparams: dict, state_dict: dict, device="cpu", precision: str = "fp32"
-                        ) -> "XMAEFixer":
+    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32") -> "XMAEFixer":
+        hparams, state_dict = ckpt["hyper_parameters"], ckpt["state_dict"]
         skeleton, fps, frames = _window_hparams(path, hparams)
-        # Network sizes the checkpoint names; XMAE's defaults for any it lacks.
-        sizes = {k: hparams[k] for k in inspect.signature(XMAE).parameters
-                 if k in hparams and k not in ("num_joints", "num_frames")}
+        if "model" in ckpt:
+            config = ckpt["model"].get("config")
+        else:  # written before checkpoints held their model config: the sizes were hyperparameters
+            config = {k: hparams[k] for k in (f.name for f in dataclasses.fields(XMAEConfig))
+                      if hparams.get(k) is not None and k not in ("num_joints", "num_frames")}
+            config.update(num_joints=skeleton.num_joints, num_frames=frames)
         try:
-            net = XMAE(skeleton.num_joints, frames, **sizes)
+            net = build_model("xmae", config)
         except (TypeError, ValueError, AssertionError) as e:
             raise MotionFileError(path, f"bad XMAE sizes in the checkpoint ({e})") from None
         weights = {k[len("net."):]: v for k, v in state_dict.items() if k.startswith("net.")}
@@ -141,14 +145,14 @@ class DVAEFixer:
             if fusion and self.state == "rotations" else []
 
     @classmethod
-    def from_checkpoint(cls, path, hparams: dict, state_dict: dict, device="cpu", precision: str = "fp32"
-                        ) -> "DVAEFixer":
+    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32") -> "DVAEFixer":
         """A DVAEDenoiseModule checkpoint: the prior's hyperparameters (prior_hparams) rebuild the
         nets, the denoising stage's own (noise_lambda, estimate) choose the final estimate.
         precision: fp32 always (auto included): the recurrent state would carry bf16's rounding
         from frame to frame, and the LSTMs are cheap (1e-3 s per frame on a CPU core)."""
         if precision == "bf16":
             raise ValueError("--precision bf16 is for XMAE checkpoints; Motion-DVAE runs in fp32")
+        hparams, state_dict = ckpt["hyper_parameters"], ckpt["state_dict"]
         ph = hparams.get("prior_hparams")
         if not isinstance(ph, dict):
             raise MotionFileError(path, "Motion-DVAE checkpoint lacks prior_hparams: cannot rebuild the networks")
@@ -173,7 +177,10 @@ class DVAEFixer:
             codec = MotionState(state, skeleton.parents, skeleton.groups, fps, body)
             D, H, Hm, G = codec.dim, int(ph["lstm_hidden"]), int(ph["mlp_hidden"]), int(ph["norm_groups"])
             num_points = codec.num_joints + (body.num_markers if body is not None else 0)
-            nets = {"codec": codec, "net": MotionDVAE(D, int(ph["latent_dim"]), H, Hm, G),
+            config = ckpt["model"].get("config") if "model" in ckpt else \
+                DVAEConfig(state, skeleton.num_joints, int(ph["latent_dim"]), H, Hm, G,
+                           bool(ph.get("encoder_velocities", False)))
+            nets = {"codec": codec, "net": build_model("motion-dvae", config),
                     "x0_pred": InitialStatePredictor(D, H, Hm, G, velocity_mask(state, codec.num_joints)),
                     "noise_pred": NoisePredictor(H, 3 * num_points, Hm, G)}
         except (TypeError, ValueError) as e:
@@ -233,9 +240,13 @@ def _window_hparams(path, hp: dict) -> tuple[Skeleton, float, int]:
     return skeleton, fps, frames
 
 
-def model_kind(hparams: dict, state_dict: dict) -> str | None:
-    """Which fixer reads a checkpoint, from the keys its training module saves; None if unknown.
-    A new model kind adds its test here and its class to FIXERS."""
+def model_kind(ckpt: dict) -> str | None:
+    """Which fixer reads a checkpoint: the kind it names (models/build.py); for checkpoints from
+    before they named it, the keys their training module saved. None if unknown."""
+    entry = ckpt.get("model")
+    if isinstance(entry, dict):
+        return entry.get("kind") if isinstance(entry.get("kind"), str) else None
+    hparams, state_dict = ckpt["hyper_parameters"], ckpt["state_dict"]
     if "net.enc_pos_joint" in state_dict and "enc_dim" in hparams:  # training/xmae_module.py
         return "xmae"
     if any(k.startswith("net.gen.") for k in state_dict):            # MotionDVAE weights
@@ -246,7 +257,7 @@ def model_kind(hparams: dict, state_dict: dict) -> str | None:
     return None
 
 
-# kind -> class with from_checkpoint(path, hparams, state_dict, device)
+# kind -> class with from_checkpoint(path, ckpt, device, precision)
 FIXERS: dict[str, type] = {"xmae": XMAEFixer, "motion-dvae": DVAEFixer}
 # Checkpoints fix recognises but cannot use, and why. A prior alone has no initial-state
 # predictor, and the paper's "No noisy train" ablation (appendix, Tab. 2) shows that its
@@ -278,14 +289,15 @@ def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32"
     """The Fixer for a checkpoint file (FIXERS: XMAE, the Motion-DVAE denoising stage).
     precision: fp32, bf16 or auto (resolve_precision; XMAE only)."""
     ckpt = read_checkpoint(path)
-    hparams, state_dict = ckpt["hyper_parameters"], ckpt["state_dict"]
-    kind = model_kind(hparams, state_dict)
+    if "model" in ckpt and not (isinstance(ckpt["model"], dict) and isinstance(ckpt["model"].get("config"), dict)):
+        raise MotionFileError(path, "the checkpoint's model entry is malformed (no kind and config)")
+    kind = model_kind(ckpt)
     if kind in REFUSED:
         raise MotionFileError(path, REFUSED[kind])
     if kind not in FIXERS:
         raise MotionFileError(path, "not a mocapfix checkpoint of a model fix knows "
                                     f"({', '.join(FIXERS)}): no matching network weights")
-    fixer = FIXERS[kind].from_checkpoint(path, hparams, state_dict, device, precision)
+    fixer = FIXERS[kind].from_checkpoint(path, ckpt, device, precision)
     # which fill for which hole, calibrated on the val split (evaluation/policy.py); None: the
     # model everywhere (checkpoints from before it, until `mocapfix validate --ckpt_path` adds one)
     try:
@@ -295,11 +307,9 @@ def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32"
     return fixer
 
 
-def xmae_checkpoint(net: XMAE, skeleton: Skeleton, fps: float, **sizes) -> dict:
+def xmae_checkpoint(net: XMAE, skeleton: Skeleton, fps: float) -> dict:
     """The smallest checkpoint load_fixer reads for an XMAE (what XMAEModule saves, minus the
     training state): for benchmarks and tests that need a model without training one."""
-    hp = {"skeleton": skeleton.to_dict(), "window_fps": float(fps), "window_frames": int(net.num_frames),
-          "enc_dim": net.embed.out_features, "decoder": net.decoder_type, **sizes}
-    if hasattr(net, "position_unit_m"):
-        hp["position_unit_m"] = float(net.position_unit_m)
-    return {"hyper_parameters": hp, "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}
+    hp = {"skeleton": skeleton.to_dict(), "window_fps": float(fps), "window_frames": int(net.num_frames)}
+    return {"hyper_parameters": hp, "model": checkpoint_entry("xmae", net.config),
+            "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}

@@ -169,7 +169,7 @@ def test_fix_bandai(tmp_path, bandai_dir):
                           cache_dir=str(tmp_path / "cache"))
     skeleton = dm.load_clips()[0].skeleton
     sizes = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16)
-    torch.save(xmae_checkpoint(XMAE(skeleton.num_joints, 30, **sizes), skeleton, 30.0, **sizes), tmp_path / "m.ckpt")
+    torch.save(xmae_checkpoint(XMAE(skeleton.num_joints, 30, **sizes), skeleton, 30.0), tmp_path / "m.ckpt")
     r = bench("fix_bandai", "--ckpt", tmp_path / "m.ckpt", "--path", bandai_dir, "--device", "cpu", tmp_path=tmp_path)
     assert r["clips"] > 10 and r["nan_left"] == 0
     rows = {x["tokens"]: x for x in r["rows"]}
@@ -193,7 +193,7 @@ def test_fix_policy_bandai(tmp_path, bandai_dir):
     skeleton = MotionDataModule(source="bvh", path=str(bandai_dir), fps=30, cache_dir=str(tmp_path / "cache")) \
         .load_clips()[0].skeleton
     sizes = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16)
-    ckpt = xmae_checkpoint(XMAE(skeleton.num_joints, 30, **sizes), skeleton, 30.0, **sizes)
+    ckpt = xmae_checkpoint(XMAE(skeleton.num_joints, 30, **sizes), skeleton, 30.0)
     ckpt["fill_policy"] = FillPolicy([0.5], {"full": {"xmae": [50.0], "spline": [10.0]}}, 1e4).to_dict()
     torch.save(ckpt, tmp_path / "m.ckpt")
     r = bench("fix_policy_bandai", "--ckpt", tmp_path / "m.ckpt", "--path", bandai_dir, "--device", "cpu",

@@ -34,7 +34,7 @@ SIZES = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, d
 def _ckpt(path, skeleton=SMPL, fps=30.0, frames=30, seed=0):
     torch.manual_seed(seed)
     net = XMAE(skeleton.num_joints, frames, **SIZES)
-    torch.save(xmae_checkpoint(net, skeleton, fps, **SIZES), path)
+    torch.save(xmae_checkpoint(net, skeleton, fps), path)
     return path
 
 
@@ -448,8 +448,8 @@ def test_not_a_mocapfix_checkpoint(tmp_path, motion, capsys, kind):
     elif kind == "other_model":
         torch.save({"hyper_parameters": {"lr": 1.0}, "state_dict": {"model.w": torch.zeros(2)}}, path)
     elif kind == "bad_weights":
-        ck = xmae_checkpoint(XMAE(22, 30, **SIZES), SMPL, 30.0, **SIZES)
-        ck["hyper_parameters"]["enc_dim"] = 64
+        ck = xmae_checkpoint(XMAE(22, 30, **SIZES), SMPL, 30.0)
+        ck["model"]["config"]["enc_dim"] = 64
         torch.save(ck, path)
     rc, out, err = fix([tmp_path / "a.npz", "--ckpt", path], capsys)
     assert rc == 1 and out == ""

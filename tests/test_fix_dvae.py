@@ -51,8 +51,11 @@ def _modules(skeleton, state: str, fps=30.0, frames=30, seed=0, **denoise):
 
 
 def _save(path, module) -> Path:
-    """What Lightning saves, minus the training state: plain hyperparameters and the weights."""
-    torch.save({"hyper_parameters": dict(module.hparams), "state_dict": module.state_dict()}, path)
+    """What Lightning saves, minus the training state: plain hyperparameters, the weights and
+    what the module's on_save_checkpoint adds (the model's kind and config)."""
+    ckpt = {"hyper_parameters": dict(module.hparams), "state_dict": module.state_dict()}
+    module.on_save_checkpoint(ckpt)
+    torch.save(ckpt, path)
     return path
 
 
@@ -89,12 +92,12 @@ def rotations_ckpt(tmp_path_factory, bandai_skeleton):
 def test_model_kind_tells_the_denoising_stage_from_the_prior_and_refuses_the_prior(tmp_path):
     prior, denoiser = _modules(SMPL, "positions")
     dn = _save(tmp_path / "dn.ckpt", denoiser)
-    assert model_kind(read_checkpoint(dn)["hyper_parameters"], read_checkpoint(dn)["state_dict"]) == "motion-dvae"
+    assert model_kind(read_checkpoint(dn)) == "motion-dvae"
     fixer = load_fixer(dn)
     assert isinstance(fixer, DVAEFixer) and fixer.kind == "motion-dvae" and fixer.state == "positions"
     assert (fixer.skeleton.joint_names, fixer.fps, fixer.window) == (SMPL.joint_names, 30.0, 30)
     pr = _save(tmp_path / "prior.ckpt", prior)
-    assert model_kind(read_checkpoint(pr)["hyper_parameters"], read_checkpoint(pr)["state_dict"]) == \
+    assert model_kind(read_checkpoint(pr)) == \
         "motion-dvae-prior"
     with pytest.raises(MotionFileError, match="prior checkpoint; fix needs the denoising stage") as e:
         load_fixer(pr)

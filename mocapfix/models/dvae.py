@@ -14,10 +14,24 @@ Denoising adds q_omega(x_0 | y_0:T) (anti-causal LSTM + MLP) and q_gamma(v_t | z
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import torch
 import torch.nn as nn
+
+
+@dataclass
+class DVAEConfig:
+    """Everything that decides MotionDVAE's shape: saved in every checkpoint (models/build.py).
+    The state's size and velocity entries follow from state and num_joints (dvae_state.py)."""
+    state: str                        # "rotations" (the paper's) or "positions"
+    num_joints: int
+    latent_dim: int = 48              # paper A.1
+    lstm_hidden: int = 1024           # paper A.1
+    mlp_hidden: int = 1024            # the 2 hidden layers of every MLP (not in the paper)
+    norm_groups: int = 16
+    encoder_velocities: bool = False  # False: the encoder reads poses only (MotionDVAE)
 
 
 class MLP(nn.Module):

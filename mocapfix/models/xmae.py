@@ -11,6 +11,8 @@ to their positions, mask tokens elsewhere, self-attention only.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
@@ -92,6 +94,34 @@ def _full_precision(layer: nn.Linear, x: torch.Tensor) -> torch.Tensor:
         return layer(x.to(layer.weight.dtype))
 
 
+@dataclass
+class XMAEConfig:
+    """Everything that decides the network's shape: saved in every checkpoint (models/build.py)."""
+    num_joints: int
+    num_frames: int
+    enc_dim: int = 256
+    enc_depth: int = 6
+    enc_mlp_dim: int = 1024
+    dec_dim: int = 128
+    dec_depth: int = 3
+    dec_mlp_dim: int = 512
+    head_dim: int = 64
+    decoder: str = "cross"
+    position_unit_m: float = 0.1
+    fill_input: bool = False
+
+
+# Named sizes (facebookresearch/mae's mae_vit_base_patch16 habit): a config names one and sets
+# only what differs. "paper" is Table 1. "cpu" is what a 2-core CPU trains in under an hour
+# (configs/model/xmae_cpu.yaml): narrow layers leave the mean-pose plateau within a few hundred
+# steps where wide ones sit on it for thousands, and fill_input starts it at the interpolation.
+PRESETS: dict[str, dict] = {
+    "paper": {},
+    "cpu": dict(enc_dim=64, enc_depth=2, enc_mlp_dim=256, dec_dim=64, dec_depth=1, dec_mlp_dim=256, head_dim=32,
+                fill_input=True),
+}
+
+
 class XMAE(nn.Module):
     def __init__(
         self,
@@ -114,6 +144,9 @@ class XMAE(nn.Module):
         if fill_input and decoder != "cross":
             raise ValueError("fill_input needs the cross-attention decoder (decoder='cross')")
         self.num_joints, self.num_frames, self.decoder_type = num_joints, num_frames, decoder
+        # what a checkpoint stores to rebuild this network (models/build.py)
+        self.config = XMAEConfig(num_joints, num_frames, enc_dim, enc_depth, enc_mlp_dim, dec_dim, dec_depth,
+                                 dec_mlp_dim, head_dim, decoder, position_unit_m, fill_input)
         # Not in the paper: with fill_input the decoder's queries also carry a classical fill of
         # every token (inference.py: Lerp) and the network predicts the correction to it. A small
         # network then starts from the interpolation instead of having to learn it, and spends its

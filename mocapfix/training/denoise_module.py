@@ -37,6 +37,7 @@ import torch.nn as nn
 from mocapfix.data.corruption import gaussian_noise, rotation_noise
 from mocapfix.evaluation.metrics import MPJPE, JointAcceleration
 from mocapfix.evaluation.tasks import write_eval_json
+from mocapfix.models.build import checkpoint_entry
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
 # the posterior pass is shared with `mocapfix fix`, which must not import training code
 from mocapfix.models.dvae_inference import (FIRST_FRAMES, Inference, Observation, gaussian_limit, infer_posterior,
@@ -125,6 +126,7 @@ class DVAEDenoiseModule(L.LightningModule):
             raise ValueError(f"{prior_ckpt}: the prior checkpoint has no network (skeleton and window missing)")
         ph = self.hparams.prior_hparams
         self.net, self.body, self.codec = prior.net, prior.body, prior.codec
+        self.model_config = prior.model_config
         self.net.gen.requires_grad_(False)  # prior p_theta_z and decoder p_theta_x stay as trained
         if compile_model:
             compile_in_place(self.net, self.body)
@@ -165,6 +167,10 @@ class DVAEDenoiseModule(L.LightningModule):
 
     def configure_optimizers(self):
         return torch.optim.Adamax(self.trainable_parameters(), lr=self.hparams.lr, betas=tuple(self.hparams.betas))
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        # the prior's network config: x0_pred and noise_pred follow from it and the body model
+        checkpoint["model"] = checkpoint_entry("motion-dvae", self.model_config)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         # Before session 5 the noise predictor was trained in the Gaussian setting too; such a

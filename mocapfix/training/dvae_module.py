@@ -22,8 +22,9 @@ from mocapfix.data.datamodule import complete_windows
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.tasks import write_eval_json
 from mocapfix.models.body import build_body_model
-from mocapfix.models.dvae import MotionDVAE, gaussian_kl
-from mocapfix.models.dvae_state import MotionState, mean_joint_rotations, velocity_mask
+from mocapfix.models.build import build_model, checkpoint_entry
+from mocapfix.models.dvae import DVAEConfig, MotionDVAE, gaussian_kl
+from mocapfix.models.dvae_state import MotionState, mean_joint_rotations
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.figures import log_validation_figure
 
@@ -192,11 +193,16 @@ class MotionDVAEModule(L.LightningModule):
         self.body = build_body_model(hp.body_model, skel.parents, hp.body_model_path, hp.gender, hp.model_type,
                                      hp.markers) if hp.state == "rotations" else None
         self.codec = MotionState(hp.state, skel.parents, skel.groups, hp.window_fps, self.body)
-        velocity = None if hp.get("encoder_velocities", False) else velocity_mask(hp.state, skel.num_joints)
-        self.net = MotionDVAE(self.codec.dim, hp.latent_dim, hp.lstm_hidden, hp.mlp_hidden, hp.norm_groups, velocity)
+        self.model_config = DVAEConfig(hp.state, skel.num_joints, hp.latent_dim, hp.lstm_hidden, hp.mlp_hidden,
+                                       hp.norm_groups, hp.get("encoder_velocities", False))
+        self.net = build_model("motion-dvae-prior", self.model_config)
         if hp.get("compile_model"):
             compile_in_place(self.net, self.body)
         self.val_mpjpe, self.test_mpjpe = MPJPE(), MPJPE()
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        if self.net is not None:
+            checkpoint["model"] = checkpoint_entry("motion-dvae-prior", self.model_config)
 
     def setup(self, stage: str) -> None:
         dm = self.trainer.datamodule

@@ -20,7 +20,8 @@ from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.policy import Calibration, FillPolicy, apply_fill_policy, suspect_tokens
 from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows, write_eval_json
 from mocapfix.inference import xmae_fill, xmae_reconstruct
-from mocapfix.models.xmae import XMAE
+from mocapfix.models.build import build_model, checkpoint_entry
+from mocapfix.models.xmae import PRESETS, XMAE, XMAEConfig
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.schedules import warmup_cosine
@@ -34,16 +35,17 @@ CUDA_GRAPH_MODES = ("reduce-overhead", "max-autotune")  # the modes that replay 
 class XMAEModule(L.LightningModule):
     def __init__(
         self,
-        enc_dim: int = 256,
-        enc_depth: int = 6,
-        enc_mlp_dim: int = 1024,
-        dec_dim: int = 128,
-        dec_depth: int = 3,
-        dec_mlp_dim: int = 512,
-        head_dim: int = 64,
-        decoder: str = "cross",
-        position_unit_m: float = 0.1,
-        fill_input: bool = False,
+        preset: str = "paper",
+        enc_dim: int | None = None,
+        enc_depth: int | None = None,
+        enc_mlp_dim: int | None = None,
+        dec_dim: int | None = None,
+        dec_depth: int | None = None,
+        dec_mlp_dim: int | None = None,
+        head_dim: int | None = None,
+        decoder: str | None = None,
+        position_unit_m: float | None = None,
+        fill_input: bool | None = None,
         mask_ratio: float = 0.85,
         displace_ratio: float = 0.05,
         max_displacement_m: float = 1.0,
@@ -69,7 +71,9 @@ class XMAEModule(L.LightningModule):
     ):
         """
         Args:
-            enc_* / dec_* / head_dim: widths and depths (paper Table 1 by default).
+            preset: the network's sizes by name (models/xmae.py PRESETS: "paper", Table 1; "cpu");
+                each of the settings below that is given (not None) overrides the preset's.
+            enc_* / dec_* / head_dim: widths and depths.
             decoder: "cross" (XMAE) or "mae" (original MAE decoder, ablation).
             position_unit_m: the network's internal position unit (inputs divided, outputs multiplied).
             fill_input: not in the paper: the decoder also reads a Lerp fill of every token and the
@@ -99,6 +103,16 @@ class XMAEModule(L.LightningModule):
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
         """
         super().__init__()
+        if preset not in PRESETS:
+            raise ValueError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+        given = dict(enc_dim=enc_dim, enc_depth=enc_depth, enc_mlp_dim=enc_mlp_dim, dec_dim=dec_dim,
+                     dec_depth=dec_depth, dec_mlp_dim=dec_mlp_dim, head_dim=head_dim, decoder=decoder,
+                     position_unit_m=position_unit_m, fill_input=fill_input)
+        # the network's sizes: the preset's, then what the config sets (num_joints and num_frames
+        # come from the data, at setup)
+        self.sizes = {**PRESETS[preset], **{k: v for k, v in given.items() if v is not None}}
+        defaults = XMAEConfig(0, 0)
+        enc_dim, dec_dim, head_dim = (self.sizes.get(k, getattr(defaults, k)) for k in ("enc_dim", "dec_dim", "head_dim"))
         if compile_mode not in COMPILE_MODES:
             raise ValueError(f"compile_mode must be one of {COMPILE_MODES}, got {compile_mode!r}")
         if head_dim < 1 or enc_dim % head_dim or dec_dim % head_dim:
@@ -134,9 +148,7 @@ class XMAEModule(L.LightningModule):
 
     def _build(self) -> None:
         hp = self.hparams
-        self.net = XMAE(len(hp.skeleton["parents"]), hp.window_frames, hp.enc_dim, hp.enc_depth, hp.enc_mlp_dim,
-                        hp.dec_dim, hp.dec_depth, hp.dec_mlp_dim, hp.head_dim, hp.decoder, hp.position_unit_m,
-                        hp.get("fill_input", False))
+        self.net = build_model("xmae", XMAEConfig(len(hp.skeleton["parents"]), hp.window_frames, **self.sizes))
         if hp.get("compile_model"):
             # in place: parameter names (and so checkpoints) stay as without it
             self.net.compile(mode=hp.get("compile_mode", "default"))
@@ -241,8 +253,8 @@ class XMAEModule(L.LightningModule):
                 continue
             c = t.corrupt(positions, self.hparams.window_fps, self.skeleton, generator)
             scored = t.evaluated(c, positions)
-            for name, pred in self._fills(c.positions, c.observed).items():
-                self._calibration.add_infill(t.part.split("_")[-1], t.gap_s, name, pred, positions, scored)
+            self._calibration.add_fills(t.part.split("_")[-1], t.gap_s, self._fills(c.positions, c.observed),
+                                        positions, scored)
 
     def _fills(self, positions: torch.Tensor, observed: torch.Tensor) -> dict[str, torch.Tensor]:
         """Every candidate fill of the missing tokens: XMAE's and the classical ones."""
@@ -261,6 +273,8 @@ class XMAEModule(L.LightningModule):
                                  self.skeleton)[0]
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
+        if self.net is not None:
+            checkpoint["model"] = checkpoint_entry("xmae", self.net.config)
         if self.fill_policy is not None:
             checkpoint["fill_policy"] = self.fill_policy.to_dict()
 
