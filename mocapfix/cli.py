@@ -1,7 +1,13 @@
 """`python -m mocapfix` / `mocapfix`.
 
-fit | validate | test | predict: LightningCLI (configs/*.yaml, --print_config, --key.path value).
+fit | validate | test | predict: LightningCLI (--config NAME or FILE, --print_config, --key.path value).
 inspect: what a motion file holds. demo: a short CPU training run on the embedded data.
+
+Configs (mocapfix/configs, shipped in the package; `configs/` in a checkout) are pieces,
+data/*.yaml, model/*.yaml, trainer/*.yaml, and experiments that name their pieces in a
+`defaults:` list and hold only what differs. `--config xmae` finds the packaged experiment by
+name; expand_configs turns each --config into its pieces' --config options followed by itself,
+and LightningCLI merges them in that order.
 """
 from __future__ import annotations
 
@@ -13,6 +19,62 @@ import sys
 from pathlib import Path
 
 LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
+CONFIG_DIR = Path(__file__).resolve().parent / "configs"
+
+
+def packaged_configs() -> list[str]:
+    """The experiments shipped with mocapfix, by name."""
+    return sorted(p.stem for p in CONFIG_DIR.glob("*.yaml"))
+
+
+def resolve_config(name: str, base: Path | None = None) -> Path:
+    """A --config value or a defaults entry -> its file: a path as given (relative to base for a
+    defaults entry), else a packaged config by name ("xmae", "data/bvh", with or without .yaml)."""
+    name = str(name)
+    candidates = [Path(name)] if base is None else [base / name, base / f"{name}.yaml"]
+    candidates += [CONFIG_DIR / name, CONFIG_DIR / f"{name}.yaml"]
+    for c in candidates:
+        if c.is_file():
+            return c
+    raise ValueError(f"{name}: no such config file, nor a packaged config (packaged: {', '.join(packaged_configs())}; "
+                     "pieces: data/, model/, trainer/)")
+
+
+def expand_configs(args: list[str]) -> list[str]:
+    """Each `--config X` -> `--config PIECE ... --config X` for the pieces X names in its
+    `defaults:` list (recursively, each piece once), with X resolved to its file."""
+    import yaml
+
+    def pieces(path: Path, seen: set) -> list[Path]:
+        try:
+            text = yaml.safe_load(path.read_text())
+        except (OSError, yaml.YAMLError) as e:
+            raise ValueError(f"{path}: not a readable YAML config ({' '.join(str(e).split())[:200]})") from None
+        named = (text or {}).get("defaults") or [] if isinstance(text, dict) else []
+        if not isinstance(named, list):
+            raise ValueError(f"{path}: defaults must be a list of config names, got {named!r}")
+        out = []
+        for n in named:
+            piece = resolve_config(n, path.parent)
+            if piece.resolve() not in seen:
+                seen.add(piece.resolve())
+                out += pieces(piece, seen) + [piece]
+        return out
+
+    out, i = [], 0
+    while i < len(args):
+        if args[i].startswith("--config="):
+            value, i = args[i].split("=", 1)[1], i + 1
+        elif args[i] == "--config" and i + 1 < len(args):
+            value, i = args[i + 1], i + 2
+        else:
+            out.append(args[i])
+            i += 1
+            continue
+        path = resolve_config(value)
+        for p in pieces(path, {path.resolve()}) + [path]:
+            out += ["--config", str(p)]
+    return out
 
 
 def _lightning_cli(args: list[str]):
@@ -35,6 +97,8 @@ def _lightning_cli(args: list[str]):
                                 help="also write last.ckpt every N optimiser steps")
             parser.add_argument("--monitor", type=str, default="val/mpjpe_mm",
                                 help="metric for the best checkpoint (lower is better)")
+            parser.add_argument("--defaults", type=list[str] | None, default=None,
+                                help="config pieces a config builds on (in a config file; expanded before parsing)")
 
         def _parse_ckpt_path(self):
             # LightningCLI builds the model from the checkpoint's hyperparameters when --ckpt_path
@@ -133,7 +197,7 @@ def _lightning_cli(args: list[str]):
     # for `mocapfix demo` or a call from Python): hand it the arguments as sys.argv for the run,
     # under the name its usage lines should show (not __main__.py).
     argv_before = sys.argv
-    sys.argv = ["mocapfix", *args]
+    sys.argv = ["mocapfix", *expand_configs(args)]
     try:
         return MocapCLI(
             datamodule_class=MotionDataModule,
@@ -178,12 +242,13 @@ def main(argv: list[str] | None = None) -> int:
     logger.setLevel(logging.INFO)
     command = argv[0] if argv else None
     if command in (None, "-h", "--help"):
-        print("usage: mocapfix {fit,validate,test,predict} --config FILE [--key.path value ...]\n"
+        print("usage: mocapfix {fit,validate,test,predict} --config NAME|FILE [--key.path value ...]\n"
               "       mocapfix inspect FILE... [--json]\n"
               "       mocapfix fix INPUT... --ckpt CKPT [-o OUT | --out-dir DIR] [--mode infill|denoise|both]\n"
               "       mocapfix demo\n"
               "       mocapfix --version\n"
-              "`mocapfix COMMAND --help` lists its options; `mocapfix fit --config FILE --print_config` every setting.",
+              "`mocapfix COMMAND --help` lists its options; `mocapfix fit --config NAME --print_config` every setting.\n"
+              f"packaged configs: {', '.join(packaged_configs())}",
               file=sys.stdout if command else sys.stderr)
         return 0 if command else 2
     if command == "inspect":

@@ -403,9 +403,9 @@ def _joints_missing_for_a_window(x_m: list[np.ndarray], W: int, overlap: float) 
 
 def rotation_clips(path, clips: list[Clip], model: Skeleton, source: str = "auto", **read_options) -> list[Clip]:
     """The clips of a file as a rotation model needs them. A BVH file is read again with only
-    the model's joints (read_bvh keep_joints), as the model was trained (configs drop Bandai
-    Namco's joint_Root): with a joint whose translation moves below the root, the whole tree has
-    no exact rotations, the model's joints do. Other formats come as they are."""
+    the model's joints (read_bvh keep_joints), as the model was trained (without a helper root
+    such as Bandai Namco's joint_Root): with a joint whose translation moves below the root, the
+    whole tree has no exact rotations, the model's joints do. Other formats come as they are."""
     first = clips[0]
     if first.meta.get("format") != "bvh":
         return clips

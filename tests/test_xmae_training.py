@@ -232,21 +232,6 @@ def test_a_model_setting_error_is_its_own_line(tmp_path, capsys):
     assert err[0].startswith("mocapfix fit: mask_ratio must be in [0, 1]")
 
 
-def test_demo_finds_the_checkout_config_from_an_installed_package(tmp_path, monkeypatch):
-    """`pip install .` copies the package without configs/: the demo then takes the checkout in the
-    working folder, or --config, and says so when there is neither."""
-    import mocapfix.demo as demo
-    monkeypatch.setattr(demo, "CONFIG", tmp_path / "site-packages" / "configs" / "xmae.yaml")
-    monkeypatch.chdir(tmp_path)
-    with pytest.raises(SystemExit, match="run it in a checkout of the repository, or give --config"):
-        demo.find_config(None)
-    (tmp_path / "configs").mkdir()
-    (tmp_path / "configs" / "xmae.yaml").write_text("model: {}\n")
-    assert demo.find_config(None) == tmp_path / "configs" / "xmae.yaml"
-    with pytest.raises(SystemExit, match="other.yaml not found"):
-        demo.find_config("other.yaml")
-
-
 def test_version(capsys):
     from mocapfix import __version__
     from mocapfix.cli import main

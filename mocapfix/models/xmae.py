@@ -113,7 +113,7 @@ class XMAEConfig:
 
 # Named sizes (facebookresearch/mae's mae_vit_base_patch16 habit): a config names one and sets
 # only what differs. "paper" is Table 1. "cpu" is what a 2-core CPU trains in under an hour
-# (configs/model/xmae_cpu.yaml): narrow layers leave the mean-pose plateau within a few hundred
+# (configs/xmae_cpu.yaml): narrow layers leave the mean-pose plateau within a few hundred
 # steps where wide ones sit on it for thousands, and fill_input starts it at the interpolation.
 PRESETS: dict[str, dict] = {
     "paper": {},
