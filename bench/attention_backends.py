@@ -20,9 +20,8 @@ import sys
 
 import torch
 import torch.nn.functional as F
-from torch.nn.attention import SDPBackend, sdpa_kernel
-
 from common import add_window_arguments, describe, pick_device, print_table, timed, write_result
+from torch.nn.attention import SDPBackend, sdpa_kernel
 
 from mocapfix.data.corruption import kept_count  # noqa: E402
 

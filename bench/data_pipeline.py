@@ -21,7 +21,6 @@ import time
 from pathlib import Path
 
 import torch
-
 from common import RESULTS, describe, pick_device, print_table, sync, write_result
 
 from mocapfix.data.corruption import xmae_training_input  # noqa: E402

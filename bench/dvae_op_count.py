@@ -16,9 +16,8 @@ import sys
 from collections import Counter
 
 import torch
-from torch.profiler import ProfilerActivity, profile, record_function
-
 from common import describe, print_table, write_result
+from torch.profiler import ProfilerActivity, profile, record_function
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
 from mocapfix.training.dvae_module import MotionDVAEModule  # noqa: E402

@@ -18,11 +18,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-import torch
-
-from common import StepClock, describe, pick_device, print_table, timed, write_result
-
 import lightning as L  # noqa: E402
+import torch
+from common import StepClock, describe, pick_device, print_table, timed, write_result
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
 from mocapfix.training.denoise_module import DVAEDenoiseModule  # noqa: E402
@@ -83,10 +81,10 @@ def main(argv=None) -> int:
         obs = denoiser.observation(denoiser.add_noise(batch, 0.1, torch.Generator().manual_seed(0)))
         if name.startswith("regression"):
             with torch.inference_mode():
-                sec = timed(lambda: denoiser.estimate(obs), device, repeat=10 if gpu else 2)
+                sec = timed(lambda obs=obs: denoiser.estimate(obs), device, repeat=10 if gpu else 2)
         else:
             # 50 ELBO steps are their own warm-up (and minutes on a CPU): one untimed call only on a GPU
-            sec = timed(lambda: denoiser.optimise_and_estimate(obs), device, repeat=1, warmup=1 if gpu else 0)
+            sec = timed(lambda obs=obs: denoiser.optimise_and_estimate(obs), device, repeat=1, warmup=1 if gpu else 0)
         rows.append({"row": name, "batch": batch_size, "ms_per_call": 1000 * sec,
                      "s_per_frame": sec / (batch_size * frames)})
 

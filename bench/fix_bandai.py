@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
 from common import describe, pick_device, print_table, write_result
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402

@@ -19,7 +19,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from common import describe, pick_device, print_table, write_result
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402

@@ -30,8 +30,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mocapfix.fixers import resolve_precision, xmae_checkpoint  # noqa: E402
 from mocapfix.fix_cli import fix_files  # noqa: E402
+from mocapfix.fixers import resolve_precision, xmae_checkpoint  # noqa: E402
 from mocapfix.io.positions import write_positions  # noqa: E402
 from mocapfix.io.synthetic import generate_clips  # noqa: E402
 from mocapfix.models.xmae import XMAE  # noqa: E402

@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 
 import torch
+from common import add_window_arguments, describe, matmul_tflops, pick_device, print_table, timed, write_result
 from torch.nn.attention import SDPBackend, sdpa_kernel
 from torch.utils.flop_counter import FlopCounterMode
-
-from common import add_window_arguments, describe, matmul_tflops, pick_device, print_table, timed, write_result
 
 from mocapfix.inference import xmae_reconstruct  # noqa: E402
 from mocapfix.models.xmae import XMAE  # noqa: E402
@@ -92,7 +92,7 @@ def main(argv=None) -> int:
         for case, missing, batch in (("full", 0.0, B), ("10% missing", 0.1, B), ("full, batch 1", 0.0, 1)):
             positions, observed = make_windows(batch, T, J, missing, device)
             with torch.inference_mode(), torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
-                seconds = timed(lambda: xmae_reconstruct(net, positions, observed), device,
+                seconds = timed(partial(xmae_reconstruct, net, positions, observed), device,
                                 repeat=repeat * (10 if batch == 1 else 1), warmup=3)
             kept = observed.flatten(1).sum(1).float().mean().item()
             row = {"net": name, "case": case, "batch": batch, "observed_tokens": round(kept, 1),

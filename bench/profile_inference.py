@@ -18,11 +18,10 @@ import sys
 import time
 
 import torch
-from torch.profiler import ProfilerActivity, profile
-
 from common import add_window_arguments, describe, pick_device, sync, write_result
 from inference import make_windows
 from profile_train_step import add_output_arguments, print_profile, summarise
+from torch.profiler import ProfilerActivity, profile
 
 from mocapfix.inference import xmae_reconstruct  # noqa: E402
 from mocapfix.models.xmae import XMAE  # noqa: E402

@@ -26,13 +26,11 @@ import re
 import sys
 import time
 
+import lightning as L  # noqa: E402
 import torch
+from common import describe, pick_device, print_table, sync, write_result
 from torch.autograd import DeviceType
 from torch.profiler import ProfilerActivity, profile
-
-from common import describe, pick_device, print_table, sync, write_result
-
-import lightning as L  # noqa: E402
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
 from mocapfix.training.xmae_module import XMAEModule  # noqa: E402

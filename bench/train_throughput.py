@@ -32,11 +32,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-import torch
-
-from common import StepClock, describe, pick_device, print_table, write_result
-
 import lightning as L  # noqa: E402
+import torch
+from common import StepClock, describe, pick_device, print_table, write_result
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
 from mocapfix.training.xmae_module import XMAEModule  # noqa: E402

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
 from common import describe, print_table, write_result
 
 from mocapfix.io.bvh import read_bvh, write_bvh  # noqa: E402

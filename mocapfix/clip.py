@@ -66,10 +66,10 @@ class Clip:
         """(T, J) bool, True where a joint is missing."""
         return np.isnan(self.positions).any(axis=-1)
 
-    def replace(self, **changes) -> "Clip":
+    def replace(self, **changes) -> Clip:
         return replace(self, **changes)
 
-    def select_joints(self, keep: list[int]) -> "Clip":
+    def select_joints(self, keep: list[int]) -> Clip:
         """The clip restricted to joints `keep`, each re-hung under its nearest kept ancestor.
 
         Rotations are re-expressed for the new tree from global rotations (FK of the local ones)

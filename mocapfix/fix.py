@@ -19,8 +19,8 @@ rotations back: those clips go through fix_rotation_clips, and a BVH input gets 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 import roma
@@ -515,7 +515,7 @@ def fix_rotation_clips(clips: list[Clip], fixer: RotationFixer, mode: str = "den
         ok = (torch.isfinite(est_rot).flatten(1).all(1) & torch.isfinite(est_root).flatten(1).all(1)).tolist()
         stride = max(1, int(round(length * (1.0 - overlap))))
         weights = torch.from_numpy(blend_weights(length, stride))                                 # (L,)
-        for b, (k, s, _) in enumerate(batch):
+        for b, (k, _s, _) in enumerate(batch):
             if not ok[b]:  # those frames keep the input unless another window covers them
                 bad += 1
                 continue

@@ -20,8 +20,14 @@ from mocapfix.kinematics import fk_axis_angle
 from mocapfix.models.body import build_body_model
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.dvae import DVAEConfig, InitialStatePredictor, MotionDVAE, NoisePredictor
-from mocapfix.models.dvae_inference import (FIRST_FRAMES, Observation, infer_posterior, point_estimate,
-                                            rotation_estimate, uses_noise_model)
+from mocapfix.models.dvae_inference import (
+    FIRST_FRAMES,
+    Observation,
+    infer_posterior,
+    point_estimate,
+    rotation_estimate,
+    uses_noise_model,
+)
 from mocapfix.models.dvae_state import STATES, MotionState, velocity_mask
 from mocapfix.models.xmae import XMAE, XMAEConfig
 from mocapfix.skeleton import Skeleton
@@ -73,7 +79,7 @@ class XMAEFixer:
         self.precision = resolve_precision(precision, self.device)
 
     @classmethod
-    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32") -> "XMAEFixer":
+    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32") -> XMAEFixer:
         hparams, state_dict = ckpt["hyper_parameters"], ckpt["state_dict"]
         skeleton, fps, frames = _window_hparams(path, hparams)
         if "model" in ckpt:
@@ -145,7 +151,7 @@ class DVAEFixer:
             if fusion and self.state == "rotations" else []
 
     @classmethod
-    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32") -> "DVAEFixer":
+    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32") -> DVAEFixer:
         """A DVAEDenoiseModule checkpoint: the prior's hyperparameters (prior_hparams) rebuild the
         nets, the denoising stage's own (noise_lambda, estimate) choose the final estimate.
         precision: fp32 always (auto included): the recurrent state would carry bf16's rounding

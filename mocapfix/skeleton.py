@@ -57,7 +57,7 @@ class Skeleton:
                 out.append(j)
         return out
 
-    def subset(self, keep: list[int]) -> "Skeleton":
+    def subset(self, keep: list[int]) -> Skeleton:
         """The skeleton restricted to `keep` (sorted), each joint re-hung under its nearest kept ancestor."""
         keep = sorted(set(int(k) for k in keep))
         new_index = {old: new for new, old in enumerate(keep)}
@@ -74,7 +74,7 @@ class Skeleton:
         groups = {g: tuple(new_index[i] for i in idx if i in new_index) for g, idx in self.groups.items()}
         return Skeleton(tuple(self.joint_names[j] for j in keep), tuple(parents), groups, self.name)
 
-    def with_groups(self, groups: dict[str, list[str] | list[int]]) -> "Skeleton":
+    def with_groups(self, groups: dict[str, list[str] | list[int]]) -> Skeleton:
         """Replace the named groups; members given by joint name or index."""
         resolved = {g: tuple(self.index(m) if isinstance(m, str) else int(m) for m in members)
                     for g, members in groups.items()}
@@ -86,7 +86,7 @@ class Skeleton:
                 "groups": {k: list(v) for k, v in self.groups.items()}}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Skeleton":
+    def from_dict(cls, d: dict) -> Skeleton:
         return cls(tuple(d["joint_names"]), tuple(d["parents"]), d.get("groups", {}), d.get("name", "custom"))
 
 

@@ -252,8 +252,8 @@ def test_fast_path_accuracy_compares_against_the_seed_range():
         from fast_path_accuracy import compare
     finally:
         sys.path.remove(str(REPO / "bench"))
-    rows = lambda value: [{"task": "infill", "part": "full", "gap_s": 0.5, "method": m, "mpjpe_mm": value}
-                          for m in ("xmae", "lerp")]
+    def rows(value):
+        return [{"task": "infill", "part": "full", "gap_s": 0.5, "method": m, "mpjpe_mm": value} for m in ("xmae", "lerp")]
     runs = [{"path": "plain", "rows": rows(20.0)}, {"path": "plain", "rows": rows(22.0)},
             {"path": "fast", "rows": rows(23.0)}, {"path": "fast", "rows": rows(24.0)}]
     (row,) = compare(runs, ["plain", "fast"])

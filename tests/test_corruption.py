@@ -5,9 +5,21 @@ import pytest
 import roma
 import torch
 
-from mocapfix.data.corruption import (available, constant_displacement, denormalize, gap_frames, gaussian_noise,
-                                      infill_gap, kept_index, mask_and_displace, normalize, random_z_rotation,
-                                      rotate_z, rotation_noise, training_gaps)
+from mocapfix.data.corruption import (
+    available,
+    constant_displacement,
+    denormalize,
+    gap_frames,
+    gaussian_noise,
+    infill_gap,
+    kept_index,
+    mask_and_displace,
+    normalize,
+    random_z_rotation,
+    rotate_z,
+    rotation_noise,
+    training_gaps,
+)
 from mocapfix.kinematics import fk_axis_angle
 from mocapfix.skeleton import preset
 

@@ -10,9 +10,18 @@ import torch
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.kinematics import fk_axis_angle
 from mocapfix.models.body import SkeletonFK
-from mocapfix.models.dvae_state import (MotionState, finite_difference, heading_of_rotation, mean_joint_rotations,
-                                        positions_state, velocity_mask,
-                                        rotation_state, split_rotation_state, to_canonical, unwrap_rotvec)
+from mocapfix.models.dvae_state import (
+    MotionState,
+    finite_difference,
+    heading_of_rotation,
+    mean_joint_rotations,
+    positions_state,
+    rotation_state,
+    split_rotation_state,
+    to_canonical,
+    unwrap_rotvec,
+    velocity_mask,
+)
 
 
 def _windows(B=3, T=30, seed=1):

@@ -6,8 +6,8 @@ import shutil
 
 import pytest
 import torch
+from cli_utils import CONFIGS, QUIET, SMALL_DATA, TINY, run_cli
 
-from cli_utils import QUIET, SMALL_DATA, TINY, run_cli, CONFIGS
 from mocapfix.data.corruption import kept_count, kept_index, mask_and_displace
 from mocapfix.data.datamodule import DeviceBatches, WindowDataset
 from mocapfix.io.synthetic import generate_clips

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 import torch
-
 from cli_utils import CONFIGS, QUIET, SMALL_DATA, TINY, run_cli
+
 from mocapfix.clip import Clip
 from mocapfix.evaluation.baselines import lerp_infill, spline_infill
 from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, hole_frames, suspect_tokens, token_parts

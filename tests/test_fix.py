@@ -15,8 +15,7 @@ from mocapfix.cli import main
 from mocapfix.clip import Clip, MotionFileError
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.recording import corrupt_recording
-from mocapfix.fix import (blend_weights, fix_clips, map_joints, model_frames, resample_frames, window_layout,
-                          windows_for)
+from mocapfix.fix import blend_weights, fix_clips, map_joints, model_frames, resample_frames, window_layout, windows_for
 from mocapfix.fixers import load_fixer, resolve_precision, xmae_checkpoint
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import write_bvh

@@ -9,8 +9,8 @@ import logging
 import numpy as np
 import pytest
 import torch
-
 from cli_utils import CONFIGS, QUIET, TINY, run_cli
+
 from mocapfix.clip import MotionFileError
 from mocapfix.fix_cli import write_output
 from mocapfix.inspect import inspect_files

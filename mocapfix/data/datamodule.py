@@ -59,7 +59,7 @@ class WindowDataset(Dataset):
     def __len__(self) -> int:
         return len(self.starts)
 
-    def to(self, device: torch.device) -> "WindowDataset":
+    def to(self, device: torch.device) -> WindowDataset:
         """The same windows with every tensor on `device` (in place; returns self)."""
         for name in ("positions", "rotations", "root_translation", "offsets", "starts", "clip_index"):
             if hasattr(self, name):

@@ -137,8 +137,8 @@ class LimbSigma(_MeanMetric):
             raise ValueError("LimbSigma needs at least one limb")
 
     def update(self, positions: torch.Tensor) -> None:
-        a = torch.tensor([l[0] for l in self.limbs], device=positions.device)
-        b = torch.tensor([l[1] for l in self.limbs], device=positions.device)
+        a = torch.tensor([parent for parent, _ in self.limbs], device=positions.device)
+        b = torch.tensor([child for _, child in self.limbs], device=positions.device)
         length = (positions[:, :, a] - positions[:, :, b]).norm(dim=-1)  # (B, T, L)
         ok = ~torch.isnan(length)
         zero = torch.zeros((), dtype=length.dtype, device=length.device)

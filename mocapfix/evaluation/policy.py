@@ -101,7 +101,7 @@ class FillPolicy:
                 "windows": self.windows, "notes": list(self.notes)}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "FillPolicy":
+    def from_dict(cls, d: dict) -> FillPolicy:
         return cls([float(g) for g in d["gaps_s"]], d["error_mm"], d.get("replace_threshold_m"),
                    int(d.get("windows", 0)), list(d.get("notes", [])))
 

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapfix.clip import Clip, MotionFileError
-from mocapfix.io.conventions import from_z_up, guess_up_axis, metres_per_unit, parse_unit, resolve_unit, to_z_up
+from mocapfix.io.conventions import from_z_up, guess_up_axis, parse_unit, resolve_unit, to_z_up
 from mocapfix.io.files import atomic_write
 from mocapfix.skeleton import PRESETS, Skeleton, guess_groups
 

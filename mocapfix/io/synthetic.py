@@ -401,7 +401,7 @@ def _gait(tl, phase, p, style, b, run: bool) -> dict:
         caps.append(low + g["bounce"] * (0.5 - 0.5 * np.cos(4 * np.pi * (c - g["duty"] / 2))))
     height = _softmin(np.stack(caps, -1), axis=-1)            # (n,) pelvis above the ground
     soles = []
-    for (sign, hip, kn, an, col, sh, el), (ax, az, pitch), (hx, hz) in zip(_SIDES, feet, hips):
+    for (sign, hip, kn, an, _col, sh, el), (ax, az, pitch), (hx, hz) in zip(_SIDES, feet, hips):
         flex, knee = _leg_ik(ax - hx, az - hz - height, b)
         e[:, hip, 1] = -flex
         e[:, kn, 1] = knee
@@ -457,7 +457,7 @@ def _jump(tl, phase, p, style, b):
     elbow = PchipInterpolator(_JUMP_U, _JUMP_ELBOW)(frac)
     e = np.zeros((n, 22, 3))
     _squat(e, knee=0.05 + p["knee"] * crouch, pelvis_pitch=0.25 * crouch)
-    for sign, hip, kn, an, col, sh, el in _SIDES:
+    for sign, _hip, _kn, an, _col, sh, el in _SIDES:
         e[:, an, 1] += plantar
         e[:, sh, 1] = -shoulder
         e[:, sh, 0] = sign * style["abd"]
@@ -477,7 +477,7 @@ def _arm_swing(tl, phase, p, style, b):
     n = len(tl)
     e = _stand(n, style, knee=0.0)
     ang = 2 * np.pi * p["freq"] * tl + p["phase"]
-    for i, (sign, hip, kn, an, col, sh, el) in enumerate(_SIDES):
+    for i, (sign, _hip, _kn, _an, col, sh, el) in enumerate(_SIDES):
         a = ang + np.pi * p["anti"] * i
         raise_ = p["lateral"] * (0.5 - 0.5 * np.cos(a))
         e[:, sh, 1] = -(0.1 + p["sagittal"] * np.sin(a))
@@ -513,7 +513,7 @@ def _idle(tl, phase, p, style, b):
     e = _stand(n, style)
     ang = 2 * np.pi * p["freq"] * tl + p["phase"]
     lat = p["shift"] * np.sin(ang)                             # weight shift from foot to foot
-    for sign, hip, kn, an, col, sh, el in _SIDES:
+    for _sign, hip, _kn, an, _col, sh, _el in _SIDES:
         e[:, hip, 0] += -lat / b["leg"]
         e[:, an, 0] += lat / b["leg"]
         e[:, sh, 1] += -0.05 * np.sin(ang + 0.5)

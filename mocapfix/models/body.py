@@ -143,7 +143,7 @@ class SMPLBody(nn.Module):
 
     @classmethod
     def from_file(cls, body_model_path: str, gender: str = "neutral", model_type: str = "smplh",
-                  markers: list[int] | None = None, num_betas: int | None = None) -> "SMPLBody":
+                  markers: list[int] | None = None, num_betas: int | None = None) -> SMPLBody:
         """The user's model file or folder (smplx or AMASS layout, as the AMASS reader takes it)."""
         from mocapfix.io.amass import find_body_model, load_body_model
         model_file = find_body_model(body_model_path, model_type, gender)

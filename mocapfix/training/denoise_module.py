@@ -35,19 +35,33 @@ import torch
 import torch.nn as nn
 
 from mocapfix.data.corruption import gaussian_noise, rotation_noise
+from mocapfix.data.datamodule import complete_windows
 from mocapfix.evaluation.metrics import MPJPE, JointAcceleration
 from mocapfix.evaluation.tasks import write_eval_json
 from mocapfix.models.build import checkpoint_entry
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
+
 # the posterior pass is shared with `mocapfix fix`, which must not import training code
-from mocapfix.models.dvae_inference import (FIRST_FRAMES, Inference, Observation, gaussian_limit, infer_posterior,
-                                            point_estimate, uses_noise_model)
+from mocapfix.models.dvae_inference import (
+    FIRST_FRAMES,
+    Inference,
+    Observation,
+    gaussian_limit,
+    infer_posterior,
+    point_estimate,
+    uses_noise_model,
+)
 from mocapfix.models.dvae_state import velocity_mask
 from mocapfix.skeleton import Skeleton
+from mocapfix.training.dvae_module import (
+    MotionDVAEModule,
+    anneal_steps_of,
+    compile_in_place,
+    kl_anneal_weight,
+    require_complete_windows,
+    select,
+)
 from mocapfix.training.figures import log_validation_figure
-from mocapfix.data.datamodule import complete_windows
-from mocapfix.training.dvae_module import (MotionDVAEModule, anneal_steps_of, compile_in_place, kl_anneal_weight,
-                                           require_complete_windows, select)
 
 METHODS = ("noisy", "dvae_regression", "dvae_optimisation")
 
