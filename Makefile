@@ -5,7 +5,7 @@ VENV ?= .venv
 TORCH ?= torch==2.13.0
 PY := $(VENV)/bin/python
 
-.PHONY: demo test test-all venv clean
+.PHONY: demo test test-all lint format venv clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -19,9 +19,18 @@ venv: $(VENV)/.installed
 demo: $(VENV)/.installed
 	$(PY) -m mocapfix demo
 
-# The everyday suite; tests marked slow (minutes of CPU training) run with `make test-all`.
-test: $(VENV)/.installed
+# The everyday suite: lint and format check (ruff, settings in pyproject.toml), then the tests;
+# tests marked slow (minutes of CPU training) run with `make test-all`. `make format` fixes both.
+test: $(VENV)/.installed lint
 	$(PY) -m pytest -q -ra -m "not slow"
+
+lint: $(VENV)/.installed
+	$(VENV)/bin/ruff check mocapfix tests bench
+	$(VENV)/bin/ruff format --check mocapfix tests bench
+
+format: $(VENV)/.installed
+	$(VENV)/bin/ruff check --fix mocapfix tests bench
+	$(VENV)/bin/ruff format mocapfix tests bench
 
 test-all: $(VENV)/.installed
 	$(PY) -m pytest -q -ra

@@ -12,6 +12,7 @@ would gain over PyTorch's own choice ("auto").
     python bench/attention_backends.py                         # CUDA: smpl22, 60 frames, batch 128 / 1024
     python bench/attention_backends.py --device cpu --batch 4 --infer-batch 4 --fps 10
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,20 +26,50 @@ from torch.nn.attention import SDPBackend, sdpa_kernel
 
 from mocapfix.data.corruption import kept_count  # noqa: E402
 
-BACKENDS = {"auto": None, "cudnn": SDPBackend.CUDNN_ATTENTION, "flash": SDPBackend.FLASH_ATTENTION,
-            "efficient": SDPBackend.EFFICIENT_ATTENTION, "math": SDPBackend.MATH}
+BACKENDS = {
+    "auto": None,
+    "cudnn": SDPBackend.CUDNN_ATTENTION,
+    "flash": SDPBackend.FLASH_ATTENTION,
+    "efficient": SDPBackend.EFFICIENT_ATTENTION,
+    "math": SDPBackend.MATH,
+}
 
 
-def attention_calls(J: int, T: int, batch: int, infer_batch: int, mask_ratio: float, enc_heads: int,
-                    dec_heads: int, enc_depth: int, dec_depth: int) -> list[dict]:
+def attention_calls(
+    J: int,
+    T: int,
+    batch: int,
+    infer_batch: int,
+    mask_ratio: float,
+    enc_heads: int,
+    dec_heads: int,
+    enc_depth: int,
+    dec_depth: int,
+) -> list[dict]:
     """The attention calls of one training step and one inference pass of XMAE (models/xmae.py):
     (batch, heads, queries, keys) and how many times each runs."""
     N, K = J * T, kept_count(J * T, mask_ratio)
     calls = []
     for phase, B, kept, backward in (("train", batch, K, True), ("infer", infer_batch, N, False)):
         calls += [
-            {"phase": phase, "call": "encoder self", "B": B, "H": enc_heads, "Nq": kept, "Nk": kept, "count": enc_depth},
-            {"phase": phase, "call": "decoder self, first (once)", "B": 1, "H": dec_heads, "Nq": N, "Nk": N, "count": 1},
+            {
+                "phase": phase,
+                "call": "encoder self",
+                "B": B,
+                "H": enc_heads,
+                "Nq": kept,
+                "Nk": kept,
+                "count": enc_depth,
+            },
+            {
+                "phase": phase,
+                "call": "decoder self, first (once)",
+                "B": 1,
+                "H": dec_heads,
+                "Nq": N,
+                "Nk": N,
+                "count": 1,
+            },
             {"phase": phase, "call": "decoder self", "B": B, "H": dec_heads, "Nq": N, "Nk": N, "count": dec_depth - 1},
             {"phase": phase, "call": "decoder cross", "B": B, "H": dec_heads, "Nq": N, "Nk": kept, "count": dec_depth},
         ]
@@ -47,7 +78,9 @@ def attention_calls(J: int, T: int, batch: int, infer_batch: int, mask_ratio: fl
     return calls
 
 
-def time_call(call: dict, backend, head_dim: int, dtype: torch.dtype, device: torch.device, repeat: int) -> float | None:
+def time_call(
+    call: dict, backend, head_dim: int, dtype: torch.dtype, device: torch.device, repeat: int
+) -> float | None:
     """Seconds per call (forward, + backward of a random output gradient in training), None where
     the backend has no kernel for it (or it does not fit in memory)."""
     g = torch.Generator(device=device).manual_seed(0)
@@ -55,8 +88,9 @@ def time_call(call: dict, backend, head_dim: int, dtype: torch.dtype, device: to
     shape_k = (call["B"], call["H"], call["Nk"], head_dim)
     # q: (B, H, Nq, hd); k, v: (B, H, Nk, hd), as Attention.forward hands them over
     q = torch.randn(shape_q, generator=g, device=device, dtype=dtype, requires_grad=call["backward"])
-    k, v = (torch.randn(shape_k, generator=g, device=device, dtype=dtype, requires_grad=call["backward"])
-            for _ in range(2))
+    k, v = (
+        torch.randn(shape_k, generator=g, device=device, dtype=dtype, requires_grad=call["backward"]) for _ in range(2)
+    )
     grad = torch.randn(shape_q, generator=g, device=device, dtype=dtype)
 
     def run():
@@ -67,6 +101,7 @@ def time_call(call: dict, backend, head_dim: int, dtype: torch.dtype, device: to
             else:
                 with torch.no_grad():
                     F.scaled_dot_product_attention(q, k, v)
+
     try:
         return timed(run, device, repeat=repeat, warmup=3)
     except (RuntimeError, torch.OutOfMemoryError) as e:  # "No available kernel", or too large for math
@@ -84,8 +119,11 @@ def main(argv=None) -> int:
     ap.add_argument("--batch", type=int, default=128, help="training batch")
     ap.add_argument("--infer-batch", type=int, default=None, help="inference batch (default 1024 on CUDA, 16 on CPU)")
     ap.add_argument("--mask-ratio", type=float, default=0.85)
-    ap.add_argument("--backends", default=None, help=f"comma-separated subset of {', '.join(BACKENDS)} "
-                                                     "(default: all on CUDA; auto, flash, math on a CPU)")
+    ap.add_argument(
+        "--backends",
+        default=None,
+        help=f"comma-separated subset of {', '.join(BACKENDS)} (default: all on CUDA; auto, flash, math on a CPU)",
+    )
     ap.add_argument("--repeat", type=int, default=None)
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
@@ -99,8 +137,17 @@ def main(argv=None) -> int:
     T = int(round(args.fps * args.window_s))
     # paper sizes (Table 1; models/xmae.py defaults): widths 256 / 128, head dim 64, depths 6 / 3
     head_dim = 64
-    calls = attention_calls(args.joints, T, args.batch, args.infer_batch or (1024 if gpu else 16), args.mask_ratio,
-                            enc_heads=256 // head_dim, dec_heads=128 // head_dim, enc_depth=6, dec_depth=3)
+    calls = attention_calls(
+        args.joints,
+        T,
+        args.batch,
+        args.infer_batch or (1024 if gpu else 16),
+        args.mask_ratio,
+        enc_heads=256 // head_dim,
+        dec_heads=128 // head_dim,
+        enc_depth=6,
+        dec_depth=3,
+    )
 
     for call in calls:
         for name in names:
@@ -116,19 +163,42 @@ def main(argv=None) -> int:
             counts = [c["count"] for c in calls if c["phase"] == phase]
             row[f"{name}_ms"] = None if None in ms else sum(m * n for m, n in zip(ms, counts))
         # every call on its own fastest backend
-        row["best_mix_ms"] = sum(min(c[f"{n}_ms"] for n in names if c[f"{n}_ms"] is not None) * c["count"]
-                                 for c in calls if c["phase"] == phase)
+        row["best_mix_ms"] = sum(
+            min(c[f"{n}_ms"] for n in names if c[f"{n}_ms"] is not None) * c["count"]
+            for c in calls
+            if c["phase"] == phase
+        )
         totals.append(row)
 
-    result = {"benchmark": "xmae_attention_backends", "env": describe(device), "command": " ".join(sys.argv),
-              "joints": args.joints, "frames": T, "dtype": str(dtype).replace("torch.", ""), "head_dim": head_dim,
-              "backends": names, "calls": calls, "totals": totals}
+    result = {
+        "benchmark": "xmae_attention_backends",
+        "env": describe(device),
+        "command": " ".join(sys.argv),
+        "joints": args.joints,
+        "frames": T,
+        "dtype": str(dtype).replace("torch.", ""),
+        "head_dim": head_dim,
+        "backends": names,
+        "calls": calls,
+        "totals": totals,
+    }
     path = write_result("attention_backends", result, args.json_out)
-    print_table(f"XMAE attention calls by SDPA backend, {result['env'].get('gpu', result['env'].get('cpu'))}, "
-                f"{args.joints} joints x {T} frames, {result['dtype']}, ms per call (train: forward + backward)",
-                calls + totals, [("phase", "phase"), ("call", "call"), ("B", "B"), ("H", "H"), ("Nq", "queries"),
-                                 ("Nk", "keys"), ("count", "count")]
-                + [(f"{n}_ms", n) for n in names] + [("fastest", "fastest"), ("best_mix_ms", "best mix")])
+    print_table(
+        f"XMAE attention calls by SDPA backend, {result['env'].get('gpu', result['env'].get('cpu'))}, "
+        f"{args.joints} joints x {T} frames, {result['dtype']}, ms per call (train: forward + backward)",
+        calls + totals,
+        [
+            ("phase", "phase"),
+            ("call", "call"),
+            ("B", "B"),
+            ("H", "H"),
+            ("Nq", "queries"),
+            ("Nk", "keys"),
+            ("count", "count"),
+        ]
+        + [(f"{n}_ms", n) for n in names]
+        + [("fastest", "fastest"), ("best_mix_ms", "best mix")],
+    )
     print(f"wrote {path}")
     return 0
 

@@ -1,5 +1,6 @@
 """What every benchmark script shares: the device description, timing that waits for the GPU,
 the device's measured matmul rate, and the JSON + table output."""
+
 from __future__ import annotations
 
 import json
@@ -84,10 +85,12 @@ def write_result(name: str, result: dict, json_out: str | None) -> Path:
 
 def print_table(title: str, rows: list[dict], columns: list[tuple[str, str]]) -> None:
     """columns: (key, header) pairs; floats get 4 significant digits."""
+
     def fmt(v):
         if isinstance(v, float):
             return f"{v:.4g}"
         return "" if v is None else str(v)
+
     cells = [[fmt(r.get(k)) for k, _ in columns] for r in rows]
     widths = [max([len(h)] + [len(c[i]) for c in cells]) for i, (_, h) in enumerate(columns)]
     print(title)

@@ -11,6 +11,7 @@ Rows:
     python bench/data_pipeline.py                   # CUDA when there is one
     python bench/data_pipeline.py --device cpu --batches 20
 """
+
 from __future__ import annotations
 
 import argparse
@@ -77,16 +78,35 @@ def main(argv=None) -> int:
                 frames = sum(c.num_frames for c in clips)
                 rows.append({"row": row, "files": len(clips), "seconds": seconds, "frames_per_s": frames / seconds})
 
-    dm = MotionDataModule(source="synthetic", fps=args.fps, stride_s=1.0 / args.fps, batch_size=args.batch,
-                          cache_dir=None, val_fraction=0.0, test_fraction=0.0)
+    dm = MotionDataModule(
+        source="synthetic",
+        fps=args.fps,
+        stride_s=1.0 / args.fps,
+        batch_size=args.batch,
+        cache_dir=None,
+        val_fraction=0.0,
+        test_fraction=0.0,
+    )
     dm.setup("fit")
     for workers in (int(w) for w in args.workers.split(",") if w):
         dm.hparams.update(num_workers=workers, pin_memory=gpu, persistent_workers=workers > 0)
-        rows.append({"row": "loader", "workers": workers, "batch": args.batch,
-                     "windows_per_s": windows_per_s(dm._loader("train", shuffle=True), device, n, non_blocking=gpu)})
+        rows.append(
+            {
+                "row": "loader",
+                "workers": workers,
+                "batch": args.batch,
+                "windows_per_s": windows_per_s(dm._loader("train", shuffle=True), device, n, non_blocking=gpu),
+            }
+        )
     batches = DeviceBatches(dm.datasets["train"], args.batch, device)
-    rows.append({"row": "device", "workers": 0, "batch": args.batch,
-                 "windows_per_s": windows_per_s(batches, device, n, non_blocking=False)})
+    rows.append(
+        {
+            "row": "device",
+            "workers": 0,
+            "batch": args.batch,
+            "windows_per_s": windows_per_s(batches, device, n, non_blocking=False),
+        }
+    )
 
     consumed = None
     trained = RESULTS / f"train_throughput-{device.type}.json"
@@ -96,15 +116,30 @@ def main(argv=None) -> int:
         for r in rows:
             if "windows_per_s" in r:
                 r["x_model_consumption"] = r["windows_per_s"] / consumed
-    result = {"benchmark": "data_pipeline", "env": describe(device), "command": " ".join(sys.argv),
-              "fps": args.fps, "model_seq_per_s": consumed, "rows": rows}
+    result = {
+        "benchmark": "data_pipeline",
+        "env": describe(device),
+        "command": " ".join(sys.argv),
+        "fps": args.fps,
+        "model_seq_per_s": consumed,
+        "rows": rows,
+    }
     path = write_result("data_pipeline", result, args.json_out)
-    print_table(f"Data pipeline, {result['env'].get('gpu', result['env'].get('cpu'))}, smpl22 windows of "
-                f"{dm.window_frames} frames, corruption on {device.type}; the model consumes "
-                f"{'?' if consumed is None else f'{consumed:.0f}'} windows/s ({trained.name})",
-                rows, [("row", "row"), ("files", "files"), ("seconds", "seconds"), ("frames_per_s", "frames/s"),
-                       ("workers", "workers"), ("windows_per_s", "windows/s"),
-                       ("x_model_consumption", "x model consumption")])
+    print_table(
+        f"Data pipeline, {result['env'].get('gpu', result['env'].get('cpu'))}, smpl22 windows of "
+        f"{dm.window_frames} frames, corruption on {device.type}; the model consumes "
+        f"{'?' if consumed is None else f'{consumed:.0f}'} windows/s ({trained.name})",
+        rows,
+        [
+            ("row", "row"),
+            ("files", "files"),
+            ("seconds", "seconds"),
+            ("frames_per_s", "frames/s"),
+            ("workers", "workers"),
+            ("windows_per_s", "windows/s"),
+            ("x_model_consumption", "x model consumption"),
+        ],
+    )
     print(f"wrote {path}")
     return 0
 

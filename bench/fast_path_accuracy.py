@@ -19,6 +19,7 @@ order) changes within a path.
         --batch 32 --data-source archive --data-path .device_data/bandai_pos30.npz \
         --model.init_args.lr 1e-3 --model.init_args.gap_ratio 0 --model.init_args.eval_gaps_s "[0.3,0.7]"
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,19 +35,43 @@ from pathlib import Path
 from common import REPO, describe, pick_device, print_table, write_result
 
 PATHS = {
-    "plain": ["--trainer.precision", "32", "--data.batches_on_device", "false",
-              "--model.init_args.compile_model", "false"],
-    "fast": ["--trainer.precision", "bf16-mixed", "--data.batches_on_device", "true",
-             "--model.init_args.compile_model", "true"],
+    "plain": [
+        "--trainer.precision",
+        "32",
+        "--data.batches_on_device",
+        "false",
+        "--model.init_args.compile_model",
+        "false",
+    ],
+    "fast": [
+        "--trainer.precision",
+        "bf16-mixed",
+        "--data.batches_on_device",
+        "true",
+        "--model.init_args.compile_model",
+        "true",
+    ],
 }
 # A CPU-sized XMAE (2-layer encoder 64 wide, 1-layer decoder): with lr 1e-3 and the paper's
 # corruption it leaves the mean-pose plateau (docs/xmae-notes.md) within a few hundred steps of
 # batch 32 on Bandai, at ~0.2 s a step on one core. Session 2's wider CPU model (enc 128 x 4)
 # was still on the plateau after 1,000 steps of batch 32: comparing two mean poses says nothing.
-SMALL = ["--model.init_args.enc_dim", "64", "--model.init_args.enc_depth", "2",
-         "--model.init_args.enc_mlp_dim", "256", "--model.init_args.dec_dim", "64",
-         "--model.init_args.dec_depth", "1", "--model.init_args.dec_mlp_dim", "256",
-         "--model.init_args.head_dim", "32"]
+SMALL = [
+    "--model.init_args.enc_dim",
+    "64",
+    "--model.init_args.enc_depth",
+    "2",
+    "--model.init_args.enc_mlp_dim",
+    "256",
+    "--model.init_args.dec_dim",
+    "64",
+    "--model.init_args.dec_depth",
+    "1",
+    "--model.init_args.dec_mlp_dim",
+    "256",
+    "--model.init_args.head_dim",
+    "32",
+]
 
 
 def run_one(path: str, seed: int, args, workdir: Path) -> dict:
@@ -57,27 +82,56 @@ def run_one(path: str, seed: int, args, workdir: Path) -> dict:
     if args.threads:
         env["OMP_NUM_THREADS"] = str(args.threads)
     # The runs work in their own folders: a data path must be absolute there.
-    data = ["--data.source", args.data_source,
-            *(["--data.path", str(Path(args.data_path).resolve())] if args.data_path != "none" else []),
-            "--data.cache_dir", "null", "--data.batch_size", str(args.batch),
-            "--trainer.accelerator", args.device.type if args.device.type == "cpu" else "gpu"]
-    common = ["--config", str(Path(args.config).resolve()), "--experiment", "run", *data, *PATHS[path],
-              *(SMALL if args.small else []), *args.extra]
-    fit = ["fit", *common, "--seed_everything", str(seed), "--trainer.max_steps", str(args.steps),
-           "--model.init_args.total_steps", str(args.steps),
-           "--model.init_args.warmup_steps", str(min(500, args.steps // 10)),
-           "--trainer.val_check_interval", str(args.steps), "--trainer.enable_progress_bar", "false"]
+    data = [
+        "--data.source",
+        args.data_source,
+        *(["--data.path", str(Path(args.data_path).resolve())] if args.data_path != "none" else []),
+        "--data.cache_dir",
+        "null",
+        "--data.batch_size",
+        str(args.batch),
+        "--trainer.accelerator",
+        args.device.type if args.device.type == "cpu" else "gpu",
+    ]
+    common = [
+        "--config",
+        str(Path(args.config).resolve()),
+        "--experiment",
+        "run",
+        *data,
+        *PATHS[path],
+        *(SMALL if args.small else []),
+        *args.extra,
+    ]
+    fit = [
+        "fit",
+        *common,
+        "--seed_everything",
+        str(seed),
+        "--trainer.max_steps",
+        str(args.steps),
+        "--model.init_args.total_steps",
+        str(args.steps),
+        "--model.init_args.warmup_steps",
+        str(min(500, args.steps // 10)),
+        "--trainer.val_check_interval",
+        str(args.steps),
+        "--trainer.enable_progress_bar",
+        "false",
+    ]
     test = ["test", *common, "--ckpt_path", "checkpoints/run/last.ckpt", "--trainer.enable_progress_bar", "false"]
     times = {}
     for name, cmd in (("fit", fit), ("test", test)):
         t0 = time.perf_counter()
-        done = subprocess.run([sys.executable, "-m", "mocapfix", *cmd], cwd=folder, env=env,
-                              capture_output=True, text=True)
+        done = subprocess.run(
+            [sys.executable, "-m", "mocapfix", *cmd], cwd=folder, env=env, capture_output=True, text=True
+        )
         times[f"{name}_s"] = round(time.perf_counter() - t0, 1)
         (folder / f"{name}.log").write_text(done.stdout + done.stderr)
         if done.returncode != 0:
-            raise SystemExit(f"{path} seed {seed}: `mocapfix {name}` failed (exit {done.returncode}); "
-                             f"see {folder / (name + '.log')}")
+            raise SystemExit(
+                f"{path} seed {seed}: `mocapfix {name}` failed (exit {done.returncode}); see {folder / (name + '.log')}"
+            )
     match = re.search(r"^eval\.json: (.+)$", done.stdout, re.M)
     if match is None:
         raise SystemExit(f"{path} seed {seed}: test printed no eval.json path; see {folder / 'test.log'}")
@@ -119,13 +173,17 @@ def compare(runs: list[dict], paths: list[str]) -> list[dict]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-                                 allow_abbrev=False)  # other options pass through to mocapfix
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter, allow_abbrev=False
+    )  # other options pass through to mocapfix
     ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
     ap.add_argument("--config", default=str(REPO / "configs" / "xmae_bvh.yaml"))
     ap.add_argument("--data-source", default="bvh")
-    ap.add_argument("--data-path", default=str(REPO.parent / "shared" / "data" / "bandai-namco"),
-                    help="'none': the source needs no path (synthetic)")
+    ap.add_argument(
+        "--data-path",
+        default=str(REPO.parent / "shared" / "data" / "bandai-namco"),
+        help="'none': the source needs no path (synthetic)",
+    )
     ap.add_argument("--paths", default="plain,fast")
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--steps", type=int, default=1000)
@@ -152,16 +210,36 @@ def main() -> None:
     columns = [("case", "case"), *[(f"{p}_cell", f"{p} mm (mean, seed range)") for p in paths]]
     if len(paths) == 2:
         columns += [("difference_cell", f"{paths[1]} - {paths[0]} mm"), ("verdict", "within seed range")]
-    cells = [{"case": e["case"], **{f"{p}_cell": f"{e[p + '_mean']} ({e[p + '_range']})" for p in paths},
-              "difference_cell": f"{e.get('difference', 0):+.2f}",
-              "verdict": {True: "yes", False: "no"}.get(e.get("within_seed_range"), "-")} for e in table]
-    print_table(f"XMAE test MPJPE, {len(seeds)} seeds per path, {args.steps} steps of batch {args.batch}"
-                f"{' (small XMAE)' if args.small else ''}, {describe(args.device)['device']}", cells, columns)
-    result = {"env": describe(args.device), "threads_per_run": args.threads or None, "jobs": args.jobs,
-              "steps": args.steps, "batch": args.batch, "small": args.small,
-              "seeds": seeds, "paths": {p: PATHS[p] for p in paths}, "extra": args.extra,
-              "data": {"source": args.data_source, "path": args.data_path}, "config": args.config,
-              "table": table, "runs": runs}
+    cells = [
+        {
+            "case": e["case"],
+            **{f"{p}_cell": f"{e[p + '_mean']} ({e[p + '_range']})" for p in paths},
+            "difference_cell": f"{e.get('difference', 0):+.2f}",
+            "verdict": {True: "yes", False: "no"}.get(e.get("within_seed_range"), "-"),
+        }
+        for e in table
+    ]
+    print_table(
+        f"XMAE test MPJPE, {len(seeds)} seeds per path, {args.steps} steps of batch {args.batch}"
+        f"{' (small XMAE)' if args.small else ''}, {describe(args.device)['device']}",
+        cells,
+        columns,
+    )
+    result = {
+        "env": describe(args.device),
+        "threads_per_run": args.threads or None,
+        "jobs": args.jobs,
+        "steps": args.steps,
+        "batch": args.batch,
+        "small": args.small,
+        "seeds": seeds,
+        "paths": {p: PATHS[p] for p in paths},
+        "extra": args.extra,
+        "data": {"source": args.data_source, "path": args.data_path},
+        "config": args.config,
+        "table": table,
+        "runs": runs,
+    }
     print(f"wrote {write_result('fast_path_accuracy', result, args.json_out)}")
 
 

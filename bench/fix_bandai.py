@@ -10,6 +10,7 @@ on the holes alone by gap length, NaN left, limb sigma before and after.
     python bench/fix_bandai.py --ckpt checkpoints/xmae_bandai_gpu/best-*.ckpt
     python bench/fix_bandai.py --ckpt small.ckpt --source archive --path .device_data/bandai_pos30.npz
 """
+
 from __future__ import annotations
 
 import argparse
@@ -77,8 +78,17 @@ def main(argv=None) -> int:
             lerp.append(lerp_infill(torch.from_numpy(y)[None].double(), torch.from_numpy(~g)[None])[0].numpy())
         report = io.StringIO()
         t0 = time.perf_counter()
-        rc = fix_files([str(p) for p in paths], ckpts[0], out_dir=str(tmp / "out"), mode="both", device=device.type,
-                       precision=args.precision, progress="never", as_json=True, stdout=report)
+        rc = fix_files(
+            [str(p) for p in paths],
+            ckpts[0],
+            out_dir=str(tmp / "out"),
+            mode="both",
+            device=device.type,
+            precision=args.precision,
+            progress="never",
+            as_json=True,
+            stdout=report,
+        )
         seconds = time.perf_counter() - t0
         if rc != 0:
             raise SystemExit(f"fix failed (exit {rc})")
@@ -88,12 +98,16 @@ def main(argv=None) -> int:
                 fixed.append(z["positions"])
 
     def mm(pred, mask):
-        return float(np.mean(np.concatenate([1000 * np.linalg.norm(p - t, axis=-1)[m]
-                                             for p, t, m in zip(pred, truth, mask)])))
+        return float(
+            np.mean(np.concatenate([1000 * np.linalg.norm(p - t, axis=-1)[m] for p, t, m in zip(pred, truth, mask)]))
+        )
+
     corrupted = [g | d for g, d in zip(gap, disp)]
-    rows = [{"tokens": "corrupted (holes + displaced)", "fix_mm": mm(fixed, corrupted), "lerp_mm": mm(lerp, corrupted)},
-            {"tokens": "holes", "fix_mm": mm(fixed, gap), "lerp_mm": mm(lerp, gap)},
-            {"tokens": "displaced", "fix_mm": mm(fixed, disp), "lerp_mm": mm(lerp, disp)}]
+    rows = [
+        {"tokens": "corrupted (holes + displaced)", "fix_mm": mm(fixed, corrupted), "lerp_mm": mm(lerp, corrupted)},
+        {"tokens": "holes", "fix_mm": mm(fixed, gap), "lerp_mm": mm(lerp, gap)},
+        {"tokens": "displaced", "fix_mm": mm(fixed, disp), "lerp_mm": mm(lerp, disp)},
+    ]
     # holes by length (corrupt_recording keeps 0.7 s of clean motion between holes: runs of
     # frames with a missing joint are single holes)
     lengths = [hole_frames(g) for g in gap]
@@ -105,14 +119,27 @@ def main(argv=None) -> int:
     sigma_before = float(np.mean([r["limb_sigma_before_mm"] for r in reports]))
     sigma_after = float(np.mean([r["limb_sigma_after_mm"] for r in reports]))
     frames = sum(len(t) for t in truth)
-    result = {"benchmark": "fix_bandai", "env": describe(device), "command": " ".join(sys.argv), "ckpt": ckpts[0],
-              "clips": len(clips), "frames": frames, "seconds": seconds, "nan_left": nan_left,
-              "limb_sigma_before_mm": sigma_before, "limb_sigma_after_mm": sigma_after, "rows": rows}
+    result = {
+        "benchmark": "fix_bandai",
+        "env": describe(device),
+        "command": " ".join(sys.argv),
+        "ckpt": ckpts[0],
+        "clips": len(clips),
+        "frames": frames,
+        "seconds": seconds,
+        "nan_left": nan_left,
+        "limb_sigma_before_mm": sigma_before,
+        "limb_sigma_after_mm": sigma_after,
+        "rows": rows,
+    }
     path = write_result("fix_bandai", result, args.json_out)
-    print_table(f"fix --mode both on {len(clips)} Bandai test clips ({frames / 30:.0f} s at 30 fps), "
-                f"{Path(ckpts[0]).name}: NaN left {nan_left}, limb sigma {sigma_before:.1f} -> {sigma_after:.1f} mm "
-                f"(mean over clips), {seconds:.1f} s", rows,
-                [("tokens", "tokens"), ("fix_mm", "fix MPJPE mm"), ("lerp_mm", "Lerp MPJPE mm")])
+    print_table(
+        f"fix --mode both on {len(clips)} Bandai test clips ({frames / 30:.0f} s at 30 fps), "
+        f"{Path(ckpts[0]).name}: NaN left {nan_left}, limb sigma {sigma_before:.1f} -> {sigma_after:.1f} mm "
+        f"(mean over clips), {seconds:.1f} s",
+        rows,
+        [("tokens", "tokens"), ("fix_mm", "fix MPJPE mm"), ("lerp_mm", "Lerp MPJPE mm")],
+    )
     print(f"wrote {path}")
     return 0
 

@@ -11,6 +11,7 @@ The test clips are the data module's test split (split by file, seed 0), as in t
 
     python bench/fix_policy_bandai.py --ckpt checkpoints/xmae_cpu/last.ckpt
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,8 +29,9 @@ from mocapfix.fixers import load_fixer  # noqa: E402
 DEFAULT_BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"
 
 
-def displace_arms(positions: np.ndarray, fps: float, groups: dict, rng: np.random.Generator,
-                  every_s: float = 2.0, span_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+def displace_arms(
+    positions: np.ndarray, fps: float, groups: dict, rng: np.random.Generator, every_s: float = 2.0, span_s: float = 0.5
+) -> tuple[np.ndarray, np.ndarray]:
     """positions (T, J, 3) -> (displaced copy, (T, J) bool: the displaced tokens)."""
     out, moved = positions.copy(), np.zeros(positions.shape[:2], dtype=bool)
     arms = [g for g in ("left_arm", "right_arm") if g in groups]
@@ -38,8 +40,8 @@ def displace_arms(positions: np.ndarray, fps: float, groups: dict, rng: np.rando
         joints = list(groups[arms[rng.integers(len(arms))]])
         direction = rng.normal(size=3)
         offset = direction / np.linalg.norm(direction) * rng.uniform(0.5, 1.0)
-        out[start:start + span, joints] += offset.astype(np.float32)
-        moved[start:start + span, joints] = True
+        out[start : start + span, joints] += offset.astype(np.float32)
+        moved[start : start + span, joints] = True
     return out, moved
 
 
@@ -59,7 +61,7 @@ def main(argv=None) -> int:
         raise SystemExit(f"{args.ckpt} has no fill policy: `mocapfix validate --ckpt_path` calibrates one")
     dm = MotionDataModule(source="bvh", path=args.path, fps=30, cache_dir=args.cache_dir)
     dm.setup("test")
-    clips = dm.clips["test"][:args.max_clips]
+    clips = dm.clips["test"][: args.max_clips]
     rng = np.random.default_rng(args.seed)
 
     t0 = time.perf_counter()
@@ -80,22 +82,54 @@ def main(argv=None) -> int:
         clean_n += int((~moved).sum())
     seconds = time.perf_counter() - t0
     err_before, err_after = 1000 * float(np.concatenate(before).mean()), 1000 * float(np.concatenate(after).mean())
-    rows = [{"case": "clean clips", "tokens": observed, "changed_pct": 100 * changed / observed,
-             "before_mm": 0.0, "after_mm": float("nan")},
-            {"case": "displaced arm tokens", "tokens": moved_n, "changed_pct": float("nan"),
-             "before_mm": err_before, "after_mm": err_after},
-            {"case": "clean tokens of those clips", "tokens": clean_n, "changed_pct": 100 * clean_changed / clean_n,
-             "before_mm": 0.0, "after_mm": float("nan")}]
-    result = {"benchmark": "fix_policy_bandai", "env": describe(device), "command": " ".join(sys.argv),
-              "ckpt": args.ckpt, "clips": len(clips), "seconds": seconds,
-              "replace_threshold_m": fixer.policy.replace_threshold_m,
-              "displaced_error_cut_pct": 100 * (1 - err_after / err_before), "rows": rows}
+    rows = [
+        {
+            "case": "clean clips",
+            "tokens": observed,
+            "changed_pct": 100 * changed / observed,
+            "before_mm": 0.0,
+            "after_mm": float("nan"),
+        },
+        {
+            "case": "displaced arm tokens",
+            "tokens": moved_n,
+            "changed_pct": float("nan"),
+            "before_mm": err_before,
+            "after_mm": err_after,
+        },
+        {
+            "case": "clean tokens of those clips",
+            "tokens": clean_n,
+            "changed_pct": 100 * clean_changed / clean_n,
+            "before_mm": 0.0,
+            "after_mm": float("nan"),
+        },
+    ]
+    result = {
+        "benchmark": "fix_policy_bandai",
+        "env": describe(device),
+        "command": " ".join(sys.argv),
+        "ckpt": args.ckpt,
+        "clips": len(clips),
+        "seconds": seconds,
+        "replace_threshold_m": fixer.policy.replace_threshold_m,
+        "displaced_error_cut_pct": 100 * (1 - err_after / err_before),
+        "rows": rows,
+    }
     path = write_result("fix_policy_bandai", result, args.json_out)
-    print_table(f"fix --mode both with the fill policy on {len(clips)} Bandai test clips, {Path(args.ckpt).name} "
-                f"(replace threshold {1000 * fixer.policy.replace_threshold_m:.0f} mm): displaced error cut "
-                f"{result['displaced_error_cut_pct']:.1f} %, {seconds:.0f} s", rows,
-                [("case", "tokens of"), ("tokens", "tokens"), ("changed_pct", "changed %"),
-                 ("before_mm", "error before mm"), ("after_mm", "after mm")])
+    print_table(
+        f"fix --mode both with the fill policy on {len(clips)} Bandai test clips, {Path(args.ckpt).name} "
+        f"(replace threshold {1000 * fixer.policy.replace_threshold_m:.0f} mm): displaced error cut "
+        f"{result['displaced_error_cut_pct']:.1f} %, {seconds:.0f} s",
+        rows,
+        [
+            ("case", "tokens of"),
+            ("tokens", "tokens"),
+            ("changed_pct", "changed %"),
+            ("before_mm", "error before mm"),
+            ("after_mm", "after mm"),
+        ],
+    )
     print(f"wrote {path}")
     return 0
 

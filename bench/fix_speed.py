@@ -13,6 +13,7 @@ Cases:
                    around the gaps run
     infill-spread  --mode infill, 5% of tokens missing at random: every window runs
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,14 +43,14 @@ CASES = ("denoise", "infill-gaps", "infill-spread")
 
 def make_inputs(folder: Path, seconds: float, fps: float, seed: int = 0) -> dict[str, Path]:
     skel = preset("smpl22")
-    clean = generate_clips(1, seconds, fps=fps, seed=seed)[0].positions          # (T, 22, 3)
+    clean = generate_clips(1, seconds, fps=fps, seed=seed)[0].positions  # (T, 22, 3)
     T = len(clean)
     rng = np.random.default_rng(seed)
     gaps = clean.copy()
     parts = [None] + [list(v) for v in skel.groups.values()]
     for start in np.linspace(0.05 * T, 0.95 * T, 10).astype(int):
         joints = parts[rng.integers(len(parts))]
-        gaps[start:start + int(0.5 * fps), slice(None) if joints is None else joints] = np.nan
+        gaps[start : start + int(0.5 * fps), slice(None) if joints is None else joints] = np.nan
     spread = clean.copy()
     spread[rng.random(spread.shape[:2]) < 0.05] = np.nan
     paths = {}
@@ -69,7 +70,9 @@ def main(argv=None) -> int:
     ap.add_argument("--batch-size", type=int, default=64)
     ap.add_argument("--precision", default="auto", choices=("auto", "fp32", "bf16"), help="fix --precision")
     ap.add_argument("--repeat", type=int, default=1, help="timed runs per case (the best is reported)")
-    ap.add_argument("--json-out", default=None, help="where to write the results (default bench/results/fix_speed-<device>.json)")
+    ap.add_argument(
+        "--json-out", default=None, help="where to write the results (default bench/results/fix_speed-<device>.json)"
+    )
     args = ap.parse_args(argv)
 
     torch.manual_seed(0)
@@ -83,9 +86,18 @@ def main(argv=None) -> int:
         torch.save(xmae_checkpoint(net, preset("smpl22"), args.fps), ckpt)
         inputs = make_inputs(tmp, args.seconds, args.fps)
         # warm-up: first calls pay for thread pools and kernel selection
-        fix_files([str(inputs["denoise"])], str(ckpt), out=str(tmp / "warm.npz"), mode="both", device=args.device,
-                  batch_size=args.batch_size, force=True, progress="never", stdout=io.StringIO(),
-                  precision=args.precision)
+        fix_files(
+            [str(inputs["denoise"])],
+            str(ckpt),
+            out=str(tmp / "warm.npz"),
+            mode="both",
+            device=args.device,
+            batch_size=args.batch_size,
+            force=True,
+            progress="never",
+            stdout=io.StringIO(),
+            precision=args.precision,
+        )
         for case in args.cases.split(","):
             mode = "both" if case == "denoise" else "infill"
             for overlap in (float(o) for o in args.overlaps.split(",")):
@@ -93,31 +105,69 @@ def main(argv=None) -> int:
                 for _ in range(args.repeat):
                     out = io.StringIO()
                     t0 = time.perf_counter()
-                    rc = fix_files([str(inputs[case])], str(ckpt), out=str(tmp / "out.npz"), mode=mode,
-                                   device=args.device, batch_size=args.batch_size, overlap=overlap, force=True,
-                                   progress="never", as_json=True, stdout=out, precision=args.precision)
+                    rc = fix_files(
+                        [str(inputs[case])],
+                        str(ckpt),
+                        out=str(tmp / "out.npz"),
+                        mode=mode,
+                        device=args.device,
+                        batch_size=args.batch_size,
+                        overlap=overlap,
+                        force=True,
+                        progress="never",
+                        as_json=True,
+                        stdout=out,
+                        precision=args.precision,
+                    )
                     elapsed = time.perf_counter() - t0
                     if rc != 0:
                         raise SystemExit(f"fix failed on {case}")
                     if elapsed < best:
                         best, report = elapsed, json.loads(out.getvalue())
-                rows.append({"case": case, "mode": mode, "overlap": overlap, "windows": report["windows"],
-                             "seconds": round(best, 3), "realtime_x": round(args.seconds / best, 1),
-                             "ms_per_window": round(1000 * best / max(report["windows"], 1), 1)})
-    result = {"clip_s": args.seconds, "fps": args.fps, "joints": 22, "window_frames": frames,
-              "model": "XMAE paper size (random init)", "parameters": params, "device": args.device,
-              "precision": resolve_precision(args.precision, torch.device(args.device)),
-              "torch": torch.__version__, "threads": torch.get_num_threads(), "cpus": os.cpu_count(),
-              "machine": platform.processor() or platform.machine(), "batch_size": args.batch_size, "rows": rows}
+                rows.append(
+                    {
+                        "case": case,
+                        "mode": mode,
+                        "overlap": overlap,
+                        "windows": report["windows"],
+                        "seconds": round(best, 3),
+                        "realtime_x": round(args.seconds / best, 1),
+                        "ms_per_window": round(1000 * best / max(report["windows"], 1), 1),
+                    }
+                )
+    result = {
+        "clip_s": args.seconds,
+        "fps": args.fps,
+        "joints": 22,
+        "window_frames": frames,
+        "model": "XMAE paper size (random init)",
+        "parameters": params,
+        "device": args.device,
+        "precision": resolve_precision(args.precision, torch.device(args.device)),
+        "torch": torch.__version__,
+        "threads": torch.get_num_threads(),
+        "cpus": os.cpu_count(),
+        "machine": platform.processor() or platform.machine(),
+        "batch_size": args.batch_size,
+        "rows": rows,
+    }
 
     head = f"{'case':<14} {'mode':<7} {'overlap':>7} {'windows':>7} {'seconds':>8} {'x realtime':>10} {'ms/window':>9}"
-    print(f"mocapfix fix: {args.seconds:g} s clip, 22 joints, {args.fps:g} fps, XMAE paper size ({params / 1e6:.1f} M "
-          f"parameters), {args.device}, {result['precision']}, {torch.get_num_threads()} threads")
+    print(
+        f"mocapfix fix: {args.seconds:g} s clip, 22 joints, {args.fps:g} fps, XMAE paper size ({params / 1e6:.1f} M "
+        f"parameters), {args.device}, {result['precision']}, {torch.get_num_threads()} threads"
+    )
     print(head)
     for r in rows:
-        print(f"{r['case']:<14} {r['mode']:<7} {r['overlap']:>7.2f} {r['windows']:>7d} {r['seconds']:>8.2f} "
-              f"{r['realtime_x']:>10.1f} {r['ms_per_window']:>9.1f}")
-    out = Path(args.json_out) if args.json_out else Path(__file__).resolve().parent / "results" / f"fix_speed-{args.device}.json"
+        print(
+            f"{r['case']:<14} {r['mode']:<7} {r['overlap']:>7.2f} {r['windows']:>7d} {r['seconds']:>8.2f} "
+            f"{r['realtime_x']:>10.1f} {r['ms_per_window']:>9.1f}"
+        )
+    out = (
+        Path(args.json_out)
+        if args.json_out
+        else Path(__file__).resolve().parent / "results" / f"fix_speed-{args.device}.json"
+    )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {out}")

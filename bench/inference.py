@@ -15,6 +15,7 @@ is not counted; the decoder's first self-attention runs once per batch).
     python bench/inference.py --compile             # also torch.compile(mode="reduce-overhead") rows (CUDA graphs)
     python bench/inference.py --compile --compile-mode max-autotune   # + Triton matmul templates (minutes to compile)
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,6 +44,7 @@ def flops_per_window(net: XMAE, T: int, J: int, device) -> tuple[float, float]:
     """Counted FLOPs of fully observed windows as (per window, once per batch): the decoder's
     first self-attention runs once per batch, so a batch of n costs per_window * n + shared;
     counted at 1 and 2 windows."""
+
     def count(n):
         positions, observed = make_windows(n, T, J, 0.0, device)
         # The math backend spells attention out as matmuls, which the counter sees on every device
@@ -50,6 +52,7 @@ def flops_per_window(net: XMAE, T: int, J: int, device) -> tuple[float, float]:
         with FlopCounterMode(display=False) as counter, torch.inference_mode(), sdpa_kernel(SDPBackend.MATH):
             xmae_reconstruct(net, positions, observed)
         return counter.get_total_flops()
+
     one, two = count(1), count(2)
     return two - one, 2 * one - two
 
@@ -61,9 +64,12 @@ def main(argv=None) -> int:
     ap.add_argument("--dtype", default=None, choices=("bf16", "fp32"), help="default: bf16 on CUDA, fp32 on CPU")
     ap.add_argument("--repeat", type=int, default=None)
     ap.add_argument("--compile", action="store_true", help="add rows with torch.compile")
-    ap.add_argument("--compile-mode", default="reduce-overhead",
-                    choices=("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs"),
-                    help="torch.compile mode of the compiled rows on CUDA (a CPU uses 'default': no graphs there)")
+    ap.add_argument(
+        "--compile-mode",
+        default="reduce-overhead",
+        choices=("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs"),
+        help="torch.compile mode of the compiled rows on CUDA (a CPU uses 'default': no graphs there)",
+    )
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
     device = pick_device(args.device)
@@ -92,28 +98,57 @@ def main(argv=None) -> int:
         for case, missing, batch in (("full", 0.0, B), ("10% missing", 0.1, B), ("full, batch 1", 0.0, 1)):
             positions, observed = make_windows(batch, T, J, missing, device)
             with torch.inference_mode(), torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
-                seconds = timed(partial(xmae_reconstruct, net, positions, observed), device,
-                                repeat=repeat * (10 if batch == 1 else 1), warmup=3)
+                seconds = timed(
+                    partial(xmae_reconstruct, net, positions, observed),
+                    device,
+                    repeat=repeat * (10 if batch == 1 else 1),
+                    warmup=3,
+                )
             kept = observed.flatten(1).sum(1).float().mean().item()
-            row = {"net": name, "case": case, "batch": batch, "observed_tokens": round(kept, 1),
-                   "ms_per_batch": 1000 * seconds, "windows_per_s": batch / seconds}
+            row = {
+                "net": name,
+                "case": case,
+                "batch": batch,
+                "observed_tokens": round(kept, 1),
+                "ms_per_batch": 1000 * seconds,
+                "windows_per_s": batch / seconds,
+            }
             if missing == 0.0:  # the counted FLOPs are those of a fully observed window
                 row["tflops"] = flops[batch] * batch / seconds / 1e12
                 row["of_matmul_peak"] = row["tflops"] / peak
             rows.append(row)
 
-    result = {"benchmark": "xmae_inference", "env": describe(device), "command": " ".join(sys.argv),
-              "joints": J, "frames": T, "dtype": "bf16 autocast" if bf16 else "fp32", "parameters": params,
-              "compile_mode": (args.compile_mode if gpu else "default") if args.compile else None,
-              "gflop_per_window": flops[B] / 1e9, "gflop_per_window_batch_1": flops[1] / 1e9,
-              "matmul_tflops_measured": peak, "rows": rows}
+    result = {
+        "benchmark": "xmae_inference",
+        "env": describe(device),
+        "command": " ".join(sys.argv),
+        "joints": J,
+        "frames": T,
+        "dtype": "bf16 autocast" if bf16 else "fp32",
+        "parameters": params,
+        "compile_mode": (args.compile_mode if gpu else "default") if args.compile else None,
+        "gflop_per_window": flops[B] / 1e9,
+        "gflop_per_window_batch_1": flops[1] / 1e9,
+        "matmul_tflops_measured": peak,
+        "rows": rows,
+    }
     path = write_result("inference", result, args.json_out)
-    print_table(f"XMAE inference, {result['env'].get('gpu', result['env'].get('cpu'))}, {J} joints x {T} frames, "
-                f"{result['dtype']}, {params / 1e6:.2f} M parameters, {flops[B] / 1e9:.1f} GFLOP per full window at batch {B}, "
-                f"measured {str(dtype).replace('torch.', '')} matmul rate {peak:.1f} TFLOP/s",
-                rows, [("net", "net"), ("case", "case"), ("batch", "batch"), ("observed_tokens", "observed"),
-                       ("ms_per_batch", "ms/batch"), ("windows_per_s", "windows/s"), ("tflops", "TFLOP/s"),
-                       ("of_matmul_peak", "of matmul rate")])
+    print_table(
+        f"XMAE inference, {result['env'].get('gpu', result['env'].get('cpu'))}, {J} joints x {T} frames, "
+        f"{result['dtype']}, {params / 1e6:.2f} M parameters, {flops[B] / 1e9:.1f} GFLOP per full window at batch {B}, "
+        f"measured {str(dtype).replace('torch.', '')} matmul rate {peak:.1f} TFLOP/s",
+        rows,
+        [
+            ("net", "net"),
+            ("case", "case"),
+            ("batch", "batch"),
+            ("observed_tokens", "observed"),
+            ("ms_per_batch", "ms/batch"),
+            ("windows_per_s", "windows/s"),
+            ("tflops", "TFLOP/s"),
+            ("of_matmul_peak", "of matmul rate"),
+        ],
+    )
     print(f"wrote {path}")
     return 0
 

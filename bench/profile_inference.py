@@ -11,6 +11,7 @@ validation and `predict` use) under bf16 autocast on a GPU, compiled with CUDA g
     python bench/profile_inference.py                                    # the issue's case on a GPU
     python bench/profile_inference.py --device cpu --batch 4 --fps 10 --warmup 1 --passes 2
 """
+
 from __future__ import annotations
 
 import argparse
@@ -55,6 +56,7 @@ def main(argv=None) -> int:
     def run():
         with torch.inference_mode(), torch.autocast(device.type, dtype=torch.bfloat16, enabled=gpu):
             xmae_reconstruct(net, positions, observed)
+
     for _ in range(warmup):
         run()
     sync(device)
@@ -69,16 +71,31 @@ def main(argv=None) -> int:
         prof.export_chrome_trace(args.trace_out)
     summary, rows = summarise(prof, passes, seconds, gpu, args.top)
     summary = {k.replace("_per_step", "_per_pass"): v for k, v in summary.items()}
-    result = {"benchmark": "xmae_inference_profile", "env": describe(device), "command": " ".join(sys.argv),
-              "joints": J, "frames": T, "batch": B, "missing": args.missing,
-              "dtype": "bf16 autocast" if gpu else "fp32", "compiled": compiled,
-              "compile_mode": args.compile_mode if compiled else None, "profiled_passes": passes,
-              "windows_per_s_profiled": B * passes / seconds, **summary,
-              "rows": [{k.replace("_per_step", "_per_pass"): v for k, v in r.items()} for r in rows]}
+    result = {
+        "benchmark": "xmae_inference_profile",
+        "env": describe(device),
+        "command": " ".join(sys.argv),
+        "joints": J,
+        "frames": T,
+        "batch": B,
+        "missing": args.missing,
+        "dtype": "bf16 autocast" if gpu else "fp32",
+        "compiled": compiled,
+        "compile_mode": args.compile_mode if compiled else None,
+        "profiled_passes": passes,
+        "windows_per_s_profiled": B * passes / seconds,
+        **summary,
+        "rows": [{k.replace("_per_step", "_per_pass"): v for k, v in r.items()} for r in rows],
+    }
     path = write_result("profile_inference", result, args.json_out)
     how = f"compiled ({args.compile_mode})" if compiled else "eager"
-    print_profile(f"XMAE inference, {J} joints x {T} frames, batch {B}, {result['dtype']}, {how}",
-                  summary, result["rows"], gpu, per="pass")
+    print_profile(
+        f"XMAE inference, {J} joints x {T} frames, batch {B}, {result['dtype']}, {how}",
+        summary,
+        result["rows"],
+        gpu,
+        per="pass",
+    )
     print(f"wrote {path}")
     return 0
 

@@ -19,6 +19,7 @@ On a CPU there are no kernels: the table is the operators' own CPU time.
     python bench/profile_train_step.py                                   # the issue's case on a GPU
     python bench/profile_train_step.py --device cpu --batch 8 --warmup 1 --steps 2
 """
+
 from __future__ import annotations
 
 import argparse
@@ -38,11 +39,13 @@ from mocapfix.training.xmae_module import XMAEModule  # noqa: E402
 # Kernel names -> what they do; the first pattern that matches wins. cuBLAS / CUTLASS GEMMs are
 # named after their tile shapes (sm90_xmma_gemm_..., cutlass_80_tensorop_...), FlashAttention and
 # the memory-efficient and cuDNN SDPA kernels after the algorithm, Inductor's fused kernels start triton_.
-KINDS = (("attention", r"flash|fmha|sdpa|attention|attn|cudnn::fusion"),   # cuDNN SDPA's helper kernels too
-         ("matmul", r"gemm|cutlass|xmma|cublas|matmul|nvjet|sm90_|sm80_"),
-         ("compiled (triton)", r"^triton_"),
-         ("optimiser", r"multi_tensor|adam|foreach"),
-         ("copy / fill", r"memcpy|memset|copy|fill"))
+KINDS = (
+    ("attention", r"flash|fmha|sdpa|attention|attn|cudnn::fusion"),  # cuDNN SDPA's helper kernels too
+    ("matmul", r"gemm|cutlass|xmma|cublas|matmul|nvjet|sm90_|sm80_"),
+    ("compiled (triton)", r"^triton_"),
+    ("optimiser", r"multi_tensor|adam|foreach"),
+    ("copy / fill", r"memcpy|memset|copy|fill"),
+)
 
 
 def kind_of(name: str) -> str:
@@ -77,14 +80,22 @@ def summarise(prof, steps: int, wall_s: float, gpu: bool, top: int) -> tuple[dic
     """-> (summary, rows of the slowest kernels / operators)."""
     if not gpu:
         ops = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)
-        rows = [{"name": e.key[:70], "kind": "cpu op", "calls_per_step": e.count / steps,
-                 "ms_per_step": e.self_cpu_time_total / 1000 / steps} for e in ops[:top]]
+        rows = [
+            {
+                "name": e.key[:70],
+                "kind": "cpu op",
+                "calls_per_step": e.count / steps,
+                "ms_per_step": e.self_cpu_time_total / 1000 / steps,
+            }
+            for e in ops[:top]
+        ]
         return {"wall_ms_per_step": 1000 * wall_s / steps}, rows
     # user annotations (record_function ranges) have a GPU-side copy spanning their kernels: not
     # kernels. Lightning runs forward and backward inside optimizer.step(closure), so the
     # "Optimizer.step#Adam.step" range covers the whole step (session 7's first GPU run counted it).
-    kernels = [e for e in prof.events()
-               if e.device_type == DeviceType.CUDA and not getattr(e, "is_user_annotation", False)]
+    kernels = [
+        e for e in prof.events() if e.device_type == DeviceType.CUDA and not getattr(e, "is_user_annotation", False)
+    ]
     if not kernels:
         raise SystemExit("the profile holds no CUDA kernels (profiler without CUDA activity?)")
     # a kernel's own duration: its time range (device_time_total reads 0 for events marked async)
@@ -98,12 +109,24 @@ def summarise(prof, steps: int, wall_s: float, gpu: bool, top: int) -> tuple[dic
         acc = by_name.setdefault(e.name, [0, 0.0])
         acc[0] += 1
         acc[1] += dur[id(e)]
-    summary = {"wall_ms_per_step": 1000 * wall_s / steps, "kernel_ms_per_step": total_us / 1000 / steps,
-               "busy": total_us / 1e6 / wall_s, "kernels_per_step": len(kernels) / steps,
-               "kernel_ms_by_kind": {k: v / 1000 / steps for k, v in sorted(by_kind.items(), key=lambda kv: -kv[1])}}
+    summary = {
+        "wall_ms_per_step": 1000 * wall_s / steps,
+        "kernel_ms_per_step": total_us / 1000 / steps,
+        "busy": total_us / 1e6 / wall_s,
+        "kernels_per_step": len(kernels) / steps,
+        "kernel_ms_by_kind": {k: v / 1000 / steps for k, v in sorted(by_kind.items(), key=lambda kv: -kv[1])},
+    }
     slow = sorted(by_name.items(), key=lambda kv: -kv[1][1])[:top]
-    rows = [{"name": name[:70], "kind": kind_of(name), "calls_per_step": n / steps, "ms_per_step": us / 1000 / steps,
-             "share": us / total_us} for name, (n, us) in slow]
+    rows = [
+        {
+            "name": name[:70],
+            "kind": kind_of(name),
+            "calls_per_step": n / steps,
+            "ms_per_step": us / 1000 / steps,
+            "share": us / total_us,
+        }
+        for name, (n, us) in slow
+    ]
     return summary, rows
 
 
@@ -120,15 +143,20 @@ def print_profile(title: str, summary: dict, rows: list[dict], gpu: bool, per: s
     print(f"{title}: wall {summary[f'wall_ms_per_{per}']:.2f} ms/{per}", end="")
     if gpu:
         kernel_ms = summary[f"kernel_ms_per_{per}"]
-        print(f", kernels {kernel_ms:.2f} ms/{per} (busy {summary['busy']:.0%}), "
-              f"{summary[f'kernels_per_{per}']:.0f} kernels/{per}")
+        print(
+            f", kernels {kernel_ms:.2f} ms/{per} (busy {summary['busy']:.0%}), "
+            f"{summary[f'kernels_per_{per}']:.0f} kernels/{per}"
+        )
         for kind, ms in summary["kernel_ms_by_kind"].items():
             print(f"  {kind:<18} {ms:8.2f} ms/{per}  {ms / kernel_ms:6.1%}")
     else:
         print()
-    print_table("slowest " + ("kernels" if gpu else "operators (self CPU time)"), rows,
-                [("name", "name"), ("kind", "kind"), (f"calls_per_{per}", f"calls/{per}"),
-                 (f"ms_per_{per}", f"ms/{per}")] + ([("share", "share")] if gpu else []))
+    print_table(
+        "slowest " + ("kernels" if gpu else "operators (self CPU time)"),
+        rows,
+        [("name", "name"), ("kind", "kind"), (f"calls_per_{per}", f"calls/{per}"), (f"ms_per_{per}", f"ms/{per}")]
+        + ([("share", "share")] if gpu else []),
+    )
 
 
 def main(argv=None) -> int:
@@ -156,17 +184,37 @@ def main(argv=None) -> int:
     torch.set_float32_matmul_precision("high")  # as `python -m mocapfix fit` sets it
 
     torch.manual_seed(0)
-    dm = MotionDataModule(source=args.source, path=args.path, fps=args.fps, window_s=args.window_s,
-                          stride_s=1.0 / args.fps, batch_size=args.batch, cache_dir=None, batches_on_device=True,
-                          synthetic_clips=args.synthetic_clips,
-                          val_fraction=0.0, test_fraction=0.0)
-    model = XMAEModule(compile_model=compiled, compile_mode=args.compile_mode, warmup_steps=10,
-                       total_steps=10 * (warmup + steps))
+    dm = MotionDataModule(
+        source=args.source,
+        path=args.path,
+        fps=args.fps,
+        window_s=args.window_s,
+        stride_s=1.0 / args.fps,
+        batch_size=args.batch,
+        cache_dir=None,
+        batches_on_device=True,
+        synthetic_clips=args.synthetic_clips,
+        val_fraction=0.0,
+        test_fraction=0.0,
+    )
+    model = XMAEModule(
+        compile_model=compiled, compile_mode=args.compile_mode, warmup_steps=10, total_steps=10 * (warmup + steps)
+    )
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if gpu else [])
     window = ProfileWindow(warmup, steps, activities)
-    trainer = L.Trainer(accelerator=device.type, devices=1, precision=precision, max_steps=warmup + steps + 1,
-                        logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                        enable_model_summary=False, limit_val_batches=0, num_sanity_val_steps=0, callbacks=[window])
+    trainer = L.Trainer(
+        accelerator=device.type,
+        devices=1,
+        precision=precision,
+        max_steps=warmup + steps + 1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        limit_val_batches=0,
+        num_sanity_val_steps=0,
+        callbacks=[window],
+    )
     trainer.fit(model, datamodule=dm)
     if window.seconds is None:
         raise SystemExit(f"the run ended before step {warmup + steps}: too little training data for this batch?")
@@ -174,14 +222,25 @@ def main(argv=None) -> int:
         window.prof.export_chrome_trace(args.trace_out)
     summary, rows = summarise(window.prof, steps, window.seconds, gpu, args.top)
     J, T = len(model.hparams.skeleton["parents"]), model.hparams.window_frames
-    result = {"benchmark": "xmae_train_step_profile", "env": describe(device), "command": " ".join(sys.argv),
-              "joints": J, "frames": T, "batch": args.batch, "precision": precision, "compiled": compiled,
-              "compile_mode": args.compile_mode if compiled else None,
-              "profiled_steps": steps, **summary, "rows": rows}
+    result = {
+        "benchmark": "xmae_train_step_profile",
+        "env": describe(device),
+        "command": " ".join(sys.argv),
+        "joints": J,
+        "frames": T,
+        "batch": args.batch,
+        "precision": precision,
+        "compiled": compiled,
+        "compile_mode": args.compile_mode if compiled else None,
+        "profiled_steps": steps,
+        **summary,
+        "rows": rows,
+    }
     path = write_result("profile_train_step", result, args.json_out)
     how = f"compiled ({args.compile_mode})" if compiled else "eager"
-    print_profile(f"XMAE training step, {J} joints x {T} frames, batch {args.batch}, {precision}, {how}",
-                  summary, rows, gpu)
+    print_profile(
+        f"XMAE training step, {J} joints x {T} frames, batch {args.batch}, {precision}, {how}", summary, rows, gpu
+    )
     print(f"wrote {path}")
     return 0
 

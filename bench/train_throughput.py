@@ -23,6 +23,7 @@ Rows:
     python bench/train_throughput.py                          # the issue's case on the GPU
     python bench/train_throughput.py --device cpu --batch 16 --steps 5 --rows device,constant
 """
+
 from __future__ import annotations
 
 import argparse
@@ -60,19 +61,42 @@ class RepeatBatch:
 
 def run_trainer(row: str, args, device: torch.device) -> dict:
     torch.manual_seed(0)
-    dm = MotionDataModule(source=args.source, path=args.path, fps=args.fps, window_s=args.window_s,
-                          stride_s=1.0 / args.fps, batch_size=args.batch, cache_dir=None,
-                          synthetic_clips=args.synthetic_clips, drop_joints=args.drop_joints or None,
-                          batches_on_device=row != "loader", pin_memory=row == "loader" and device.type == "cuda",
-                          val_fraction=0.0, test_fraction=0.0)
+    dm = MotionDataModule(
+        source=args.source,
+        path=args.path,
+        fps=args.fps,
+        window_s=args.window_s,
+        stride_s=1.0 / args.fps,
+        batch_size=args.batch,
+        cache_dir=None,
+        synthetic_clips=args.synthetic_clips,
+        drop_joints=args.drop_joints or None,
+        batches_on_device=row != "loader",
+        pin_memory=row == "loader" and device.type == "cuda",
+        val_fraction=0.0,
+        test_fraction=0.0,
+    )
     steps = args.warmup + args.steps
-    model = XMAEModule(compile_model=row in COMPILE_MODE, compile_mode=COMPILE_MODE.get(row, "default"),
-                       warmup_steps=10, total_steps=10 * steps)
+    model = XMAEModule(
+        compile_model=row in COMPILE_MODE,
+        compile_mode=COMPILE_MODE.get(row, "default"),
+        warmup_steps=10,
+        total_steps=10 * steps,
+    )
     clock = StepClock(args.warmup)
-    trainer = L.Trainer(accelerator=device.type, devices=1, precision=args.precision, max_steps=steps,
-                        logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                        enable_model_summary=False, limit_val_batches=0, num_sanity_val_steps=0,
-                        callbacks=[clock])
+    trainer = L.Trainer(
+        accelerator=device.type,
+        devices=1,
+        precision=args.precision,
+        max_steps=steps,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        limit_val_batches=0,
+        num_sanity_val_steps=0,
+        callbacks=[clock],
+    )
     if row == "constant":
         dm.setup("fit")
         batch = {k: v.to(device) for k, v in dm.datasets["train"].__getitems__(list(range(args.batch))).items()}
@@ -83,25 +107,42 @@ def run_trainer(row: str, args, device: torch.device) -> dict:
         trainer.fit(model, datamodule=dm)
     seconds = clock.t1 - clock.t0
     J = len(model.hparams.skeleton["parents"])
-    return {"row": row, "joints": J, "frames": model.hparams.window_frames, "batch": args.batch,
-            "precision": args.precision, "steps": clock.steps, "ms_per_step": 1000 * seconds / clock.steps,
-            "seq_per_s": clock.steps * args.batch / seconds,
-            "host_ms_between_steps": 1000 * clock.between / max(clock.steps - 1, 1)}
+    return {
+        "row": row,
+        "joints": J,
+        "frames": model.hparams.window_frames,
+        "batch": args.batch,
+        "precision": args.precision,
+        "steps": clock.steps,
+        "ms_per_step": 1000 * seconds / clock.steps,
+        "seq_per_s": clock.steps * args.batch / seconds,
+        "host_ms_between_steps": 1000 * clock.between / max(clock.steps - 1, 1),
+    }
 
 
 def run_reference(ref: Path, J: int, T: int, B: int) -> list[dict]:
     """ref_xmae.py in its own process (it builds its model at import), parsed from its lines:
     'naive  J=22 T=60 B=128 cuda:     128.0 ms/step      1000 seq/s  params=5.60M'."""
-    out = subprocess.run([sys.executable, str(ref), str(J), str(T), str(B)], capture_output=True, text=True,
-                         check=True).stdout
+    out = subprocess.run(
+        [sys.executable, str(ref), str(J), str(T), str(B)], capture_output=True, text=True, check=True
+    ).stdout
     rows = []
     for line in out.splitlines():
         m = re.match(r"\s*(naive|fast)\s.*?([\d.]+) ms/step\s+([\d.]+) seq/s\s+params=([\d.]+)M", line)
         if m:
-            rows.append({"row": f"ref {m[1]}", "joints": J, "frames": T, "batch": B,
-                         "precision": "32-true" if m[1] == "naive" else "bf16 autocast",
-                         # from ms/step: the printed seq/s is rounded to a whole number
-                         "ms_per_step": float(m[2]), "seq_per_s": B / (float(m[2]) / 1000), "params_m": float(m[4])})
+            rows.append(
+                {
+                    "row": f"ref {m[1]}",
+                    "joints": J,
+                    "frames": T,
+                    "batch": B,
+                    "precision": "32-true" if m[1] == "naive" else "bf16 autocast",
+                    # from ms/step: the printed seq/s is rounded to a whole number
+                    "ms_per_step": float(m[2]),
+                    "seq_per_s": B / (float(m[2]) / 1000),
+                    "params_m": float(m[4]),
+                }
+            )
     if len(rows) != 2:
         raise SystemExit(f"could not read ref_xmae.py's output:\n{out}")
     return rows
@@ -143,14 +184,28 @@ def main(argv=None) -> int:
         for name in ("naive", "fast"):
             if f"ref {name}" in ref:
                 r[f"x_ref_{name}"] = r["seq_per_s"] / ref[f"ref {name}"]
-    result = {"benchmark": "xmae_train_throughput", "env": describe(device), "command": " ".join(sys.argv),
-              "rows": rows}
+    result = {
+        "benchmark": "xmae_train_throughput",
+        "env": describe(device),
+        "command": " ".join(sys.argv),
+        "rows": rows,
+    }
     path = write_result("train_throughput", result, args.json_out)
-    print_table(f"XMAE training throughput, {result['env'].get('gpu', result['env'].get('cpu'))}, "
-                f"{rows[0]['joints']} joints x {rows[0]['frames']} frames, batch {args.batch}",
-                rows, [("row", "path"), ("precision", "precision"), ("steps", "steps"), ("ms_per_step", "ms/step"),
-                       ("seq_per_s", "seq/s"), ("host_ms_between_steps", "host ms between steps"),
-                       ("x_ref_naive", "x ref naive"), ("x_ref_fast", "x ref fast")])
+    print_table(
+        f"XMAE training throughput, {result['env'].get('gpu', result['env'].get('cpu'))}, "
+        f"{rows[0]['joints']} joints x {rows[0]['frames']} frames, batch {args.batch}",
+        rows,
+        [
+            ("row", "path"),
+            ("precision", "precision"),
+            ("steps", "steps"),
+            ("ms_per_step", "ms/step"),
+            ("seq_per_s", "seq/s"),
+            ("host_ms_between_steps", "host ms between steps"),
+            ("x_ref_naive", "x ref naive"),
+            ("x_ref_fast", "x ref fast"),
+        ],
+    )
     print(f"wrote {path}")
     return 0
 

@@ -4,6 +4,7 @@ original centimetre read, and whether the up axis came back.
 
     python bench/units_bandai.py [--every 48]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,7 +28,7 @@ def main(argv=None) -> int:
     ap.add_argument("--every", type=int, default=48, help="every Nth file of the folder")
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
-    files = sorted(Path(args.path).rglob("*.bvh"))[::args.every]
+    files = sorted(Path(args.path).rglob("*.bvh"))[:: args.every]
     found: dict[str, list] = {u: [] for u in UNITS}
     with tempfile.TemporaryDirectory() as tmp:
         for f in files:
@@ -40,15 +41,35 @@ def main(argv=None) -> int:
                     back = read_bvh(g)[0]
                     ratio = float(np.nanmean(back.positions[:, back.skeleton.index("Hips"), 2])) / hip
                     found[unit].append((back.meta["unit"], ratio, back.meta["up_axis"] == up))
-    rows = [{"written_in": u, "unit_found": ", ".join(sorted({x[0] for x in v})),
-             "hip_ratio_min": min(x[1] for x in v), "hip_ratio_max": max(x[1] for x in v),
-             "up_axis_right": f"{sum(x[2] for x in v)} of {len(v)}"} for u, v in found.items()]
-    result = {"benchmark": "units_bandai", "env": describe(torch.device("cpu")), "command": " ".join(sys.argv),
-              "files": len(files), "rows": rows}
+    rows = [
+        {
+            "written_in": u,
+            "unit_found": ", ".join(sorted({x[0] for x in v})),
+            "hip_ratio_min": min(x[1] for x in v),
+            "hip_ratio_max": max(x[1] for x in v),
+            "up_axis_right": f"{sum(x[2] for x in v)} of {len(v)}",
+        }
+        for u, v in found.items()
+    ]
+    result = {
+        "benchmark": "units_bandai",
+        "env": describe(torch.device("cpu")),
+        "command": " ".join(sys.argv),
+        "files": len(files),
+        "rows": rows,
+    }
     path = write_result("units_bandai", result, args.json_out)
-    print_table(f"{len(files)} Bandai files written in other units, y and z up, read with unit auto", rows,
-                [("written_in", "written in"), ("unit_found", "unit found"), ("hip_ratio_min", "hip / cm read min"),
-                 ("hip_ratio_max", "max"), ("up_axis_right", "up axis right")])
+    print_table(
+        f"{len(files)} Bandai files written in other units, y and z up, read with unit auto",
+        rows,
+        [
+            ("written_in", "written in"),
+            ("unit_found", "unit found"),
+            ("hip_ratio_min", "hip / cm read min"),
+            ("hip_ratio_max", "max"),
+            ("up_axis_right", "up axis right"),
+        ],
+    )
     print(f"wrote {path}")
     return 0
 

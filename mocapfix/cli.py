@@ -9,6 +9,7 @@ data/*.yaml, model/*.yaml, trainer/*.yaml, and experiments that name their piece
 name; expand_configs turns each --config into its pieces' --config options followed by itself,
 and LightningCLI merges them in that order.
 """
+
 from __future__ import annotations
 
 import logging
@@ -36,8 +37,10 @@ def resolve_config(name: str, base: Path | None = None) -> Path:
     for c in candidates:
         if c.is_file():
             return c
-    raise ValueError(f"{name}: no such config file, nor a packaged config (packaged: {', '.join(packaged_configs())}; "
-                     "pieces: data/, model/, trainer/)")
+    raise ValueError(
+        f"{name}: no such config file, nor a packaged config (packaged: {', '.join(packaged_configs())}; "
+        "pieces: data/, model/, trainer/)"
+    )
 
 
 def expand_configs(args: list[str]) -> list[str]:
@@ -91,14 +94,27 @@ def _lightning_cli(args: list[str]):
 
     class MocapCLI(LightningCLI):
         def add_arguments_to_parser(self, parser):
-            parser.add_argument("--experiment", type=str, default="default",
-                                help="run name: logs/<experiment>/version_N and checkpoints/<experiment>/")
-            parser.add_argument("--checkpoint_every_n_steps", type=int | None, default=None,
-                                help="also write last.ckpt every N optimiser steps")
-            parser.add_argument("--monitor", type=str, default="val/mpjpe_mm",
-                                help="metric for the best checkpoint (lower is better)")
-            parser.add_argument("--defaults", type=list[str] | None, default=None,
-                                help="config pieces a config builds on (in a config file; expanded before parsing)")
+            parser.add_argument(
+                "--experiment",
+                type=str,
+                default="default",
+                help="run name: logs/<experiment>/version_N and checkpoints/<experiment>/",
+            )
+            parser.add_argument(
+                "--checkpoint_every_n_steps",
+                type=int | None,
+                default=None,
+                help="also write last.ckpt every N optimiser steps",
+            )
+            parser.add_argument(
+                "--monitor", type=str, default="val/mpjpe_mm", help="metric for the best checkpoint (lower is better)"
+            )
+            parser.add_argument(
+                "--defaults",
+                type=list[str] | None,
+                default=None,
+                help="config pieces a config builds on (in a config file; expanded before parsing)",
+            )
 
         def _parse_ckpt_path(self):
             # LightningCLI builds the model from the checkpoint's hyperparameters when --ckpt_path
@@ -112,15 +128,18 @@ def _lightning_cli(args: list[str]):
                 cfg.ckpt_path = ckpt_path = str(last)
             elif ckpt_path == "last" and self.config.get("subcommand") != "fit":
                 # fit starts afresh without one; evaluating an untrained model would look like a result
-                raise ValueError(f"{last}: no such checkpoint (--ckpt_path last reads checkpoints/<--experiment>/"
-                                 f"last.ckpt; --experiment is {cfg.experiment!r})")
+                raise ValueError(
+                    f"{last}: no such checkpoint (--ckpt_path last reads checkpoints/<--experiment>/"
+                    f"last.ckpt; --experiment is {cfg.experiment!r})"
+                )
             elif ckpt_path and ckpt_path not in ("last", "best", "hpc", "registry") and not Path(ckpt_path).is_file():
                 raise ValueError(f"{ckpt_path}: no such checkpoint file")
             try:
                 super()._parse_ckpt_path()
             except (pickle.UnpicklingError, RuntimeError, EOFError) as e:  # torch.load of a file that is not one
-                raise ValueError(f"{ckpt_path}: not a checkpoint that torch.load reads safely "
-                                 f"({type(e).__name__}; weights_only)") from e
+                raise ValueError(
+                    f"{ckpt_path}: not a checkpoint that torch.load reads safely ({type(e).__name__}; weights_only)"
+                ) from e
 
         def instantiate_trainer(self, **kwargs):
             cfg = self.config[self.subcommand]
@@ -136,13 +155,29 @@ def _lightning_cli(args: list[str]):
                 # configs name (e.g. the denoising stage's prior_ckpt). With Lightning's version
                 # counter a second writer (the every-N callback, or a new fit of the same
                 # experiment) would write last-v1.ckpt beside it and leave last.ckpt stale.
-                extra.append(ModelCheckpoint(dirpath=dirpath, filename="best-{epoch}-{step}", monitor=cfg.monitor,
-                                             mode="min", save_top_k=1, save_last=True, enable_version_counter=False))
+                extra.append(
+                    ModelCheckpoint(
+                        dirpath=dirpath,
+                        filename="best-{epoch}-{step}",
+                        monitor=cfg.monitor,
+                        mode="min",
+                        save_top_k=1,
+                        save_last=True,
+                        enable_version_counter=False,
+                    )
+                )
                 extra.append(MonitorCheck(cfg.monitor))
                 extra.append(CheckpointOnInterrupt(dirpath / "last.ckpt"))
                 if cfg.checkpoint_every_n_steps:
-                    extra.append(ModelCheckpoint(dirpath=dirpath, every_n_train_steps=cfg.checkpoint_every_n_steps,
-                                                 save_top_k=0, save_last=True, enable_version_counter=False))
+                    extra.append(
+                        ModelCheckpoint(
+                            dirpath=dirpath,
+                            every_n_train_steps=cfg.checkpoint_every_n_steps,
+                            save_top_k=0,
+                            save_last=True,
+                            enable_version_counter=False,
+                        )
+                    )
             if kwargs.get("logger", trainer_cfg.get("logger")) not in (None, False):
                 extra.append(LearningRateMonitor(logging_interval="step"))
             extra.append(RNGStateInCheckpoint())
@@ -150,8 +185,9 @@ def _lightning_cli(args: list[str]):
                 extra.append(WritePredictions())
             configured = self.config_init[self.subcommand].trainer.get("callbacks") or []
             configured = list(configured if isinstance(configured, list) else [configured])
-            if trainer_cfg.get("enable_progress_bar", True) is not False and \
-                    not any(isinstance(cb, ProgressBar) for cb in configured):
+            if trainer_cfg.get("enable_progress_bar", True) is not False and not any(
+                isinstance(cb, ProgressBar) for cb in configured
+            ):
                 # Each refresh reads the logged loss back from the GPU, which waits for the step to
                 # finish; Lightning's default refreshes every step, a stall on every step. On the
                 # CPU there is nothing to wait for, and a step can take a second.
@@ -164,7 +200,8 @@ def _lightning_cli(args: list[str]):
             t = self.trainer
             ckpt = next((cb for cb in t.checkpoint_callbacks if cb.monitor), None)
             if t.is_global_zero and t.logger is not None and t.logger.log_dir:
-                print(f"TensorBoard logs: {t.logger.log_dir}   (view: tensorboard --logdir {Path(t.logger.log_dir).parent})")
+                view = Path(t.logger.log_dir).parent
+                print(f"TensorBoard logs: {t.logger.log_dir}   (view: tensorboard --logdir {view})")
                 if ckpt is not None:
                     print(f"checkpoints: best {ckpt.best_model_path or '-'}, last {ckpt.last_model_path or '-'}")
 
@@ -182,6 +219,7 @@ def _lightning_cli(args: list[str]):
                 import torch
 
                 from mocapfix.io.files import atomic_write
+
                 state = torch.load(ckpt, map_location="cpu", weights_only=True)
                 state["fill_policy"] = policy.to_dict()
                 atomic_write(Path(ckpt), lambda f: torch.save(state, f))
@@ -242,44 +280,55 @@ def main(argv: list[str] | None = None) -> int:
     logger.setLevel(logging.INFO)
     command = argv[0] if argv else None
     if command in (None, "-h", "--help"):
-        print("usage: mocapfix {fit,validate,test,predict} --config NAME|FILE [--key.path value ...]\n"
-              "       mocapfix inspect FILE... [--json]\n"
-              "       mocapfix fix INPUT... --ckpt CKPT [-o OUT | --out-dir DIR] [--mode infill|denoise|both]\n"
-              "       mocapfix demo\n"
-              "       mocapfix --version\n"
-              "`mocapfix COMMAND --help` lists its options; `mocapfix fit --config NAME --print_config` every setting.\n"
-              f"packaged configs: {', '.join(packaged_configs())}",
-              file=sys.stdout if command else sys.stderr)
+        print(
+            "usage: mocapfix {fit,validate,test,predict} --config NAME|FILE [--key.path value ...]\n"
+            "       mocapfix inspect FILE... [--json]\n"
+            "       mocapfix fix INPUT... --ckpt CKPT [-o OUT | --out-dir DIR] [--mode infill|denoise|both]\n"
+            "       mocapfix demo\n"
+            "       mocapfix --version\n"
+            "`mocapfix COMMAND --help` lists its options; `mocapfix fit --config NAME --print_config` every setting.\n"
+            f"packaged configs: {', '.join(packaged_configs())}",
+            file=sys.stdout if command else sys.stderr,
+        )
         return 0 if command else 2
     if command == "inspect":
         from mocapfix.inspect import main as inspect_main
+
         return inspect_main(argv[1:])
     if command == "fix":
         from mocapfix.fix_cli import main as fix_main
+
         return fix_main(argv[1:])
     if command == "demo":
         from mocapfix.demo import main as demo_main
+
         return demo_main(argv[1:])
     if command in ("-V", "--version"):
         from mocapfix import __version__
+
         print(f"mocapfix {__version__}")
         return 0
     if command in LIGHTNING_COMMANDS:
         from lightning.pytorch.utilities.exceptions import SIGTERMException
+
         try:
             _lightning_cli(argv)
         except SIGTERMException:  # a SystemExit without a code: the shell would read success
-            print(f"mocapfix {command}: stopped by SIGTERM (a fit keeps its state in checkpoints/<experiment>/"
-                  "last.ckpt)", file=sys.stderr)
+            print(
+                f"mocapfix {command}: stopped by SIGTERM (a fit keeps its state in checkpoints/<experiment>/last.ckpt)",
+                file=sys.stderr,
+            )
             return 128 + signal.SIGTERM
         except ValueError as e:  # the project's input checks (MotionFileError is one) say file and problem
             if os.environ.get("MOCAPFIX_TRACEBACK"):
                 raise
-            print(f"mocapfix {command}: {_own_error(e)}  (MOCAPFIX_TRACEBACK=1 for the traceback)",
-                  file=sys.stderr)
+            print(f"mocapfix {command}: {_own_error(e)}  (MOCAPFIX_TRACEBACK=1 for the traceback)", file=sys.stderr)
             return 2
         return 0
-    print(f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect, fix or demo", file=sys.stderr)
+    print(
+        f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect, fix or demo",
+        file=sys.stderr,
+    )
     return 2
 
 

@@ -3,6 +3,7 @@
 Lives beside skeleton.py (not in data/) because io/ readers build clips and data/ consumes
 them: both import it and neither imports the other.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -22,25 +23,29 @@ class MotionFileError(ValueError):
 
 @dataclass
 class Clip:
-    positions: np.ndarray            # (T, J, 3) float32, metres, z up, NaN where a joint is missing
+    positions: np.ndarray  # (T, J, 3) float32, metres, z up, NaN where a joint is missing
     fps: float
     skeleton: Skeleton
-    name: str = ""                   # unique within a dataset: file stem (+ "#person" / "/key")
-    source: str = ""                 # the file it came from; splits group clips by this
+    name: str = ""  # unique within a dataset: file stem (+ "#person" / "/key")
+    source: str = ""  # the file it came from; splits group clips by this
     # Where the positions came from (rotation-based data: BVH, AMASS, synthetic). Same frame
     # convention as positions: metres, z up. Forward kinematics of these reproduces positions.
-    rotations: np.ndarray | None = None         # (T, J, 3) float32 local axis-angle, radians
+    rotations: np.ndarray | None = None  # (T, J, 3) float32 local axis-angle, radians
     root_translation: np.ndarray | None = None  # (T, 3) float32, world position of joint 0
-    offsets: np.ndarray | None = None           # (J, 3) float32 bone offsets in the parent's frame
-    meta: dict = field(default_factory=dict)    # format, unit, up_axis, ... (plain values)
+    offsets: np.ndarray | None = None  # (J, 3) float32 bone offsets in the parent's frame
+    meta: dict = field(default_factory=dict)  # format, unit, up_axis, ... (plain values)
 
     def __post_init__(self):
         self.positions = np.asarray(self.positions, dtype=np.float32)
         if self.positions.ndim != 3 or self.positions.shape[2] != 3:
-            raise MotionFileError(self.source or self.name, f"positions must be (frames, joints, 3), got {self.positions.shape}")
+            raise MotionFileError(
+                self.source or self.name, f"positions must be (frames, joints, 3), got {self.positions.shape}"
+            )
         if self.positions.shape[1] != self.skeleton.num_joints:
-            raise MotionFileError(self.source or self.name, f"positions have {self.positions.shape[1]} joints but the "
-                                  f"skeleton has {self.skeleton.num_joints}")
+            raise MotionFileError(
+                self.source or self.name,
+                f"positions have {self.positions.shape[1]} joints but the skeleton has {self.skeleton.num_joints}",
+            )
         if not np.isfinite(self.fps) or self.fps <= 0:
             raise MotionFileError(self.source or self.name, f"fps must be positive, got {self.fps}")
         # inf is never data: treat it as missing so it cannot leak into training or output, and
@@ -81,8 +86,9 @@ class Clip:
         """
         keep = sorted(set(int(k) for k in keep))
         skeleton = self.skeleton.subset(keep)
-        out = self.replace(positions=self.positions[:, keep], skeleton=skeleton,
-                           rotations=None, root_translation=None, offsets=None)
+        out = self.replace(
+            positions=self.positions[:, keep], skeleton=skeleton, rotations=None, root_translation=None, offsets=None
+        )
         if not self.has_rotations or not np.isfinite(self.rotations).all():
             return out
         from scipy.spatial.transform import Rotation
@@ -97,27 +103,31 @@ class Clip:
 
         T, J = self.rotations.shape[:2]
         local = Rotation.from_rotvec(self.rotations.reshape(-1, 3).astype(np.float64)).as_matrix().reshape(T, J, 3, 3)
-        fk_pos, glob = fk(local, self.root_translation.astype(np.float64), self.offsets.astype(np.float64),
-                          self.skeleton.parents)
+        fk_pos, glob = fk(
+            local, self.root_translation.astype(np.float64), self.offsets.astype(np.float64), self.skeleton.parents
+        )
         # The positions are the data; FK only fills joints the data lacks.
         data = self.positions.astype(np.float64)
-        pos = np.where(np.isfinite(data), data, fk_pos)[:, keep]             # (T, K, 3)
-        G = glob[:, keep]                                                    # (T, K, 3, 3)
-        par = np.array(skeleton.parents[1:], dtype=np.int64)                 # (K-1,)
-        Gp_T = np.swapaxes(G[:, par], -1, -2)                                # (T, K-1, 3, 3)
-        new_local = np.concatenate([G[:, :1], Gp_T @ G[:, 1:]], axis=1)      # (T, K, 3, 3)
-        rel = (Gp_T @ (pos[:, 1:] - pos[:, par])[..., None])[..., 0]         # (T, K-1, 3)
-        offsets = np.concatenate([np.zeros((1, 3)), rel.mean(axis=0)])       # (K, 3)
+        pos = np.where(np.isfinite(data), data, fk_pos)[:, keep]  # (T, K, 3)
+        G = glob[:, keep]  # (T, K, 3, 3)
+        par = np.array(skeleton.parents[1:], dtype=np.int64)  # (K-1,)
+        Gp_T = np.swapaxes(G[:, par], -1, -2)  # (T, K-1, 3, 3)
+        new_local = np.concatenate([G[:, :1], Gp_T @ G[:, 1:]], axis=1)  # (T, K, 3, 3)
+        rel = (Gp_T @ (pos[:, 1:] - pos[:, par])[..., None])[..., 0]  # (T, K-1, 3)
+        offsets = np.concatenate([np.zeros((1, 3)), rel.mean(axis=0)])  # (K, 3)
         root = pos[:, 0]
         rotations = Rotation.from_matrix(new_local.reshape(-1, 3, 3)).as_rotvec().reshape(T, len(keep), 3)
 
         check = fk(new_local, root, offsets, skeleton.parents)[0]
-        seen = np.isfinite(data[:, keep]).all(-1)                            # (T, K)
+        seen = np.isfinite(data[:, keep]).all(-1)  # (T, K)
         err = np.linalg.norm(check - data[:, keep], axis=-1)[seen]
         if not np.all(err < 1e-4):  # NaN fails too
             return out
-        return out.replace(rotations=rotations.astype(np.float32), root_translation=root.astype(np.float32),
-                           offsets=offsets.astype(np.float32))
+        return out.replace(
+            rotations=rotations.astype(np.float32),
+            root_translation=root.astype(np.float32),
+            offsets=offsets.astype(np.float32),
+        )
 
 
 def limb_lengths(positions: np.ndarray, parents) -> np.ndarray:
@@ -145,13 +155,17 @@ def check_human_scale(clips: list[Clip], source) -> None:
     """The clips of one file at a human body's scale in metres, or a MotionFileError: a file in mm
     read as metres would be 'fixed' to a model's human-sized guess everywhere, or trained on in
     kilometres, silently; one in metres read as mm shrinks to a point. The median bone says which."""
-    lengths = [limb_lengths(c.positions, c.skeleton.parents)[:, body_limbs(c.positions, c.skeleton.parents)]
-               for c in clips]
+    lengths = [
+        limb_lengths(c.positions, c.skeleton.parents)[:, body_limbs(c.positions, c.skeleton.parents)] for c in clips
+    ]
     seen = np.concatenate([L[np.isfinite(L)] for L in lengths])
     if seen.size == 0:
         return
     median = float(np.median(seen))
     if not HUMAN_BONE_M[0] <= median <= HUMAN_BONE_M[1]:
         unit = clips[0].meta.get("unit", "m")
-        raise MotionFileError(source, f"bones are {median:.3g} m long (median), read as {unit}: not a human body; "
-                                      "give the file's unit (--unit or data.unit: m, cm, mm)")
+        raise MotionFileError(
+            source,
+            f"bones are {median:.3g} m long (median), read as {unit}: not a human body; "
+            "give the file's unit (--unit or data.unit: m, cm, mm)",
+        )

@@ -16,6 +16,7 @@ Fixers on positions (XMAE; Motion-DVAE on its positions state) take windows of j
 Motion-DVAE on its rotations state takes windows of joint rotations (BVH, AMASS input) and gives
 rotations back: those clips go through fix_rotation_clips, and a BVH input gets a BVH output.
 """
+
 from __future__ import annotations
 
 import math
@@ -40,6 +41,7 @@ MODES = ("infill", "denoise", "both")
 
 # --- joints and frame times ---
 
+
 def map_joints(skeleton: Skeleton, model: Skeleton, source="") -> np.ndarray:
     """(J_model,) index of each model joint in `skeleton`, by name (exact, else ignoring case).
     A model joint the input lacks is an error naming them all; input joints the model does not
@@ -57,8 +59,11 @@ def map_joints(skeleton: Skeleton, model: Skeleton, source="") -> np.ndarray:
         else:
             missing.append(n)
     if missing:
-        raise MotionFileError(source, f"skeleton does not match the model's ({model.name}, {model.num_joints} "
-                                      f"joints): missing {', '.join(missing)}")
+        raise MotionFileError(
+            source,
+            f"skeleton does not match the model's ({model.name}, {model.num_joints} "
+            f"joints): missing {', '.join(missing)}",
+        )
     return np.array(index, dtype=np.int64)
 
 
@@ -88,6 +93,7 @@ def model_frames(num_frames: int, fps: float, model_fps: float) -> int:
 
 # --- windows ---
 
+
 def window_layout(num_frames: int, window: int, overlap: float) -> tuple[np.ndarray, int]:
     """Starts of the windows over a clip of num_frames (model fps) and the stride.
     Stride window * (1 - overlap); one more window ends at the clip's end when the stride does
@@ -116,7 +122,7 @@ def windows_for(need: np.ndarray, window: int, overlap: float) -> tuple[np.ndarr
         return window_layout(K, window, overlap)
     edges = np.diff(np.concatenate([[0], need.astype(np.int8), [0]]))
     starts = []
-    for s, e in zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]):   # runs [s, e)
+    for s, e in zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]):  # runs [s, e)
         if e - s <= 3 * window // 4:
             starts.append([min(max((s + e - window) // 2, 0), K - window)])
         else:
@@ -128,7 +134,7 @@ def windows_for(need: np.ndarray, window: int, overlap: float) -> tuple[np.ndarr
     starts = np.unique(np.concatenate(starts)).astype(np.int64)
     # Many short runs close together (scattered missing tokens): the plain grid is cheaper.
     grid, _ = window_layout(K, window, overlap)
-    grid = grid[[need[g:g + window].any() for g in grid]]
+    grid = grid[[need[g : g + window].any() for g in grid]]
     return (grid if len(grid) < len(starts) else starts), stride
 
 
@@ -141,28 +147,34 @@ def blend_weights(window: int, stride: int) -> np.ndarray:
     if overlap > 0:
         ramp = np.sin(0.5 * np.pi * (np.arange(overlap) + 0.5) / overlap) ** 2
         w[:overlap] = ramp
-        w[window - overlap:] = np.minimum(w[window - overlap:], ramp[::-1])
+        w[window - overlap :] = np.minimum(w[window - overlap :], ramp[::-1])
     return w
 
 
 # --- fixing the clips of one file ---
 
+
 @dataclass
 class FixReport:
-    frames: int                    # per person, at the input's fps
-    people: int                    # clips of the file (people; sequences for Human3.6M)
-    filled: int                    # missing tokens given a value
-    replaced: int                  # observed tokens replaced by the estimate
-    limb_sigma_before_mm: float    # the model's limbs, over the input's tokens
+    frames: int  # per person, at the input's fps
+    people: int  # clips of the file (people; sequences for Human3.6M)
+    filled: int  # missing tokens given a value
+    replaced: int  # observed tokens replaced by the estimate
+    limb_sigma_before_mm: float  # the model's limbs, over the input's tokens
     limb_sigma_after_mm: float
-    windows: int                   # windows the model ran on
+    windows: int  # windows the model ran on
     notes: list[str] = field(default_factory=list)
     filled_by: dict[str, int] = field(default_factory=dict)  # method -> missing tokens it filled (fill policy)
 
 
-def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: float = 0.5,
-              batch_size: int = 64, progress: Callable[[int, int], None] | None = None
-              ) -> tuple[list[Clip], FixReport]:
+def fix_clips(
+    clips: list[Clip],
+    fixer: Fixer,
+    mode: str = "infill",
+    overlap: float = 0.5,
+    batch_size: int = 64,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[list[Clip], FixReport]:
     """Fix the clips of one file; each keeps its skeleton, frames and fps (positions only: no
     rotations; a rotation model's clips go to fix_rotation_clips and keep their rotations).
     progress(done, total) is called after each batch of windows.
@@ -193,7 +205,7 @@ def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: fl
         idx = map_joints(c.skeleton, fixer.skeleton, c.source)
         x = torch.from_numpy(c.positions[:, idx])
         obs = ~torch.isnan(x).any(-1)
-        bad = suspect_tokens(policy, torch.from_numpy(e.positions[:, idx]), x, obs).numpy()   # (T, Jm)
+        bad = suspect_tokens(policy, torch.from_numpy(e.positions[:, idx]), x, obs).numpy()  # (T, Jm)
         suspects += int(bad.sum())
         positions = c.positions.copy()
         positions[:, idx] = np.where(bad[..., None], np.nan, positions[:, idx])
@@ -202,19 +214,31 @@ def fix_clips(clips: list[Clip], fixer: Fixer, mode: str = "infill", overlap: fl
     out, report = _fix_positions(masked, fixer, "infill", overlap, batch_size, progress, policy)
     report.filled, report.replaced = report.filled - suspects, suspects
     if mode == "denoise":  # holes of the input stay holes
-        out = [o.replace(positions=np.where(np.isnan(c.positions), np.nan, o.positions).astype(np.float32))
-               for o, c in zip(out, clips)]
+        out = [
+            o.replace(positions=np.where(np.isnan(c.positions), np.nan, o.positions).astype(np.float32))
+            for o, c in zip(out, clips)
+        ]
         report.filled = 0
     report.windows += first.windows
     report.limb_sigma_before_mm = first.limb_sigma_before_mm
-    report.notes.insert(0, f"replaced where the model disagreed by more than {1000 * policy.replace_threshold_m:.0f} mm"
-                        if policy.replace_threshold_m is not None else "no replace threshold: observed tokens kept")
+    report.notes.insert(
+        0,
+        f"replaced where the model disagreed by more than {1000 * policy.replace_threshold_m:.0f} mm"
+        if policy.replace_threshold_m is not None
+        else "no replace threshold: observed tokens kept",
+    )
     return out, report
 
 
-def _fix_positions(clips: list[Clip], fixer: Fixer, mode: str, overlap: float, batch_size: int,
-                   progress: Callable[[int, int], None] | None, policy: FillPolicy | None
-                   ) -> tuple[list[Clip], FixReport]:
+def _fix_positions(
+    clips: list[Clip],
+    fixer: Fixer,
+    mode: str,
+    overlap: float,
+    batch_size: int,
+    progress: Callable[[int, int], None] | None,
+    policy: FillPolicy | None,
+) -> tuple[list[Clip], FixReport]:
     """fix_clips for a positions model, one pass: the model's estimate merged by mode (infill with
     the fill policy where there is one)."""
     model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps
@@ -223,14 +247,19 @@ def _fix_positions(clips: list[Clip], fixer: Fixer, mode: str, overlap: float, b
 
     def who(i: int) -> str:
         c = clips[i]
-        return "" if not many else f"sequence {c.name}: " if c.meta.get("format") == "h36m" else \
-            f"person {c.meta.get('person_id', i)}: "
+        return (
+            ""
+            if not many
+            else f"sequence {c.name}: "
+            if c.meta.get("format") == "h36m"
+            else f"person {c.meta.get('person_id', i)}: "
+        )
 
     # Each clip at the model's joints and fps. Frames past the input's end are unobserved.
     index, x_in, x_m = [], [], []
     for i, c in enumerate(clips):
         idx = map_joints(c.skeleton, model, source)
-        x = c.positions[:, idx]                                                   # (T, Jm, 3)
+        x = c.positions[:, idx]  # (T, Jm, 3)
         if not np.isfinite(x).all(-1).any():
             raise MotionFileError(source, f"{who(i)}no data for any of the model's joints in any frame")
         index.append(idx)
@@ -241,7 +270,7 @@ def _fix_positions(clips: list[Clip], fixer: Fixer, mode: str, overlap: float, b
     # observed frames next to them (anchors); the other modes use it wherever there is data.
     need_m = []
     for c, x, xm in zip(clips, x_in, x_m):
-        obs = np.isfinite(x).all(-1)                                              # (T, Jm)
+        obs = np.isfinite(x).all(-1)  # (T, Jm)
         if mode == "infill":
             gap = ~obs.all(-1)
             need = gap.copy()
@@ -268,7 +297,7 @@ def _fix_positions(clips: list[Clip], fixer: Fixer, mode: str, overlap: float, b
     model_rows, lerp_rows, stride = [], [], W
     for k, xm in enumerate(x_m):
         starts, stride = windows_for(need_m[k], W, overlap)
-        f = starts[:, None] + np.arange(W)[None]                                  # (n, W) clip frames
+        f = starts[:, None] + np.arange(W)[None]  # (n, W) clip frames
         valid = (f >= 0) & (f < len(xm))
         fc = np.clip(f, 0, len(xm) - 1)
         needed = (valid & need_m[k][fc]).any(1)
@@ -276,34 +305,36 @@ def _fix_positions(clips: list[Clip], fixer: Fixer, mode: str, overlap: float, b
         r = np.where(valid, fc + offsets[k], pad_row)
         model_rows.append(r[needed & data])
         lerp_rows.append(r[needed & ~data])
-    rows = np.concatenate(model_rows)                                             # (N, W)
-    weights = torch.from_numpy(blend_weights(W, stride))                          # (W,)
+    rows = np.concatenate(model_rows)  # (N, W)
+    weights = torch.from_numpy(blend_weights(W, stride))  # (W,)
     Jm = model.num_joints
     acc = torch.zeros(pad_row + 1, Jm, 3, dtype=torch.float64)
     wsum = torch.zeros(pad_row + 1, dtype=torch.float64)
 
     def add(r: torch.Tensor, est: torch.Tensor) -> None:
         # r: (B, W) rows, est: (B, W, Jm, 3); padding rows weigh nothing
-        w = weights[None].expand(len(r), -1) * (r != pad_row)                     # (B, W)
+        w = weights[None].expand(len(r), -1) * (r != pad_row)  # (B, W)
         acc.index_add_(0, r.reshape(-1), (est * w[..., None, None]).reshape(-1, Jm, 3))
         wsum.index_add_(0, r.reshape(-1), w.reshape(-1))
 
     bad = []
     for b0 in range(0, len(rows), batch_size):
-        r = torch.from_numpy(rows[b0:b0 + batch_size])                            # (B, W)
-        pos = torch.from_numpy(padded)[r]                                         # (B, W, Jm, 3)
-        est = fixer.estimate(pos, ~torch.isnan(pos).any(-1)).to(torch.float64)    # (B, W, Jm, 3)
-        ok = torch.isfinite(est).flatten(1).all(1)                                # (B,)
+        r = torch.from_numpy(rows[b0 : b0 + batch_size])  # (B, W)
+        pos = torch.from_numpy(padded)[r]  # (B, W, Jm, 3)
+        est = fixer.estimate(pos, ~torch.isnan(pos).any(-1)).to(torch.float64)  # (B, W, Jm, 3)
+        ok = torch.isfinite(est).flatten(1).all(1)  # (B,)
         add(r[ok], est[ok])
-        bad.append(rows[b0:b0 + batch_size][~ok.numpy()])
+        bad.append(rows[b0 : b0 + batch_size][~ok.numpy()])
         if progress is not None:
             progress(min(b0 + batch_size, len(rows)), len(rows))
     model_wsum = wsum.clone()
     fallback = np.concatenate(lerp_rows + bad)
     if len(fallback):
-        lerp = [lerp_infill(torch.from_numpy(xm).double()[None], torch.from_numpy(np.isfinite(xm).all(-1))[None])[0]
-                for xm in x_m]
-        lerp = torch.cat(lerp + [torch.zeros(1, Jm, 3, dtype=torch.float64)])    # (frames + 1, Jm, 3)
+        lerp = [
+            lerp_infill(torch.from_numpy(xm).double()[None], torch.from_numpy(np.isfinite(xm).all(-1))[None])[0]
+            for xm in x_m
+        ]
+        lerp = torch.cat(lerp + [torch.zeros(1, Jm, 3, dtype=torch.float64)])  # (frames + 1, Jm, 3)
         r = torch.from_numpy(fallback)
         add(r, lerp[r])
     bad_windows = sum(len(b) for b in bad)
@@ -315,12 +346,12 @@ def _fix_positions(clips: list[Clip], fixer: Fixer, mode: str, overlap: float, b
     sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
     for k, c in enumerate(clips):
         a, b = offsets[k], offsets[k + 1]
-        est_m = (acc[a:b] / wsum[a:b].clamp_min(1e-12)[:, None, None]).numpy()   # (K, Jm, 3)
+        est_m = (acc[a:b] / wsum[a:b].clamp_min(1e-12)[:, None, None]).numpy()  # (K, Jm, 3)
         lerped += int(((model_wsum[a:b] <= 0).numpy() & need_m[k]).sum())
-        est = resample_frames(est_m, fps_m, c.fps, c.num_frames)                  # (T, Jm, 3)
+        est = resample_frames(est_m, fps_m, c.fps, c.num_frames)  # (T, Jm, 3)
 
         x = x_in[k].astype(np.float64)
-        obs = np.isfinite(x).all(-1)                                              # (T, Jm)
+        obs = np.isfinite(x).all(-1)  # (T, Jm)
         if mode == "infill":
             # Anchor the estimate on the data: the residual at observed tokens, interpolated
             # over each gap, is added to the fill, so the fill meets the data at both gap ends.
@@ -362,15 +393,34 @@ def _fix_positions(clips: list[Clip], fixer: Fixer, mode: str, overlap: float, b
     if whole:
         notes.append(f"{whole} windows had a joint missing throughout ({fate})")
     people = len(clips)
-    frames = sum(c.num_frames for c in clips) // people if clips[0].meta.get("format") != "h36m" else \
-        sum(c.num_frames for c in clips)
-    report = FixReport(frames, people, filled, replaced, float(sigma_before.compute()),
-                       float(sigma_after.compute()), len(rows), notes, filled_by)
+    frames = (
+        sum(c.num_frames for c in clips) // people
+        if clips[0].meta.get("format") != "h36m"
+        else sum(c.num_frames for c in clips)
+    )
+    report = FixReport(
+        frames,
+        people,
+        filled,
+        replaced,
+        float(sigma_before.compute()),
+        float(sigma_after.compute()),
+        len(rows),
+        notes,
+        filled_by,
+    )
     return out_clips, report
 
 
-def _policy_fill(policy: FillPolicy, x: np.ndarray, obs: np.ndarray, model_fill: np.ndarray, fps: float,
-                 skeleton: Skeleton, counts: dict[str, int]) -> np.ndarray:
+def _policy_fill(
+    policy: FillPolicy,
+    x: np.ndarray,
+    obs: np.ndarray,
+    model_fill: np.ndarray,
+    fps: float,
+    skeleton: Skeleton,
+    counts: dict[str, int],
+) -> np.ndarray:
     """x: (T, J, 3) one clip's data, obs: (T, J), model_fill: (T, J, 3) the model's fill -> each
     hole filled by the method the policy names for its length and part; counts[method] += tokens."""
     xt, ot = torch.from_numpy(x)[None], torch.from_numpy(obs)[None]
@@ -389,17 +439,18 @@ def _joints_missing_for_a_window(x_m: list[np.ndarray], W: int, overlap: float) 
     missing in the whole clip aside (reported on their own)."""
     count = 0
     for xm in x_m:
-        obs = np.isfinite(xm).all(-1)                                             # (K, Jm)
+        obs = np.isfinite(xm).all(-1)  # (K, Jm)
         starts, _ = window_layout(len(xm), W, overlap)
         sometimes = obs.any(0)
         for s in starts:
-            o = obs[max(s, 0):s + W]
+            o = obs[max(s, 0) : s + W]
             if o.any() and (~o.any(0) & sometimes).any():
                 count += 1
     return count
 
 
 # --- rotation models: rotations in, rotations out ---
+
 
 def rotation_clips(path, clips: list[Clip], model: Skeleton, source: str = "auto", **read_options) -> list[Clip]:
     """The clips of a file as a rotation model needs them. A BVH file is read again with only
@@ -416,8 +467,9 @@ def rotation_clips(path, clips: list[Clip], model: Skeleton, source: str = "auto
     return read_motion(path, "bvh" if source == "auto" else source, **read_options, keep_joints=keep)
 
 
-def resample_motion(rotations: np.ndarray, root: np.ndarray, src_fps: float, dst_fps: float, num: int
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def resample_motion(
+    rotations: np.ndarray, root: np.ndarray, src_fps: float, dst_fps: float, num: int
+) -> tuple[np.ndarray, np.ndarray]:
     """rotations (T, J, 3) axis-angle and root translation (T, 3) sampled at t = k / src_fps ->
     (num, J, 3), (num, 3) at t = k / dst_fps: rotations by slerp, the root linearly. Shared
     instants are copied exactly; times past the last frame hold it."""
@@ -426,19 +478,24 @@ def resample_motion(rotations: np.ndarray, root: np.ndarray, src_fps: float, dst
     f = np.minimum(np.where(np.abs(f - np.round(f)) < 1e-6, np.round(f), f), T - 1)
     i0 = np.floor(f).astype(np.int64)
     i1 = np.minimum(i0 + 1, T - 1)
-    w = f - i0                                                                     # (num,)
+    w = f - i0  # (num,)
     r0, r1 = (roma.rotvec_to_rotmat(torch.from_numpy(rotations[i]).double()) for i in (i0, i1))  # (num, J, 3, 3)
     step = roma.rotmat_to_rotvec(r0.transpose(-1, -2) @ r1) * torch.from_numpy(w)[:, None, None]
-    rot = roma.rotmat_to_rotvec(r0 @ roma.rotvec_to_rotmat(step)).numpy()        # slerp: R0 exp(w log(R0^T R1))
+    rot = roma.rotmat_to_rotvec(r0 @ roma.rotvec_to_rotmat(step)).numpy()  # slerp: R0 exp(w log(R0^T R1))
     out_root = root[i0] * (1 - w[:, None]) + root[i1] * w[:, None]
     exact = w == 0
     rot[exact], out_root[exact] = rotations[i0[exact]], root[i0[exact]]
     return rot.astype(rotations.dtype), out_root.astype(root.dtype)
 
 
-def fix_rotation_clips(clips: list[Clip], fixer: RotationFixer, mode: str = "denoise", overlap: float = 0.5,
-                       batch_size: int = 64, progress: Callable[[int, int], None] | None = None
-                       ) -> tuple[list[Clip], FixReport]:
+def fix_rotation_clips(
+    clips: list[Clip],
+    fixer: RotationFixer,
+    mode: str = "denoise",
+    overlap: float = 0.5,
+    batch_size: int = 64,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[list[Clip], FixReport]:
     """Fix clips with rotations through a rotation model (a RotationFixer); each keeps its
     skeleton, frames and fps, and comes back with rotations, root translation and the positions
     their forward kinematics gives.
@@ -464,13 +521,18 @@ def fix_rotation_clips(clips: list[Clip], fixer: RotationFixer, mode: str = "den
         idx = map_joints(c.skeleton, model, source)
         if not c.has_rotations:
             why = c.meta.get("no_rotations")
-            raise MotionFileError(source, f"{who(i)}the model ({fixer.kind}, rotations state) needs joint rotations; "
-                                          f"this input has none{f' ({why})' if why else ''}")
+            raise MotionFileError(
+                source,
+                f"{who(i)}the model ({fixer.kind}, rotations state) needs joint rotations; "
+                f"this input has none{f' ({why})' if why else ''}",
+            )
         hangs = [c.skeleton.parents[idx[m]] == (idx[p] if p >= 0 else -1) for m, p in enumerate(model.parents)]
         if not all(hangs):
             bad = model.joint_names[hangs.index(False)]
-            raise MotionFileError(source, f"{who(i)}skeleton hierarchy differs from the model's ({model.name}): "
-                                          f"joint {bad} has another parent")
+            raise MotionFileError(
+                source,
+                f"{who(i)}skeleton hierarchy differs from the model's ({model.name}): joint {bad} has another parent",
+            )
         if not (np.isfinite(c.rotations).all() and np.isfinite(c.root_translation).all()):
             raise MotionFileError(source, f"{who(i)}rotations are not finite")
         index.append(idx)
@@ -502,25 +564,25 @@ def fix_rotation_clips(clips: list[Clip], fixer: RotationFixer, mode: str = "den
     q_acc = [torch.zeros_like(q) for q in q_ref]
     t_acc = [torch.zeros(len(r), 3, dtype=torch.float64) for r in root_m]
     w_acc = [torch.zeros(len(r), dtype=torch.float64) for r in root_m]
-    batches = [windows[i:i + batch_size] for i in range(0, len(windows), batch_size)]
+    batches = [windows[i : i + batch_size] for i in range(0, len(windows), batch_size)]
     batches = [[w for w in b if w[2] == length] for b in batches for length in sorted({w[2] for w in b})]
     done = bad = 0
     for batch in batches:
         length = batch[0][2]
         frames_of = [torch.arange(s, s + length) for _, s, _ in batch]
-        rot = torch.stack([torch.from_numpy(rot_m[k][s:s + length]) for k, s, _ in batch])       # (B, L, Jm, 3)
-        root = torch.stack([torch.from_numpy(root_m[k][s:s + length]) for k, s, _ in batch])     # (B, L, 3)
+        rot = torch.stack([torch.from_numpy(rot_m[k][s : s + length]) for k, s, _ in batch])  # (B, L, Jm, 3)
+        root = torch.stack([torch.from_numpy(root_m[k][s : s + length]) for k, s, _ in batch])  # (B, L, 3)
         offs = torch.stack([torch.from_numpy(clips[k].offsets[index[k]]) for k, _, _ in batch])  # (B, Jm, 3)
         est_rot, est_root = fixer.estimate_rotations(rot, root, offs)
         ok = (torch.isfinite(est_rot).flatten(1).all(1) & torch.isfinite(est_root).flatten(1).all(1)).tolist()
         stride = max(1, int(round(length * (1.0 - overlap))))
-        weights = torch.from_numpy(blend_weights(length, stride))                                 # (L,)
+        weights = torch.from_numpy(blend_weights(length, stride))  # (L,)
         for b, (k, _s, _) in enumerate(batch):
             if not ok[b]:  # those frames keep the input unless another window covers them
                 bad += 1
                 continue
             f = frames_of[b]
-            q = roma.rotvec_to_unitquat(est_rot[b].double())                                     # (L, Jm, 4)
+            q = roma.rotvec_to_unitquat(est_rot[b].double())  # (L, Jm, 4)
             q = torch.where((q * q_ref[k][f]).sum(-1, keepdim=True) < 0, -q, q)
             q_acc[k].index_add_(0, f, q * weights[:, None, None])
             t_acc[k].index_add_(0, f, est_root[b].double() * weights[:, None])
@@ -533,22 +595,33 @@ def fix_rotation_clips(clips: list[Clip], fixer: RotationFixer, mode: str = "den
     for k, (c, idx) in enumerate(zip(clips, index)):
         have = (w_acc[k] > 0)[:, None]
         q = torch.where(have[..., None], q_acc[k], q_ref[k])
-        rot = roma.unitquat_to_rotvec(q / q.norm(dim=-1, keepdim=True)).numpy()                # (K, Jm, 3)
-        root = torch.where(have, t_acc[k] / w_acc[k].clamp_min(1e-12)[:, None],
-                           torch.from_numpy(root_m[k]).double()).numpy()                       # (K, 3)
+        rot = roma.unitquat_to_rotvec(q / q.norm(dim=-1, keepdim=True)).numpy()  # (K, Jm, 3)
+        root = torch.where(
+            have, t_acc[k] / w_acc[k].clamp_min(1e-12)[:, None], torch.from_numpy(root_m[k]).double()
+        ).numpy()  # (K, 3)
         rot, root = resample_motion(rot, root, fps_m, c.fps, c.num_frames)
         rotations = c.rotations.astype(np.float64)
         rotations[:, idx] = rot
-        positions = fk_axis_angle(torch.from_numpy(rotations), torch.from_numpy(root),
-                                  torch.from_numpy(c.offsets.astype(np.float64)), c.skeleton.parents).numpy()
+        positions = fk_axis_angle(
+            torch.from_numpy(rotations),
+            torch.from_numpy(root),
+            torch.from_numpy(c.offsets.astype(np.float64)),
+            c.skeleton.parents,
+        ).numpy()
         if not (np.isfinite(positions).all() and np.isfinite(rotations).all()):  # a bug, never data
             raise MotionFileError(source, f"{who(k)}the estimate is not finite; nothing written")
         replaced += c.num_frames * len(idx)
         sigma_after.update(torch.from_numpy(positions[:, idx])[None])
-        out_clips.append(c.replace(positions=positions.astype(np.float32), rotations=rotations.astype(np.float32),
-                                   root_translation=root.astype(np.float32)))
+        out_clips.append(
+            c.replace(
+                positions=positions.astype(np.float32),
+                rotations=rotations.astype(np.float32),
+                root_translation=root.astype(np.float32),
+            )
+        )
     if bad:
         notes.append(f"{bad} windows gave non-finite estimates: the input kept where no other window covers")
-    report = FixReport(frames, people, 0, replaced, float(sigma_before.compute()), float(sigma_after.compute()),
-                       len(windows), notes)
+    report = FixReport(
+        frames, people, 0, replaced, float(sigma_before.compute()), float(sigma_after.compute()), len(windows), notes
+    )
     return out_clips, report

@@ -6,6 +6,7 @@ file is one error line and the others still run; the exit code is 1 when any fil
 Outputs are written to a temporary file and renamed: never half a file, never over the input,
 never over an existing file without --force.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,8 +30,8 @@ from mocapfix.io.conventions import metres_per_unit, to_z_up
 from mocapfix.io.files import atomic_write
 from mocapfix.io.positions import load_npz, npz_array, write_clips, write_positions
 
-FIXED = ".fixed"          # default output: <stem>.fixed<ext> beside the input
-LONG_INPUT_S = 600.0      # progress is shown for inputs this long even when stderr is not a terminal
+FIXED = ".fixed"  # default output: <stem>.fixed<ext> beside the input
+LONG_INPUT_S = 600.0  # progress is shown for inputs this long even when stderr is not a terminal
 
 
 def output_suffix(clips: list[Clip], path: Path, rotations: bool = False) -> str:
@@ -42,8 +43,9 @@ def output_suffix(clips: list[Clip], path: Path, rotations: bool = False) -> str
     return path.suffix.lower() if fmt in ("positions-npz", "positions-csv") else ".npz"
 
 
-def output_path(path: Path, clips: list[Clip], out: Path | None, out_dir: Path | None, rel: Path | None,
-                rotations: bool = False) -> Path:
+def output_path(
+    path: Path, clips: list[Clip], out: Path | None, out_dir: Path | None, rel: Path | None, rotations: bool = False
+) -> Path:
     suffix = output_suffix(clips, path, rotations)
     if out is not None:
         target = out
@@ -59,8 +61,9 @@ def output_path(path: Path, clips: list[Clip], out: Path | None, out_dir: Path |
         why = "the model gives positions, not rotations" if not rotations else "a BVH output needs a BVH input"
         raise MotionFileError(path, f"cannot write {target.name}: {why}; write .npz or .csv")
     if ext not in (".npz", ".csv") or (fmt == "h36m" and ext != ".npz"):
-        raise MotionFileError(path, f"cannot write {target.name}: outputs are "
-                                    f"{'.npz' if fmt == 'h36m' else '.npz or .csv'}")
+        raise MotionFileError(
+            path, f"cannot write {target.name}: outputs are {'.npz' if fmt == 'h36m' else '.npz or .csv'}"
+        )
     return target
 
 
@@ -87,11 +90,18 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
         with load_npz(Path(inputs[0].source)) as data:
             raw = npz_array(Path(inputs[0].source), data, "positions").astype(np.float64)
         raw = to_z_up(raw.reshape((-1,) + raw.shape[-3:]) * metres_per_unit(m), m.get("up_axis", "z"))
-        new = np.stack([c.positions for c in clips]).astype(np.float64)              # (P, T, J, 3)
+        new = np.stack([c.positions for c in clips]).astype(np.float64)  # (P, T, J, 3)
         old = np.stack([c.positions for c in inputs])
         same = ((new == old) & np.isfinite(old)).all(-1, keepdims=True)
-        write_positions(target, np.where(same, raw, new), clips[0].fps, clips[0].skeleton, m["unit"],
-                        m.get("up_axis", "z"), squeeze=m.get("squeeze"))
+        write_positions(
+            target,
+            np.where(same, raw, new),
+            clips[0].fps,
+            clips[0].skeleton,
+            m["unit"],
+            m.get("up_axis", "z"),
+            squeeze=m.get("squeeze"),
+        )
         return
     write_clips(target, clips)
 
@@ -125,8 +135,9 @@ class Progress:
         pct = int(100 * done / total)
         if self.tty:
             bar = "#" * (pct // 4)
-            print(f"\r{self.label} [{bar:<25}] {pct:3d}% ({done}/{total} windows)", end="", file=self.stream,
-                  flush=True)
+            print(
+                f"\r{self.label} [{bar:<25}] {pct:3d}% ({done}/{total} windows)", end="", file=self.stream, flush=True
+            )
             if done >= total:
                 print(file=self.stream, flush=True)
         elif pct // 10 > self.last // 10 or done >= total:
@@ -166,10 +177,24 @@ def _inputs(paths: list[str], source: str, err) -> tuple[list[tuple[Path, Path |
     return files, failed
 
 
-def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str | None = None,
-              mode: str = "infill", device: str = "auto", batch_size: int = 64, overlap: float = 0.5,
-              force: bool = False, source: str = "auto", progress: str = "auto", as_json: bool = False,
-              stdout=None, stderr=None, precision: str = "fp32", **read_options) -> int:
+def fix_files(
+    paths: list[str],
+    ckpt: str,
+    out: str | None = None,
+    out_dir: str | None = None,
+    mode: str = "infill",
+    device: str = "auto",
+    batch_size: int = 64,
+    overlap: float = 0.5,
+    force: bool = False,
+    source: str = "auto",
+    progress: str = "auto",
+    as_json: bool = False,
+    stdout=None,
+    stderr=None,
+    precision: str = "fp32",
+    **read_options,
+) -> int:
     """Fix every file; -> exit code (0 all written, 1 some failed). read_options go to read_motion."""
     out_stream, err = stdout or sys.stdout, stderr or sys.stderr
     try:
@@ -178,9 +203,11 @@ def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str 
         print(f"error: {_one_line(ckpt, e)}", file=err)
         return 1
     if fixer.kind == "xmae" and fixer.policy is None:
-        print(f"note: {ckpt} has no fill policy: the model fills every hole and replaces every token it is "
-              "asked to (`mocapfix validate --config CFG --ckpt_path CKPT` calibrates one on the val split)",
-              file=err)
+        print(
+            f"note: {ckpt} has no fill policy: the model fills every hole and replaces every token it is "
+            "asked to (`mocapfix validate --config CFG --ckpt_path CKPT` calibrates one on the val split)",
+            file=err,
+        )
     files, failed = _inputs(paths, source, err)
     written: dict[Path, Path] = {}
     for path, rel in files:
@@ -190,8 +217,9 @@ def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str 
             if not clips:
                 raise MotionFileError(path, "no motion in the file")
             rotations = getattr(fixer, "state", "positions") == "rotations"
-            target = output_path(path, clips, Path(out) if out else None, Path(out_dir) if out_dir else None, rel,
-                                 rotations)
+            target = output_path(
+                path, clips, Path(out) if out else None, Path(out_dir) if out_dir else None, rel, rotations
+            )
             resolved = target.resolve()
             if resolved == path.resolve():
                 raise MotionFileError(path, f"output {target} is the input; fix never overwrites its input")
@@ -200,8 +228,9 @@ def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str 
             if target.exists() and not force:
                 raise MotionFileError(path, f"output {target} exists (use --force to overwrite)")
             seconds = sum(c.duration_s for c in clips)
-            show = progress == "always" or (progress == "auto" and (
-                getattr(err, "isatty", lambda: False)() or seconds >= LONG_INPUT_S))
+            show = progress == "always" or (
+                progress == "auto" and (getattr(err, "isatty", lambda: False)() or seconds >= LONG_INPUT_S)
+            )
             work = rotation_clips(path, clips, fixer.skeleton, source, **read_options) if rotations else clips
             fixed, report = fix_clips(work, fixer, mode, overlap, batch_size, Progress(str(path), show, err))
             write_output(target, fixed, clips, path)
@@ -213,25 +242,45 @@ def fix_files(paths: list[str], ckpt: str, out: str | None = None, out_dir: str 
         elapsed = time.perf_counter() - t0
         notes = list(report.notes)
         if clips[0].meta.get("format") in ("bvh", "amass") and target.suffix.lower() != ".bvh":
-            notes.insert(0, "positions .npz/.csv: rotations are written to .bvh, from a BVH input" if rotations else
-                         f"positions .npz/.csv: {fixer.kind.upper()} gives positions, not rotations")
+            notes.insert(
+                0,
+                "positions .npz/.csv: rotations are written to .bvh, from a BVH input"
+                if rotations
+                else f"positions .npz/.csv: {fixer.kind.upper()} gives positions, not rotations",
+            )
         if report.filled_by:
             notes.insert(0, "filled by " + ", ".join(f"{m} {n}" for m, n in sorted(report.filled_by.items())))
-        kind = "sequences" if clips[0].meta.get("format") == "h36m" else \
-            "person" if report.people == 1 else "people"
+        kind = "sequences" if clips[0].meta.get("format") == "h36m" else "person" if report.people == 1 else "people"
         if as_json:
-            print(json.dumps({"input": str(path), "output": str(target), "mode": mode, "model": fixer.kind,
-                              "frames": report.frames, "people": report.people, "filled": report.filled,
-                              "replaced": report.replaced, "filled_by": report.filled_by,
-                              "windows": report.windows,
-                              "limb_sigma_before_mm": _finite_or_none(report.limb_sigma_before_mm),
-                              "limb_sigma_after_mm": _finite_or_none(report.limb_sigma_after_mm),
-                              "seconds": round(elapsed, 3), "notes": notes}), file=out_stream, flush=True)
+            print(
+                json.dumps(
+                    {
+                        "input": str(path),
+                        "output": str(target),
+                        "mode": mode,
+                        "model": fixer.kind,
+                        "frames": report.frames,
+                        "people": report.people,
+                        "filled": report.filled,
+                        "replaced": report.replaced,
+                        "filled_by": report.filled_by,
+                        "windows": report.windows,
+                        "limb_sigma_before_mm": _finite_or_none(report.limb_sigma_before_mm),
+                        "limb_sigma_after_mm": _finite_or_none(report.limb_sigma_after_mm),
+                        "seconds": round(elapsed, 3),
+                        "notes": notes,
+                    }
+                ),
+                file=out_stream,
+                flush=True,
+            )
         else:
-            line = (f"{path} -> {target}: {report.frames} frames, {report.people} {kind}, "
-                    f"{report.filled} tokens filled, {report.replaced} replaced ({mode}, {fixer.kind}), "
-                    f"limb sigma {_num(report.limb_sigma_before_mm)} -> {_num(report.limb_sigma_after_mm)} mm, "
-                    f"{elapsed:.2f} s")
+            line = (
+                f"{path} -> {target}: {report.frames} frames, {report.people} {kind}, "
+                f"{report.filled} tokens filled, {report.replaced} replaced ({mode}, {fixer.kind}), "
+                f"limb sigma {_num(report.limb_sigma_before_mm)} -> {_num(report.limb_sigma_after_mm)} mm, "
+                f"{elapsed:.2f} s"
+            )
             print(line + "".join(f"; {n}" for n in notes), file=out_stream, flush=True)
     return 1 if failed else 0
 
@@ -253,17 +302,29 @@ def main(argv: list[str] | None = None) -> int:
     where = ap.add_mutually_exclusive_group()
     where.add_argument("-o", "--out", default=None, help="output file (one input file only)")
     where.add_argument("--out-dir", default=None, help="folder for the outputs (default: <input>.fixed.<ext>)")
-    ap.add_argument("--mode", default="infill", choices=MODES,
-                    help="infill: fill missing tokens only; denoise: replace observed tokens; both: both")
+    ap.add_argument(
+        "--mode",
+        default="infill",
+        choices=MODES,
+        help="infill: fill missing tokens only; denoise: replace observed tokens; both: both",
+    )
     ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
     ap.add_argument("--batch-size", type=int, default=64, help="windows per model call")
-    ap.add_argument("--precision", default="auto", choices=PRECISIONS,
-                    help="XMAE's matmuls: auto = bf16 on GPUs and CPUs with native bf16, else fp32")
+    ap.add_argument(
+        "--precision",
+        default="auto",
+        choices=PRECISIONS,
+        help="XMAE's matmuls: auto = bf16 on GPUs and CPUs with native bf16, else fp32",
+    )
     ap.add_argument("--overlap", type=float, default=0.5, help="fraction of a window shared by neighbours, [0, 1)")
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
     ap.add_argument("--json", action="store_true", help="one JSON object per file instead of the report line")
-    ap.add_argument("--progress", default="auto", choices=("auto", "always", "never"),
-                    help="auto: on a terminal, or for inputs over 10 minutes")
+    ap.add_argument(
+        "--progress",
+        default="auto",
+        choices=("auto", "always", "never"),
+        help="auto: on a terminal, or for inputs over 10 minutes",
+    )
     add_read_arguments(ap)
     args = ap.parse_args(argv)
     if args.out and (len(args.paths) > 1 or Path(args.paths[0]).is_dir()):
@@ -279,20 +340,40 @@ def main(argv: list[str] | None = None) -> int:
     # SIGTERM (a scheduler's time limit, `kill`) ends the run the way Ctrl-C does: as an exception,
     # so the output being written loses its temporary file (atomic_write) instead of the process
     # dying with it on disk.
-    previous = signal.signal(signal.SIGTERM, _terminated) \
-        if threading.current_thread() is threading.main_thread() else None
+    previous = (
+        signal.signal(signal.SIGTERM, _terminated) if threading.current_thread() is threading.main_thread() else None
+    )
     try:
-        return fix_files(args.paths, args.ckpt, args.out, args.out_dir, args.mode, _device(args.device),
-                         args.batch_size, args.overlap, args.force, args.source, args.progress, args.json,
-                         precision=args.precision, unit=args.unit, up_axis=args.up_axis, fps=args.fps,
-                         body_model_path=args.body_model)
+        return fix_files(
+            args.paths,
+            args.ckpt,
+            args.out,
+            args.out_dir,
+            args.mode,
+            _device(args.device),
+            args.batch_size,
+            args.overlap,
+            args.force,
+            args.source,
+            args.progress,
+            args.json,
+            precision=args.precision,
+            unit=args.unit,
+            up_axis=args.up_axis,
+            fps=args.fps,
+            body_model_path=args.body_model,
+        )
     except KeyboardInterrupt:  # outputs are renamed into place whole: nothing half-written is left
-        print("mocapfix fix: interrupted (outputs written so far are whole; the one in progress was not written)",
-              file=sys.stderr)
+        print(
+            "mocapfix fix: interrupted (outputs written so far are whole; the one in progress was not written)",
+            file=sys.stderr,
+        )
         return 130
     except _Terminated:
-        print("mocapfix fix: stopped by SIGTERM (outputs written so far are whole; the one in progress was not "
-              "written)", file=sys.stderr)
+        print(
+            "mocapfix fix: stopped by SIGTERM (outputs written so far are whole; the one in progress was not written)",
+            file=sys.stderr,
+        )
         return 128 + signal.SIGTERM
     finally:
         if previous is not None:

@@ -4,6 +4,7 @@ the class by the kind the checkpoint names (models/build.py). Nothing here impor
 everything a fixer needs (skeleton, fps, window, network sizes) as plain values, and it is
 loaded with weights_only=True. mocapfix.fix windows, blends and merges what a fixer estimates.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -34,10 +35,10 @@ from mocapfix.skeleton import Skeleton
 
 
 class Fixer(Protocol):
-    kind: str           # "xmae", "motion-dvae"
+    kind: str  # "xmae", "motion-dvae"
     skeleton: Skeleton  # the model's joints, in the model's order
-    fps: float          # the model's frame rate
-    window: int         # frames per window
+    fps: float  # the model's frame rate
+    window: int  # frames per window
     # state: "positions" (estimate below; the default when a fixer has no state) or "rotations"
     # (a RotationFixer: fix_clips hands it rotation windows instead)
 
@@ -51,12 +52,13 @@ class RotationFixer(Protocol):
     kind: str
     skeleton: Skeleton
     fps: float
-    window: int         # the longest window; a clip shorter than it is one window of its own length
-    state: str          # "rotations"
-    notes: list[str]    # said once per file in the report
+    window: int  # the longest window; a clip shorter than it is one window of its own length
+    state: str  # "rotations"
+    notes: list[str]  # said once per file in the report
 
-    def estimate_rotations(self, rotations: torch.Tensor, root_translation: torch.Tensor, offsets: torch.Tensor
-                           ) -> tuple[torch.Tensor, torch.Tensor]:
+    def estimate_rotations(
+        self, rotations: torch.Tensor, root_translation: torch.Tensor, offsets: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """rotations: (B, W, J, 3) local axis-angle (joint 0: root orientation), root_translation
         (B, W, 3), offsets (B, J, 3) bone offsets, metres, z up -> estimated rotations (B, W, J, 3)
         and root translation (B, W, 3), float32 on the CPU."""
@@ -70,8 +72,9 @@ class XMAEFixer:
     kind = "xmae"
     state = "positions"
 
-    def __init__(self, net: XMAE, skeleton: Skeleton, fps: float, device: str | torch.device = "cpu",
-                 precision: str = "fp32"):
+    def __init__(
+        self, net: XMAE, skeleton: Skeleton, fps: float, device: str | torch.device = "cpu", precision: str = "fp32"
+    ):
         self.net = net.to(device).eval()
         self.skeleton, self.fps, self.window = skeleton, float(fps), int(net.num_frames)
         self.device = torch.device(device)
@@ -85,20 +88,24 @@ class XMAEFixer:
         if "model" in ckpt:
             config = ckpt["model"].get("config")
         else:  # written before checkpoints held their model config: the sizes were hyperparameters
-            config = {k: hparams[k] for k in (f.name for f in dataclasses.fields(XMAEConfig))
-                      if hparams.get(k) is not None and k not in ("num_joints", "num_frames")}
+            config = {
+                k: hparams[k]
+                for k in (f.name for f in dataclasses.fields(XMAEConfig))
+                if hparams.get(k) is not None and k not in ("num_joints", "num_frames")
+            }
             config.update(num_joints=skeleton.num_joints, num_frames=frames)
         try:
             net = build_model("xmae", config)
         except (TypeError, ValueError, AssertionError) as e:
             raise MotionFileError(path, f"bad XMAE sizes in the checkpoint ({e})") from None
-        weights = {k[len("net."):]: v for k, v in state_dict.items() if k.startswith("net.")}
+        weights = {k[len("net.") :]: v for k, v in state_dict.items() if k.startswith("net.")}
         try:
             net.load_state_dict(weights)
         except RuntimeError as e:
             first = " ".join(str(e).split())[:200]
-            raise MotionFileError(path, f"weights do not fit the network its hyperparameters describe ({first})") \
-                from None
+            raise MotionFileError(
+                path, f"weights do not fit the network its hyperparameters describe ({first})"
+            ) from None
         return cls(net, skeleton, fps, device, precision)
 
     @torch.inference_mode()
@@ -138,17 +145,31 @@ class DVAEFixer:
 
     kind = "motion-dvae"
 
-    def __init__(self, net: MotionDVAE, codec: MotionState, x0_pred: InitialStatePredictor, noise_pred: NoisePredictor,
-                 skeleton: Skeleton, fps: float, window: int, noise_lambda: float, fusion: bool,
-                 device: str | torch.device = "cpu", first_frame: str = "decoded"):
+    def __init__(
+        self,
+        net: MotionDVAE,
+        codec: MotionState,
+        x0_pred: InitialStatePredictor,
+        noise_pred: NoisePredictor,
+        skeleton: Skeleton,
+        fps: float,
+        window: int,
+        noise_lambda: float,
+        fusion: bool,
+        device: str | torch.device = "cpu",
+        first_frame: str = "decoded",
+    ):
         self.device = torch.device(device)
         self.net, self.x0_pred, self.noise_pred = (m.to(self.device).eval() for m in (net, x0_pred, noise_pred))
         codec.to(self.device)  # its body model and joint reference
         self.codec, self.state = codec, codec.kind
         self.skeleton, self.fps, self.window = skeleton, float(fps), int(window)
         self.noise_lambda, self.fusion, self.first_frame = float(noise_lambda), bool(fusion), first_frame
-        self.notes = ["eq. 18 fuses 3D points, not rotations: the decoder's motion is used"] \
-            if fusion and self.state == "rotations" else []
+        self.notes = (
+            ["eq. 18 fuses 3D points, not rotations: the decoder's motion is used"]
+            if fusion and self.state == "rotations"
+            else []
+        )
 
     @classmethod
     def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32") -> DVAEFixer:
@@ -166,16 +187,23 @@ class DVAEFixer:
         missing = [k for k in ("state", "latent_dim", "lstm_hidden", "mlp_hidden", "norm_groups") if ph.get(k) is None]
         missing += [k for k in ("noise_lambda", "estimate") if hparams.get(k) is None]
         if missing:
-            raise MotionFileError(path, f"Motion-DVAE checkpoint lacks {', '.join(missing)}: "
-                                        "cannot rebuild the networks")
+            raise MotionFileError(
+                path, f"Motion-DVAE checkpoint lacks {', '.join(missing)}: cannot rebuild the networks"
+            )
         state = ph["state"]
         if state not in STATES:
             raise MotionFileError(path, f"Motion-DVAE checkpoint has an unknown state {state!r}")
         body = None
         if state == "rotations":
             try:  # an SMPL body is rebuilt from the model file the checkpoint names (never stored in it)
-                body = build_body_model(ph.get("body_model", "skeleton"), skeleton.parents, ph.get("body_model_path"),
-                                        ph.get("gender", "neutral"), ph.get("model_type", "smplh"), ph.get("markers"))
+                body = build_body_model(
+                    ph.get("body_model", "skeleton"),
+                    skeleton.parents,
+                    ph.get("body_model_path"),
+                    ph.get("gender", "neutral"),
+                    ph.get("model_type", "smplh"),
+                    ph.get("markers"),
+                )
             except (ValueError, OSError) as e:
                 why = " ".join(str(e).split())
                 raise MotionFileError(path, f"cannot rebuild the checkpoint's body model ({why})") from None
@@ -183,28 +211,53 @@ class DVAEFixer:
             codec = MotionState(state, skeleton.parents, skeleton.groups, fps, body)
             D, H, Hm, G = codec.dim, int(ph["lstm_hidden"]), int(ph["mlp_hidden"]), int(ph["norm_groups"])
             num_points = codec.num_joints + (body.num_markers if body is not None else 0)
-            config = ckpt["model"].get("config") if "model" in ckpt else \
-                DVAEConfig(state, skeleton.num_joints, int(ph["latent_dim"]), H, Hm, G,
-                           bool(ph.get("encoder_velocities", False)))
-            nets = {"codec": codec, "net": build_model("motion-dvae", config),
-                    "x0_pred": InitialStatePredictor(D, H, Hm, G, velocity_mask(state, codec.num_joints)),
-                    "noise_pred": NoisePredictor(H, 3 * num_points, Hm, G)}
+            config = (
+                ckpt["model"].get("config")
+                if "model" in ckpt
+                else DVAEConfig(
+                    state,
+                    skeleton.num_joints,
+                    int(ph["latent_dim"]),
+                    H,
+                    Hm,
+                    G,
+                    bool(ph.get("encoder_velocities", False)),
+                )
+            )
+            nets = {
+                "codec": codec,
+                "net": build_model("motion-dvae", config),
+                "x0_pred": InitialStatePredictor(D, H, Hm, G, velocity_mask(state, codec.num_joints)),
+                "noise_pred": NoisePredictor(H, 3 * num_points, Hm, G),
+            }
         except (TypeError, ValueError) as e:
             raise MotionFileError(path, f"bad Motion-DVAE sizes in the checkpoint ({e})") from None
         for prefix, net in nets.items():
-            weights = {k[len(prefix) + 1:]: v for k, v in state_dict.items() if k.startswith(prefix + ".")}
+            weights = {k[len(prefix) + 1 :]: v for k, v in state_dict.items() if k.startswith(prefix + ".")}
             try:
                 net.load_state_dict(weights)
             except RuntimeError as e:
                 first = " ".join(str(e).split())[:200]
-                raise MotionFileError(path, "weights do not fit the network its hyperparameters describe "
-                                            f"({prefix}: {first})") from None
+                raise MotionFileError(
+                    path, f"weights do not fit the network its hyperparameters describe ({prefix}: {first})"
+                ) from None
         fusion = uses_noise_model(str(hparams["estimate"]), float(hparams["noise_lambda"]))
         first_frame = str(hparams.get("first_frame", "decoded"))  # checkpoints from before it: the module's default
         if first_frame not in FIRST_FRAMES:
             raise MotionFileError(path, f"Motion-DVAE checkpoint has an unknown first_frame {first_frame!r}")
-        return cls(nets["net"], codec, nets["x0_pred"], nets["noise_pred"], skeleton, fps, frames,
-                   float(hparams["noise_lambda"]), fusion, device, first_frame)
+        return cls(
+            nets["net"],
+            codec,
+            nets["x0_pred"],
+            nets["noise_pred"],
+            skeleton,
+            fps,
+            frames,
+            float(hparams["noise_lambda"]),
+            fusion,
+            device,
+            first_frame,
+        )
 
     def _infer(self, obs: Observation):
         return infer_posterior(self.net, self.codec, self.x0_pred, self.noise_pred, obs, sample=False)
@@ -213,19 +266,22 @@ class DVAEFixer:
     def estimate(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
         if self.state != "positions":
             raise ValueError("this Motion-DVAE works on rotations: use estimate_rotations")
-        filled = lerp_infill(positions.double(), observed).float().to(self.device)    # (B, W, J, 3)
+        filled = lerp_infill(positions.double(), observed).float().to(self.device)  # (B, W, J, 3)
         inf = self._infer(Observation(filled, None, None, None))
-        est = point_estimate(inf, self.codec, self.noise_lambda, self.fusion, observed.to(self.device),
-                             self.first_frame)
+        est = point_estimate(
+            inf, self.codec, self.noise_lambda, self.fusion, observed.to(self.device), self.first_frame
+        )
         return est.float().cpu()
 
     @torch.inference_mode()
-    def estimate_rotations(self, rotations: torch.Tensor, root_translation: torch.Tensor, offsets: torch.Tensor
-                           ) -> tuple[torch.Tensor, torch.Tensor]:
+    def estimate_rotations(
+        self, rotations: torch.Tensor, root_translation: torch.Tensor, offsets: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         if self.state != "rotations":
             raise ValueError("this Motion-DVAE works on positions: use estimate")
-        rotations, root_translation, offsets = (t.float().to(self.device)
-                                                for t in (rotations, root_translation, offsets))
+        rotations, root_translation, offsets = (
+            t.float().to(self.device) for t in (rotations, root_translation, offsets)
+        )
         positions = fk_axis_angle(rotations, root_translation, offsets[:, None], self.codec.parents)
         inf = self._infer(Observation(positions, rotations, root_translation, offsets))
         rot, root = rotation_estimate(inf, self.codec, self.first_frame)
@@ -255,10 +311,10 @@ def model_kind(ckpt: dict) -> str | None:
     hparams, state_dict = ckpt["hyper_parameters"], ckpt["state_dict"]
     if "net.enc_pos_joint" in state_dict and "enc_dim" in hparams:  # training/xmae_module.py
         return "xmae"
-    if any(k.startswith("net.gen.") for k in state_dict):            # MotionDVAE weights
-        if any(k.startswith("x0_pred.") for k in state_dict):       # training/denoise_module.py
+    if any(k.startswith("net.gen.") for k in state_dict):  # MotionDVAE weights
+        if any(k.startswith("x0_pred.") for k in state_dict):  # training/denoise_module.py
             return "motion-dvae"
-        if "latent_dim" in hparams:                                  # training/dvae_module.py: the prior alone
+        if "latent_dim" in hparams:  # training/dvae_module.py: the prior alone
             return "motion-dvae-prior"
     return None
 
@@ -268,8 +324,10 @@ FIXERS: dict[str, type] = {"xmae": XMAEFixer, "motion-dvae": DVAEFixer}
 # Checkpoints fix recognises but cannot use, and why. A prior alone has no initial-state
 # predictor, and the paper's "No noisy train" ablation (appendix, Tab. 2) shows that its
 # encoder, trained on clean motion only, denoises badly: the denoising stage is what fix runs.
-REFUSED = {"motion-dvae-prior": "a Motion-DVAE prior checkpoint; fix needs the denoising stage trained from it "
-                                "(configs/motion_dvae_denoise*.yaml with model.init_args.prior_ckpt set to this file)"}
+REFUSED = {
+    "motion-dvae-prior": "a Motion-DVAE prior checkpoint; fix needs the denoising stage trained from it "
+    "(configs/motion_dvae_denoise*.yaml with model.init_args.prior_ckpt set to this file)"
+}
 
 
 def read_checkpoint(path) -> dict:
@@ -282,11 +340,17 @@ def read_checkpoint(path) -> dict:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # not a zip/pickle, truncated, or objects that are not plain values
         text = " ".join(str(e).split())
-        reason = "holds objects that are not plain values" if "weights_only" in text.lower() or \
-            "unpickl" in text.lower() else f"not a PyTorch checkpoint ({type(e).__name__})"
+        reason = (
+            "holds objects that are not plain values"
+            if "weights_only" in text.lower() or "unpickl" in text.lower()
+            else f"not a PyTorch checkpoint ({type(e).__name__})"
+        )
         raise MotionFileError(path, f"not a mocapfix checkpoint: {reason}") from None
-    if not isinstance(ckpt, dict) or not isinstance(ckpt.get("hyper_parameters"), dict) \
-            or not isinstance(ckpt.get("state_dict"), dict):
+    if (
+        not isinstance(ckpt, dict)
+        or not isinstance(ckpt.get("hyper_parameters"), dict)
+        or not isinstance(ckpt.get("state_dict"), dict)
+    ):
         raise MotionFileError(path, "not a mocapfix checkpoint: no hyper_parameters and state_dict")
     return ckpt
 
@@ -301,8 +365,9 @@ def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32"
     if kind in REFUSED:
         raise MotionFileError(path, REFUSED[kind])
     if kind not in FIXERS:
-        raise MotionFileError(path, "not a mocapfix checkpoint of a model fix knows "
-                                    f"({', '.join(FIXERS)}): no matching network weights")
+        raise MotionFileError(
+            path, f"not a mocapfix checkpoint of a model fix knows ({', '.join(FIXERS)}): no matching network weights"
+        )
     fixer = FIXERS[kind].from_checkpoint(path, ckpt, device, precision)
     # which fill for which hole, calibrated on the val split (evaluation/policy.py); None: the
     # model everywhere (checkpoints from before it, until `mocapfix validate --ckpt_path` adds one)
@@ -317,5 +382,8 @@ def xmae_checkpoint(net: XMAE, skeleton: Skeleton, fps: float) -> dict:
     """The smallest checkpoint load_fixer reads for an XMAE (what XMAEModule saves, minus the
     training state): for benchmarks and tests that need a model without training one."""
     hp = {"skeleton": skeleton.to_dict(), "window_fps": float(fps), "window_frames": int(net.num_frames)}
-    return {"hyper_parameters": hp, "model": checkpoint_entry("xmae", net.config),
-            "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}
+    return {
+        "hyper_parameters": hp,
+        "model": checkpoint_entry("xmae", net.config),
+        "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()},
+    }

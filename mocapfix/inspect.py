@@ -4,6 +4,7 @@ Per file: format, people, frames, fps, joints, unit and up axis the reader used,
 tokens, hip height, mean limb length and limb sigma (std over time of each limb's length, the
 paper's jitter measure). A human table by default; --json gives one JSON object per file per line.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -81,17 +82,30 @@ def _num(v: float, fmt: str) -> str:
 
 
 def _table(rows: list[dict]) -> str:
-    cols = [("file", "file", "s"), ("format", "format", "s"), ("people", "people", "d"), ("frames", "frames", "d"),
-            ("fps", "fps", ".4g"), ("dur s", "duration_s", ".1f"), ("joints", "joints", "d"), ("unit", "unit", "s"),
-            ("stature m", "stature_m", ".2f"), ("up", "up_axis", "s"), ("missing %", "missing_pct", ".2f"),
-            ("absurd", "absurd_tokens", "d"), ("hip m", "hip_height_m", ".3f"),
-            ("limb mm", "limb_length_mm", ".1f"), ("sigma mm", "limb_sigma_mm", ".2f")]
+    cols = [
+        ("file", "file", "s"),
+        ("format", "format", "s"),
+        ("people", "people", "d"),
+        ("frames", "frames", "d"),
+        ("fps", "fps", ".4g"),
+        ("dur s", "duration_s", ".1f"),
+        ("joints", "joints", "d"),
+        ("unit", "unit", "s"),
+        ("stature m", "stature_m", ".2f"),
+        ("up", "up_axis", "s"),
+        ("missing %", "missing_pct", ".2f"),
+        ("absurd", "absurd_tokens", "d"),
+        ("hip m", "hip_height_m", ".3f"),
+        ("limb mm", "limb_length_mm", ".1f"),
+        ("sigma mm", "limb_sigma_mm", ".2f"),
+    ]
     cells = [[h for h, _, _ in cols]]
     for r in rows:
         cells.append([_num(r[k], f) if isinstance(r[k], float) else format(r[k], f) for _, k, f in cols])
     widths = [max(len(row[i]) for row in cells) for i in range(len(cols))]
-    lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths)))
-             for row in cells]
+    lines = [
+        "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths))) for row in cells
+    ]
     # how each unit was found, once per distinct way (a body's scale estimate says its number)
     how: dict[tuple, list[str]] = {}
     for r in rows:
@@ -103,8 +117,10 @@ def _table(rows: list[dict]) -> str:
         if r["dropped_root"]:
             lines.append(f"{r['file']}: root {r['dropped_root']!r} left out (a helper joint: one child, never turns)")
         if r["absurd_tokens"]:
-            lines.append(f"{r['file']}: {r['absurd_tokens']} absurd joint positions (non-finite or far outside "
-                         "the body) read as missing")
+            lines.append(
+                f"{r['file']}: {r['absurd_tokens']} absurd joint positions (non-finite or far outside "
+                "the body) read as missing"
+            )
         lines.extend(f"warning: {w}" for w in r["warnings"])
     # joint names once per distinct skeleton: too long for a column
     seen: dict[tuple, list[str]] = {}
@@ -116,8 +132,7 @@ def _table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def inspect_files(paths, as_json: bool = False, source: str = "auto", out=None, err=None,
-                  **read_options) -> int:
+def inspect_files(paths, as_json: bool = False, source: str = "auto", out=None, err=None, **read_options) -> int:
     """Print what each motion file holds (folders: their motion files). -> exit code: 1 if any file failed.
 
     read_options go to mocapfix.io.read_motion (unit, up_axis, fps, groups, body_model_path, ...)."""
@@ -168,8 +183,15 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true", help="one JSON object per file per line")
     add_read_arguments(ap)
     args = ap.parse_args(argv)
-    return inspect_files(args.paths, args.json, source=args.source, unit=args.unit, up_axis=args.up_axis,
-                         fps=args.fps, body_model_path=args.body_model)
+    return inspect_files(
+        args.paths,
+        args.json,
+        source=args.source,
+        unit=args.unit,
+        up_axis=args.up_axis,
+        fps=args.fps,
+        body_model_path=args.body_model,
+    )
 
 
 if __name__ == "__main__":

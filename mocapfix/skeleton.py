@@ -3,6 +3,7 @@
 A skeleton is plain data (tuples and dicts of ints/strings) so that it can travel inside a
 checkpoint and be loaded with torch.load(weights_only=True).
 """
+
 from __future__ import annotations
 
 import re
@@ -23,13 +24,17 @@ class Skeleton:
         object.__setattr__(self, "parents", tuple(int(p) for p in self.parents))
         object.__setattr__(self, "groups", {k: tuple(int(i) for i in v) for k, v in self.groups.items()})
         if len(self.joint_names) != len(self.parents):
-            raise ValueError(f"skeleton {self.name!r}: {len(self.joint_names)} joint names but {len(self.parents)} parents")
+            raise ValueError(
+                f"skeleton {self.name!r}: {len(self.joint_names)} joint names but {len(self.parents)} parents"
+            )
         if not self.parents or self.parents[0] != -1:
             raise ValueError(f"skeleton {self.name!r}: joint 0 must be the root (parent -1)")
         for j, p in enumerate(self.parents[1:], start=1):
             if not 0 <= p < j:
-                raise ValueError(f"skeleton {self.name!r}: joint {j} ({self.joint_names[j]}) has parent {p}; "
-                                 "parents must come before their children")
+                raise ValueError(
+                    f"skeleton {self.name!r}: joint {j} ({self.joint_names[j]}) has parent {p}; "
+                    "parents must come before their children"
+                )
         for g, idx in self.groups.items():
             if any(not 0 <= i < len(self.parents) for i in idx):
                 raise ValueError(f"skeleton {self.name!r}: group {g!r} has a joint index out of range")
@@ -69,21 +74,28 @@ class Skeleton:
             parents.append(new_index.get(p, -1))
         if parents.count(-1) != 1:
             roots = [self.joint_names[j] for j, p in zip(keep, parents) if p == -1]
-            raise ValueError(f"skeleton {self.name!r}: keeping these joints leaves {len(roots)} roots {roots}; "
-                             "the kept joints must form one tree")
+            raise ValueError(
+                f"skeleton {self.name!r}: keeping these joints leaves {len(roots)} roots {roots}; "
+                "the kept joints must form one tree"
+            )
         groups = {g: tuple(new_index[i] for i in idx if i in new_index) for g, idx in self.groups.items()}
         return Skeleton(tuple(self.joint_names[j] for j in keep), tuple(parents), groups, self.name)
 
     def with_groups(self, groups: dict[str, list[str] | list[int]]) -> Skeleton:
         """Replace the named groups; members given by joint name or index."""
-        resolved = {g: tuple(self.index(m) if isinstance(m, str) else int(m) for m in members)
-                    for g, members in groups.items()}
+        resolved = {
+            g: tuple(self.index(m) if isinstance(m, str) else int(m) for m in members) for g, members in groups.items()
+        }
         return Skeleton(self.joint_names, self.parents, resolved, self.name)
 
     def to_dict(self) -> dict:
         """Plain python values (lists, str, int): safe for checkpoints and JSON."""
-        return {"name": self.name, "joint_names": list(self.joint_names), "parents": list(self.parents),
-                "groups": {k: list(v) for k, v in self.groups.items()}}
+        return {
+            "name": self.name,
+            "joint_names": list(self.joint_names),
+            "parents": list(self.parents),
+            "groups": {k: list(v) for k, v in self.groups.items()},
+        }
 
     @classmethod
     def from_dict(cls, d: dict) -> Skeleton:
@@ -95,7 +107,9 @@ class Skeleton:
 _SIDE_PATTERNS = {
     # "LeftArm", "left_hip", "L_Hip", "LHip" (capital next), "Hand_L", "hand.l", "ArmLeft".
     # "LowerArm" must not read as left, hence the case-sensitive "L" followed by a capital.
-    side: re.compile(rf"(?i:^{side})|(?i:^{side[0]}[_\-.\s])|^{side[0].upper()}(?=[A-Z])|(?i:[_\-.\s]{side[0]}$)|(?i:{side}$)")
+    side: re.compile(
+        rf"(?i:^{side})|(?i:^{side[0]}[_\-.\s])|^{side[0].upper()}(?=[A-Z])|(?i:[_\-.\s]{side[0]}$)|(?i:{side}$)"
+    )
     for side in ("left", "right")
 }
 # Keywords in priority order: the first keyword that matches some joint of a side picks the
@@ -140,21 +154,65 @@ def guess_groups(joint_names, parents) -> dict[str, tuple[int, ...]]:
 
 # --- presets (reference.md) ---
 
-_H36M17_NAMES = ("Hip", "RHip", "RKnee", "RFoot", "LHip", "LKnee", "LFoot", "Spine", "Thorax", "Neck/Nose",
-                 "Head", "LShoulder", "LElbow", "LWrist", "RShoulder", "RElbow", "RWrist")
+_H36M17_NAMES = (
+    "Hip",
+    "RHip",
+    "RKnee",
+    "RFoot",
+    "LHip",
+    "LKnee",
+    "LFoot",
+    "Spine",
+    "Thorax",
+    "Neck/Nose",
+    "Head",
+    "LShoulder",
+    "LElbow",
+    "LWrist",
+    "RShoulder",
+    "RElbow",
+    "RWrist",
+)
 _H36M17_PARENTS = (-1, 0, 1, 2, 0, 4, 5, 0, 7, 8, 9, 8, 11, 12, 8, 14, 15)
-_SMPL22_NAMES = ("pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2", "left_ankle",
-                 "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar", "right_collar", "head",
-                 "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist")
+_SMPL22_NAMES = (
+    "pelvis",
+    "left_hip",
+    "right_hip",
+    "spine1",
+    "left_knee",
+    "right_knee",
+    "spine2",
+    "left_ankle",
+    "right_ankle",
+    "spine3",
+    "left_foot",
+    "right_foot",
+    "neck",
+    "left_collar",
+    "right_collar",
+    "head",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+)
 _SMPL22_PARENTS = (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19)
 
 PRESETS = {
-    "h36m17": Skeleton(_H36M17_NAMES, _H36M17_PARENTS,
-                       {"left_arm": (11, 12, 13), "right_arm": (14, 15, 16),
-                        "left_leg": (4, 5, 6), "right_leg": (1, 2, 3)}, "h36m17"),
-    "smpl22": Skeleton(_SMPL22_NAMES, _SMPL22_PARENTS,
-                       {"left_arm": (16, 18, 20), "right_arm": (17, 19, 21),
-                        "left_leg": (1, 4, 7, 10), "right_leg": (2, 5, 8, 11)}, "smpl22"),
+    "h36m17": Skeleton(
+        _H36M17_NAMES,
+        _H36M17_PARENTS,
+        {"left_arm": (11, 12, 13), "right_arm": (14, 15, 16), "left_leg": (4, 5, 6), "right_leg": (1, 2, 3)},
+        "h36m17",
+    ),
+    "smpl22": Skeleton(
+        _SMPL22_NAMES,
+        _SMPL22_PARENTS,
+        {"left_arm": (16, 18, 20), "right_arm": (17, 19, 21), "left_leg": (1, 4, 7, 10), "right_leg": (2, 5, 8, 11)},
+        "smpl22",
+    ),
 }
 
 

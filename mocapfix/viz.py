@@ -1,4 +1,5 @@
 """Matplotlib skeleton figures: a person sees what a model did to a window."""
+
 from __future__ import annotations
 
 import matplotlib
@@ -8,8 +9,16 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 
-def window_figure(truth: np.ndarray, observed_input: np.ndarray, observed: np.ndarray, output: np.ndarray,
-                  limbs, fps: float, num_frames: int = 5, title: str = ""):
+def window_figure(
+    truth: np.ndarray,
+    observed_input: np.ndarray,
+    observed: np.ndarray,
+    output: np.ndarray,
+    limbs,
+    fps: float,
+    num_frames: int = 5,
+    title: str = "",
+):
     """truth, observed_input, output: (T, J, 3) metres; observed: (T, J) bool.
     Rows: ground truth / observed input (missing joints left out, displaced ones shown as given) /
     output. Columns: a few frames across the window, side view (x right, z up)."""
@@ -32,8 +41,14 @@ def window_figure(truth: np.ndarray, observed_input: np.ndarray, observed: np.nd
             ax.plot(p[shown, 0], p[shown, 2], ".", color="tab:red" if r == 1 else "tab:blue", ms=3)
             if r == 2:  # ground truth faint under the output, to see the error
                 for a, b in limbs:
-                    ax.plot([truth[t, a, 0], truth[t, b, 0]], [truth[t, a, 2], truth[t, b, 2]], "-", color="0.8",
-                            lw=1, zorder=0)
+                    ax.plot(
+                        [truth[t, a, 0], truth[t, b, 0]],
+                        [truth[t, a, 2], truth[t, b, 2]],
+                        "-",
+                        color="0.8",
+                        lw=1,
+                        zorder=0,
+                    )
             ax.set_xlim(cx - 1.0, cx + 1.0)
             ax.set_ylim(zmin, zmax)
             ax.set_aspect("equal")

@@ -1,4 +1,5 @@
 """Shared fixtures. The real data lives beside the repository (../shared/data), never inside it."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -12,8 +13,9 @@ BANDAI_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-n
 def bandai_dir() -> Path:
     """The Bandai Namco BVH clips (384 files, cm, y up); tests that need them skip without them."""
     if not BANDAI_DIR.is_dir():
-        pytest.skip(f"Bandai Namco data not found at {BANDAI_DIR} (expected ../shared/data/bandai-namco "
-                    "beside the repository)")
+        pytest.skip(
+            f"Bandai Namco data not found at {BANDAI_DIR} (expected ../shared/data/bandai-namco beside the repository)"
+        )
     return BANDAI_DIR
 
 

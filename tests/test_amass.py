@@ -2,6 +2,7 @@
 
 Checks the reader's positions against smplx's own forward pass and the FK property of the
 clip's rotations, offsets and root translation."""
+
 import pickle
 import sys
 
@@ -17,9 +18,11 @@ from mocapfix.skeleton import PRESETS
 
 SMPL22 = list(PRESETS["smpl22"].parents)
 # smplx picks extra joints from fixed vertex indices of the real mesh: point them at vertex 0.
-VERTEX_IDS = {k: 0 for k in ["nose", "reye", "leye", "rear", "lear", "LBigToe", "LSmallToe", "LHeel", "RBigToe",
-                             "RSmallToe", "RHeel"] + [s + f for s in "lr" for f in
-                                                     ["thumb", "index", "middle", "ring", "pinky"]]}
+VERTEX_IDS = {
+    k: 0
+    for k in ["nose", "reye", "leye", "rear", "lear", "LBigToe", "LSmallToe", "LHeel", "RBigToe", "RSmallToe", "RHeel"]
+    + [s + f for s in "lr" for f in ["thumb", "index", "middle", "ring", "pinky"]]
+}
 
 
 def _parents(num_joints):
@@ -38,13 +41,15 @@ def _model(num_joints, num_betas, hands, V=50, seed=0):
     J_regressor = rng.random((num_joints, V)) * (rng.random((num_joints, V)) < 0.2)
     J_regressor[:, 0] += 1e-3
     weights = rng.random((V, num_joints))
-    m = {"v_template": rng.normal(scale=0.4, size=(V, 3)),
-         "shapedirs": rng.normal(scale=0.03, size=(V, 3, num_betas)),
-         "posedirs": rng.normal(scale=0.01, size=(V, 3, 9 * (num_joints - 1))),
-         "J_regressor": J_regressor / J_regressor.sum(1, keepdims=True),
-         "weights": weights / weights.sum(1, keepdims=True),
-         "kintree_table": np.array([[2 ** 32 - 1] + parents[1:], list(range(num_joints))], dtype=np.int64),
-         "f": rng.integers(0, V, size=(2 * V, 3))}
+    m = {
+        "v_template": rng.normal(scale=0.4, size=(V, 3)),
+        "shapedirs": rng.normal(scale=0.03, size=(V, 3, num_betas)),
+        "posedirs": rng.normal(scale=0.01, size=(V, 3, 9 * (num_joints - 1))),
+        "J_regressor": J_regressor / J_regressor.sum(1, keepdims=True),
+        "weights": weights / weights.sum(1, keepdims=True),
+        "kintree_table": np.array([[2**32 - 1] + parents[1:], list(range(num_joints))], dtype=np.int64),
+        "f": rng.integers(0, V, size=(2 * V, 3)),
+    }
     if hands:
         for s in "lr":
             m[f"hands_components{s}"] = np.eye(45)
@@ -54,8 +59,13 @@ def _model(num_joints, num_betas, hands, V=50, seed=0):
 
 def _amass(path, T, pose_dim, num_betas, gender="male", seed=1):
     rng = np.random.default_rng(seed)
-    data = {"poses": rng.normal(scale=0.5, size=(T, pose_dim)), "trans": rng.normal(size=(T, 3)),
-            "betas": rng.normal(size=num_betas), "gender": np.array(gender), "mocap_framerate": np.array(120.0)}
+    data = {
+        "poses": rng.normal(scale=0.5, size=(T, pose_dim)),
+        "trans": rng.normal(size=(T, 3)),
+        "betas": rng.normal(size=num_betas),
+        "gender": np.array(gender),
+        "mocap_framerate": np.array(120.0),
+    }
     np.savez(path, **data)
     return data
 
@@ -73,8 +83,12 @@ def smplh_folder(tmp_path):
 
 
 def _fk(clip):
-    return fk_axis_angle(torch.from_numpy(clip.rotations).double(), torch.from_numpy(clip.root_translation).double(),
-                         torch.from_numpy(clip.offsets).double(), clip.skeleton.parents).numpy()
+    return fk_axis_angle(
+        torch.from_numpy(clip.rotations).double(),
+        torch.from_numpy(clip.root_translation).double(),
+        torch.from_numpy(clip.offsets).double(),
+        clip.skeleton.parents,
+    ).numpy()
 
 
 def test_smplh_matches_smplx_forward_and_fk(tmp_path, smplh_folder):
@@ -87,12 +101,25 @@ def test_smplh_matches_smplx_forward_and_fk(tmp_path, smplh_folder):
     assert clip.name == "01/01_01_poses" and clip.meta["format"] == "amass" and clip.meta["split"] == "train"
     assert clip.meta["body_model"].endswith("SMPLH_MALE.pkl") and clip.meta["betas_used"] == 10
 
-    model = smplx.SMPLH(str(smplh_folder / "smplh" / "SMPLH_MALE.pkl"), gender="male", use_pca=False,
-                        flat_hand_mean=True, num_betas=10, vertex_ids=VERTEX_IDS, dtype=torch.float64, batch_size=6)
+    model = smplx.SMPLH(
+        str(smplh_folder / "smplh" / "SMPLH_MALE.pkl"),
+        gender="male",
+        use_pca=False,
+        flat_hand_mean=True,
+        num_betas=10,
+        vertex_ids=VERTEX_IDS,
+        dtype=torch.float64,
+        batch_size=6,
+    )
     p = torch.from_numpy(d["poses"])
-    out = model(betas=torch.from_numpy(d["betas"])[None].expand(6, -1), global_orient=p[:, :3],
-                body_pose=p[:, 3:66], left_hand_pose=p[:, 66:111], right_hand_pose=p[:, 111:],
-                transl=torch.from_numpy(d["trans"]))
+    out = model(
+        betas=torch.from_numpy(d["betas"])[None].expand(6, -1),
+        global_orient=p[:, :3],
+        body_pose=p[:, 3:66],
+        left_hand_pose=p[:, 66:111],
+        right_hand_pose=p[:, 111:],
+        transl=torch.from_numpy(d["trans"]),
+    )
     want = out.joints[:, :22].detach().numpy()
     np.testing.assert_allclose(clip.positions, want, atol=1e-5)
     assert np.abs(want[:, 0] - d["trans"]).max() > 1e-3  # the rest pelvis is off the origin: the test can fail
@@ -114,8 +141,7 @@ def test_amass_layout_folder_and_all_16_betas(tmp_path, smplh_folder):
     np.testing.assert_allclose(_fk(clip), clip.positions, atol=1e-5)
     # frame with zero pose: the rest joints, shifted by trans
     z = tmp_path / "rest.npz"
-    np.savez(z, poses=np.zeros((2, 156)), trans=np.ones((2, 3)), betas=d["betas"], gender="female",
-             mocap_framerate=60)
+    np.savez(z, poses=np.zeros((2, 156)), trans=np.ones((2, 3)), betas=d["betas"], gender="female", mocap_framerate=60)
     [rest] = read_amass(z, body_model_path=smplh_folder / "amass")
     np.testing.assert_allclose(rest.positions[1], J_rest[:22] + 1.0, atol=1e-5)
 
@@ -133,8 +159,12 @@ def test_smpl_72_poses(tmp_path):
     [clip] = read_amass(f, body_model_path=tmp_path, gender="neutral")  # the caller overrides the file's gender
     model = smplx.SMPL(str(model_file), num_betas=10, vertex_ids=VERTEX_IDS, dtype=torch.float64, batch_size=4)
     p = torch.from_numpy(d["poses"])
-    out = model(betas=torch.from_numpy(d["betas"])[None].expand(4, -1), global_orient=p[:, :3], body_pose=p[:, 3:],
-                transl=torch.from_numpy(d["trans"]))
+    out = model(
+        betas=torch.from_numpy(d["betas"])[None].expand(4, -1),
+        global_orient=p[:, :3],
+        body_pose=p[:, 3:],
+        transl=torch.from_numpy(d["trans"]),
+    )
     np.testing.assert_allclose(clip.positions, out.joints[:, :22].detach().numpy(), atol=1e-5)
     np.testing.assert_allclose(_fk(clip), clip.positions, atol=1e-5)
     assert clip.meta["model_type"] == "smpl"
@@ -159,12 +189,10 @@ def test_missing_smplx_says_how_to_install(tmp_path, monkeypatch):
 def test_bad_amass_files(tmp_path, smplh_folder):
     pytest.importorskip("smplx")
     f = tmp_path / "x.npz"
-    np.savez(f, poses=np.zeros((3, 60)), trans=np.zeros((3, 3)), betas=np.zeros(10), gender="male",
-             mocap_framerate=60)
+    np.savez(f, poses=np.zeros((3, 60)), trans=np.zeros((3, 3)), betas=np.zeros(10), gender="male", mocap_framerate=60)
     with pytest.raises(MotionFileError, match="at least 22 joints"):
         read_amass(f, body_model_path=smplh_folder)
-    np.savez(f, poses=np.zeros((3, 156)), trans=np.zeros((4, 3)), betas=np.zeros(10), gender="male",
-             mocap_framerate=60)
+    np.savez(f, poses=np.zeros((3, 156)), trans=np.zeros((4, 3)), betas=np.zeros(10), gender="male", mocap_framerate=60)
     with pytest.raises(MotionFileError, match="trans"):
         read_amass(f, body_model_path=smplh_folder)
     bad_model = tmp_path / "SMPLH_MALE.pkl"
@@ -172,8 +200,7 @@ def test_bad_amass_files(tmp_path, smplh_folder):
     m["kintree_table"][0, 5] = 0
     with open(bad_model, "wb") as fh:
         pickle.dump(m, fh)
-    np.savez(f, poses=np.zeros((3, 156)), trans=np.zeros((3, 3)), betas=np.zeros(10), gender="male",
-             mocap_framerate=60)
+    np.savez(f, poses=np.zeros((3, 156)), trans=np.zeros((3, 3)), betas=np.zeros(10), gender="male", mocap_framerate=60)
     with pytest.raises(MotionFileError, match="SMPL body tree"):
         read_amass(f, body_model_path=bad_model)
 
@@ -196,9 +223,12 @@ def test_betas_per_frame_are_one_body_shape(tmp_path, smplh_folder):
     np.testing.assert_allclose(b.positions, a.positions, atol=1e-6)
     assert b.meta["betas_in_file"] == b.meta["betas_used"] == 10
     bad = tmp_path / "bad.npz"
-    for betas, match in ((np.tile(d["betas"], (4, 1)) + np.arange(4)[:, None], "change from frame to frame"),
-                         (np.full(10, np.nan), "not all finite"), (np.array(["abc"] * 10), "must be numbers"),
-                         (np.zeros((2, 2, 10)), "must be")):
+    for betas, match in (
+        (np.tile(d["betas"], (4, 1)) + np.arange(4)[:, None], "change from frame to frame"),
+        (np.full(10, np.nan), "not all finite"),
+        (np.array(["abc"] * 10), "must be numbers"),
+        (np.zeros((2, 2, 10)), "must be"),
+    ):
         np.savez(bad, **dict(d, betas=betas))
         with pytest.raises(MotionFileError, match=match) as e:
             read_amass(bad, body_model_path=smplh_folder / "amass")

@@ -29,11 +29,11 @@ def test_lerp_matches_np_interp_on_random_masks():
     B, T, J = 5, 40, 6
     x = rng.normal(size=(B, T, J, 3))
     observed = rng.random((B, T, J)) < 0.3
-    observed[0, :, 2] = False          # a joint never observed: body mean
+    observed[0, :, 2] = False  # a joint never observed: body mean
     observed[1, :, 0] = False
-    observed[1, 7, 0] = True           # a single observation: held everywhere
-    observed[2] = False                # nothing observed: zeros
-    x[~observed] = np.nan              # values at unobserved tokens must not matter
+    observed[1, 7, 0] = True  # a single observation: held everywhere
+    observed[2] = False  # nothing observed: zeros
+    x[~observed] = np.nan  # values at unobserved tokens must not matter
     out = lerp_infill(torch.from_numpy(x), torch.from_numpy(observed))
     ref = np_lerp(x, observed)
     assert not torch.isnan(out).any()
@@ -56,7 +56,7 @@ def test_lerp_exact_on_linear_motion_and_border_gaps():
     observed[:, :5] = False
     observed[:, -4:] = False
     out = lerp_infill(x, observed)
-    assert torch.equal(out[:, :5], x[:, 5:6].expand(2, 5, 3, 3))   # held first observed value
+    assert torch.equal(out[:, :5], x[:, 5:6].expand(2, 5, 3, 3))  # held first observed value
     assert torch.equal(out[:, -4:], x[:, -5:-4].expand(2, 4, 3, 3))  # held last observed value
 
 

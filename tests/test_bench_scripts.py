@@ -1,5 +1,6 @@
 """The benchmark scripts run end to end (tiny sizes, CPU) and write their JSON: a GPU session is
 too scarce to find out there that a script broke. Nothing here asserts a speed."""
+
 from __future__ import annotations
 
 import json
@@ -21,16 +22,40 @@ REF = REPO.parent / "shared" / "bench" / "ref_xmae.py"
 def bench(script: str, *args, tmp_path: Path) -> dict:
     out = tmp_path / f"{script}.json"
     env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
-    run = subprocess.run([sys.executable, str(REPO / "bench" / f"{script}.py"), *map(str, args), "--json-out", str(out)],
-                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    run = subprocess.run(
+        [sys.executable, str(REPO / "bench" / f"{script}.py"), *map(str, args), "--json-out", str(out)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     return json.loads(out.read_text())
 
 
 def test_train_throughput(tmp_path):
     ref = REF if REF.exists() else "none"
-    r = bench("train_throughput", "--device", "cpu", "--fps", "10", "--batch", "2", "--steps", "1", "--warmup", "1",
-              "--synthetic-clips", "4", "--rows", "device,constant", "--ref", ref, tmp_path=tmp_path)
+    r = bench(
+        "train_throughput",
+        "--device",
+        "cpu",
+        "--fps",
+        "10",
+        "--batch",
+        "2",
+        "--steps",
+        "1",
+        "--warmup",
+        "1",
+        "--synthetic-clips",
+        "4",
+        "--rows",
+        "device,constant",
+        "--ref",
+        ref,
+        tmp_path=tmp_path,
+    )
     rows = {x["row"]: x for x in r["rows"]}
     assert {"device", "constant"} <= set(rows) and rows["device"]["seq_per_s"] > 0
     assert rows["device"]["frames"] == 10 and rows["device"]["joints"] == 22
@@ -39,16 +64,46 @@ def test_train_throughput(tmp_path):
 
 
 def test_profile_train_step(tmp_path):
-    r = bench("profile_train_step", "--device", "cpu", "--fps", "10", "--batch", "2", "--warmup", "1", "--steps", "2",
-              "--synthetic-clips", "4", "--top", "5", tmp_path=tmp_path)
+    r = bench(
+        "profile_train_step",
+        "--device",
+        "cpu",
+        "--fps",
+        "10",
+        "--batch",
+        "2",
+        "--warmup",
+        "1",
+        "--steps",
+        "2",
+        "--synthetic-clips",
+        "4",
+        "--top",
+        "5",
+        tmp_path=tmp_path,
+    )
     assert r["profiled_steps"] == 2 and r["frames"] == 10 and r["wall_ms_per_step"] > 0
     # the operators the profile saw: the model's matmuls are among the slowest
     assert len(r["rows"]) == 5 and any("mm" in x["name"] for x in r["rows"])
 
 
 def test_profile_inference(tmp_path):
-    r = bench("profile_inference", "--device", "cpu", "--fps", "10", "--batch", "2", "--warmup", "1", "--passes", "2",
-              "--top", "5", tmp_path=tmp_path)
+    r = bench(
+        "profile_inference",
+        "--device",
+        "cpu",
+        "--fps",
+        "10",
+        "--batch",
+        "2",
+        "--warmup",
+        "1",
+        "--passes",
+        "2",
+        "--top",
+        "5",
+        tmp_path=tmp_path,
+    )
     assert r["profiled_passes"] == 2 and r["frames"] == 10 and r["wall_ms_per_pass"] > 0
     assert len(r["rows"]) == 5 and any("addmm" in x["name"] or "mm" in x["name"] for x in r["rows"])
 
@@ -58,6 +113,7 @@ def test_profile_summary_of_cuda_kernels():
     from types import SimpleNamespace
 
     from torch.autograd import DeviceType
+
     sys.path.insert(0, str(REPO / "bench"))
     try:
         from profile_train_step import summarise
@@ -65,19 +121,31 @@ def test_profile_summary_of_cuda_kernels():
         sys.path.remove(str(REPO / "bench"))
 
     def kernel(name, us, annotation=False):
-        return SimpleNamespace(name=name, device_type=DeviceType.CUDA, is_user_annotation=annotation,
-                               time_range=SimpleNamespace(elapsed_us=lambda: us))
+        return SimpleNamespace(
+            name=name,
+            device_type=DeviceType.CUDA,
+            is_user_annotation=annotation,
+            time_range=SimpleNamespace(elapsed_us=lambda: us),
+        )
+
     cpu_op = SimpleNamespace(name="aten::mm", device_type=DeviceType.CPU)
     # the GPU-side range of a record_function annotation spans kernels: it is not one
     step_range = kernel("Optimizer.step#Adam.step", 900.0, annotation=True)
-    events = [kernel("sm90_xmma_gemm_bf16bf16_bf16f32", 100.0), kernel("sm90_xmma_gemm_bf16bf16_bf16f32", 100.0),
-              kernel("flash_fwd_kernel", 50.0), kernel("triton_poi_fused_add_mul_0", 30.0),
-              kernel("multi_tensor_apply_kernel", 20.0), cpu_op, step_range]
+    events = [
+        kernel("sm90_xmma_gemm_bf16bf16_bf16f32", 100.0),
+        kernel("sm90_xmma_gemm_bf16bf16_bf16f32", 100.0),
+        kernel("flash_fwd_kernel", 50.0),
+        kernel("triton_poi_fused_add_mul_0", 30.0),
+        kernel("multi_tensor_apply_kernel", 20.0),
+        cpu_op,
+        step_range,
+    ]
     summary, rows = summarise(SimpleNamespace(events=lambda: events), steps=2, wall_s=0.001, gpu=True, top=3)
     assert summary["kernel_ms_per_step"] == pytest.approx(0.15) and summary["busy"] == pytest.approx(0.3)
     assert summary["kernels_per_step"] == 2.5
-    assert summary["kernel_ms_by_kind"] == pytest.approx({"matmul": 0.1, "attention": 0.025,
-                                                          "compiled (triton)": 0.015, "optimiser": 0.01})
+    assert summary["kernel_ms_by_kind"] == pytest.approx(
+        {"matmul": 0.1, "attention": 0.025, "compiled (triton)": 0.015, "optimiser": 0.01}
+    )
     assert [r["kind"] for r in rows] == ["matmul", "attention", "compiled (triton)"]
     assert rows[0]["calls_per_step"] == 1 and rows[0]["share"] == pytest.approx(2 / 3)
 
@@ -88,23 +156,59 @@ def test_dvae_per_frame(tmp_path):
     from mocapfix.data.datamodule import MotionDataModule
     from mocapfix.training.denoise_module import DVAEDenoiseModule
     from mocapfix.training.dvae_module import MotionDVAEModule
-    dm = MotionDataModule(source="synthetic", synthetic_clips=12, with_rotations=True, fps=30, window_s=1.0,
-                          cache_dir=None)
+
+    dm = MotionDataModule(
+        source="synthetic", synthetic_clips=12, with_rotations=True, fps=30, window_s=1.0, cache_dir=None
+    )
     dm.setup("test")  # the skeleton the script's data module will read
     torch.manual_seed(0)  # tiny untrained models: the script's plumbing, not a model's quality
-    prior = MotionDVAEModule(latent_dim=4, lstm_hidden=16, mlp_hidden=16, norm_groups=4,
-                             skeleton=dm.skeleton.to_dict(), window_fps=30.0, window_frames=30)
-    denoiser = DVAEDenoiseModule(prior_hparams={k: v for k, v in prior.hparams.items() if not k.startswith("_")},
-                                 noise="rotation")
+    prior = MotionDVAEModule(
+        latent_dim=4,
+        lstm_hidden=16,
+        mlp_hidden=16,
+        norm_groups=4,
+        skeleton=dm.skeleton.to_dict(),
+        window_fps=30.0,
+        window_frames=30,
+    )
+    denoiser = DVAEDenoiseModule(
+        prior_hparams={k: v for k, v in prior.hparams.items() if not k.startswith("_")}, noise="rotation"
+    )
     for name, module in (("prior", prior), ("denoiser", denoiser)):
-        torch.save({"pytorch-lightning_version": lightning.__version__, "hyper_parameters": dict(module.hparams),
-                    "state_dict": module.state_dict()}, tmp_path / f"{name}.ckpt")
-    r = bench("dvae_per_frame", "--prior", tmp_path / "prior.ckpt", "--denoiser", tmp_path / "denoiser.ckpt",
-              "--source", "synthetic", "--synthetic-clips", "12", "--sigmas", "0", "0.1",
-              "--first-frames", "predicted", "decoded", tmp_path=tmp_path)
+        torch.save(
+            {
+                "pytorch-lightning_version": lightning.__version__,
+                "hyper_parameters": dict(module.hparams),
+                "state_dict": module.state_dict(),
+            },
+            tmp_path / f"{name}.ckpt",
+        )
+    r = bench(
+        "dvae_per_frame",
+        "--prior",
+        tmp_path / "prior.ckpt",
+        "--denoiser",
+        tmp_path / "denoiser.ckpt",
+        "--source",
+        "synthetic",
+        "--synthetic-clips",
+        "12",
+        "--sigmas",
+        "0",
+        "0.1",
+        "--first-frames",
+        "predicted",
+        "decoded",
+        tmp_path=tmp_path,
+    )
     rows = [(x["model"].split()[0], x["sigma"], x.get("first_frame")) for x in r["rows"]]
-    assert rows == [("prior", 0, None), ("denoiser,", 0, "predicted"), ("denoiser,", 0, "decoded"),
-                    ("denoiser,", 0.1, "predicted"), ("denoiser,", 0.1, "decoded")]
+    assert rows == [
+        ("prior", 0, None),
+        ("denoiser,", 0, "predicted"),
+        ("denoiser,", 0, "decoded"),
+        ("denoiser,", 0.1, "predicted"),
+        ("denoiser,", 0.1, "decoded"),
+    ]
     predicted, decoded = r["rows"][3], r["rows"][4]  # the same estimate but for frame 0
     assert predicted["error_mm_per_frame"][1:] == decoded["error_mm_per_frame"][1:]
     assert predicted["error_mm_per_frame"][0] != decoded["error_mm_per_frame"][0]
@@ -125,8 +229,22 @@ def test_inference(tmp_path):
 
 
 def test_attention_backends(tmp_path):
-    r = bench("attention_backends", "--device", "cpu", "--fps", "10", "--batch", "2", "--infer-batch", "2",
-              "--repeat", "1", "--backends", "auto,math", tmp_path=tmp_path)
+    r = bench(
+        "attention_backends",
+        "--device",
+        "cpu",
+        "--fps",
+        "10",
+        "--batch",
+        "2",
+        "--infer-batch",
+        "2",
+        "--repeat",
+        "1",
+        "--backends",
+        "auto,math",
+        tmp_path=tmp_path,
+    )
     calls = {(c["phase"], c["call"]): c for c in r["calls"]}
     # the shapes XMAE runs: 15 % of 220 tokens kept in training, all of them at inference
     assert calls["train", "encoder self"]["Nq"] == 33 and calls["infer", "encoder self"]["Nq"] == 220
@@ -137,14 +255,42 @@ def test_attention_backends(tmp_path):
 
 
 def test_data_pipeline(tmp_path):
-    r = bench("data_pipeline", "--device", "cpu", "--bvh", "none", "--fps", "10", "--batch", "4", "--batches", "2",
-              "--workers", "0", tmp_path=tmp_path)
+    r = bench(
+        "data_pipeline",
+        "--device",
+        "cpu",
+        "--bvh",
+        "none",
+        "--fps",
+        "10",
+        "--batch",
+        "4",
+        "--batches",
+        "2",
+        "--workers",
+        "0",
+        tmp_path=tmp_path,
+    )
     assert [x["row"] for x in r["rows"]] == ["loader", "device"] and all(x["windows_per_s"] > 0 for x in r["rows"])
 
 
 def test_dvae_speed(tmp_path):
-    r = bench("dvae_speed", "--device", "cpu", "--batch", "4", "--steps", "1", "--warmup", "0", "--eval-batch", "2",
-              "--opt-iterations", "1", tmp_path=tmp_path)
+    r = bench(
+        "dvae_speed",
+        "--device",
+        "cpu",
+        "--batch",
+        "4",
+        "--steps",
+        "1",
+        "--warmup",
+        "0",
+        "--eval-batch",
+        "2",
+        "--opt-iterations",
+        "1",
+        tmp_path=tmp_path,
+    )
     assert [x["row"] for x in r["rows"]][:2] == ["prior training", "regression"]
     assert all(x.get("s_per_frame", 1) > 0 for x in r["rows"])
 
@@ -165,8 +311,10 @@ def test_fix_speed(tmp_path):
 def test_fix_bandai(tmp_path, bandai_dir):
     """The issue-5 scoring on Bandai's test split, with an untrained tiny model for Bandai's joints."""
     from mocapfix.data.datamodule import MotionDataModule
-    dm = MotionDataModule(source="bvh", path=str(bandai_dir), drop_joints=["joint_Root"], fps=30,
-                          cache_dir=str(tmp_path / "cache"))
+
+    dm = MotionDataModule(
+        source="bvh", path=str(bandai_dir), drop_joints=["joint_Root"], fps=30, cache_dir=str(tmp_path / "cache")
+    )
     skeleton = dm.load_clips()[0].skeleton
     sizes = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16)
     torch.save(xmae_checkpoint(XMAE(skeleton.num_joints, 30, **sizes), skeleton, 30.0), tmp_path / "m.ckpt")
@@ -190,14 +338,30 @@ def test_fix_policy_bandai(tmp_path, bandai_dir):
     displaced arms stay displaced."""
     from mocapfix.data.datamodule import MotionDataModule
     from mocapfix.evaluation.policy import FillPolicy
-    skeleton = MotionDataModule(source="bvh", path=str(bandai_dir), fps=30, cache_dir=str(tmp_path / "cache")) \
-        .load_clips()[0].skeleton
+
+    skeleton = (
+        MotionDataModule(source="bvh", path=str(bandai_dir), fps=30, cache_dir=str(tmp_path / "cache"))
+        .load_clips()[0]
+        .skeleton
+    )
     sizes = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16)
     ckpt = xmae_checkpoint(XMAE(skeleton.num_joints, 30, **sizes), skeleton, 30.0)
     ckpt["fill_policy"] = FillPolicy([0.5], {"full": {"xmae": [50.0], "spline": [10.0]}}, 1e4).to_dict()
     torch.save(ckpt, tmp_path / "m.ckpt")
-    r = bench("fix_policy_bandai", "--ckpt", tmp_path / "m.ckpt", "--path", bandai_dir, "--device", "cpu",
-              "--max-clips", "4", "--cache-dir", tmp_path / "cache", tmp_path=tmp_path)
+    r = bench(
+        "fix_policy_bandai",
+        "--ckpt",
+        tmp_path / "m.ckpt",
+        "--path",
+        bandai_dir,
+        "--device",
+        "cpu",
+        "--max-clips",
+        "4",
+        "--cache-dir",
+        tmp_path / "cache",
+        tmp_path=tmp_path,
+    )
     rows = {x["case"]: x for x in r["rows"]}
     assert r["clips"] == 4 and rows["clean clips"]["changed_pct"] == 0.0
     assert rows["displaced arm tokens"]["after_mm"] == pytest.approx(rows["displaced arm tokens"]["before_mm"])
@@ -207,8 +371,9 @@ def test_fix_policy_bandai(tmp_path, bandai_dir):
 @pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_inference_cuda_graphs(tmp_path):
-    r = bench("inference", "--device", "cuda", "--fps", "10", "--batch", "8", "--repeat", "2", "--compile",
-              tmp_path=tmp_path)
+    r = bench(
+        "inference", "--device", "cuda", "--fps", "10", "--batch", "8", "--repeat", "2", "--compile", tmp_path=tmp_path
+    )
     assert {x["net"] for x in r["rows"]} == {"eager", "compiled"}
 
 
@@ -218,8 +383,12 @@ def test_shrink_checkpoint_keeps_weights_and_hparams(tmp_path):
         from shrink_checkpoint import main
     finally:
         sys.path.remove(str(REPO / "bench"))
-    full = {"hyper_parameters": {"lr": 1e-4}, "global_step": 7, "optimizer_states": [{"state": {}}],
-            "state_dict": {"w": torch.randn(3, 3), "n": torch.tensor(5)}}
+    full = {
+        "hyper_parameters": {"lr": 1e-4},
+        "global_step": 7,
+        "optimizer_states": [{"state": {}}],
+        "state_dict": {"w": torch.randn(3, 3), "n": torch.tensor(5)},
+    }
     torch.save(full, tmp_path / "full.ckpt")
     for flag, dtype in (([], torch.bfloat16), (["--fp32"], torch.float32)):
         assert main([*flag, str(tmp_path / "full.ckpt"), str(tmp_path / "small.ckpt")]) == 0
@@ -233,11 +402,35 @@ def test_fast_path_accuracy_runs_fit_and_test_per_seed(tmp_path):
     """Plumbing only (the plain path, two seeds of two steps, tiny model): each run's eval.json
     comes back and the table compares paths by case."""
     from cli_utils import SMALL_DATA, TINY
-    r = bench("fast_path_accuracy", "--device", "cpu", "--config", REPO / "configs" / "xmae.yaml", "--paths", "plain",
-              "--seeds", "0,1", "--jobs", "2", "--steps", "2", "--batch", "4", "--data-source", "synthetic",
-              "--data-path", "none",
-              "--workdir", tmp_path / "runs", *TINY, *SMALL_DATA, "--model.init_args.eval_gaps_s", "[0.3]",
-              tmp_path=tmp_path)
+
+    r = bench(
+        "fast_path_accuracy",
+        "--device",
+        "cpu",
+        "--config",
+        REPO / "configs" / "xmae.yaml",
+        "--paths",
+        "plain",
+        "--seeds",
+        "0,1",
+        "--jobs",
+        "2",
+        "--steps",
+        "2",
+        "--batch",
+        "4",
+        "--data-source",
+        "synthetic",
+        "--data-path",
+        "none",
+        "--workdir",
+        tmp_path / "runs",
+        *TINY,
+        *SMALL_DATA,
+        "--model.init_args.eval_gaps_s",
+        "[0.3]",
+        tmp_path=tmp_path,
+    )
     assert [(run["path"], run["seed"]) for run in r["runs"]] == [("plain", 0), ("plain", 1)]
     cases = {row["case"]: row for row in r["table"]}
     assert "infill full 0.3 s" in cases and "noise full 2 cm" in cases
@@ -252,10 +445,18 @@ def test_fast_path_accuracy_compares_against_the_seed_range():
         from fast_path_accuracy import compare
     finally:
         sys.path.remove(str(REPO / "bench"))
+
     def rows(value):
-        return [{"task": "infill", "part": "full", "gap_s": 0.5, "method": m, "mpjpe_mm": value} for m in ("xmae", "lerp")]
-    runs = [{"path": "plain", "rows": rows(20.0)}, {"path": "plain", "rows": rows(22.0)},
-            {"path": "fast", "rows": rows(23.0)}, {"path": "fast", "rows": rows(24.0)}]
+        return [
+            {"task": "infill", "part": "full", "gap_s": 0.5, "method": m, "mpjpe_mm": value} for m in ("xmae", "lerp")
+        ]
+
+    runs = [
+        {"path": "plain", "rows": rows(20.0)},
+        {"path": "plain", "rows": rows(22.0)},
+        {"path": "fast", "rows": rows(23.0)},
+        {"path": "fast", "rows": rows(24.0)},
+    ]
     (row,) = compare(runs, ["plain", "fast"])
     assert row["case"] == "infill full 0.5 s" and row["plain_mean"] == 21.0 and row["fast_mean"] == 23.5
     assert row["difference"] == 2.5 and row["plain_range"] == 2.0 and not row["within_seed_range"]

@@ -3,6 +3,7 @@
 The reference FK below shares nothing with mocapfix: its own token parser, scipy's Euler
 conventions (uppercase = intrinsic, so "ZXY" is Rz @ Rx @ Ry, the BVH rule) and a plain loop.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -41,16 +42,16 @@ def reference_fk(text: str) -> tuple[list[str], np.ndarray]:
             i += 1
         elif t == "OFFSET":
             if stack[-1] is not None:
-                offsets[stack[-1]] = np.array(tok[i + 1:i + 4], dtype=float)
+                offsets[stack[-1]] = np.array(tok[i + 1 : i + 4], dtype=float)
             i += 4
         elif t == "CHANNELS":
             n = int(tok[i + 1])
-            chans[stack[-1]] = tok[i + 2:i + 2 + n]
+            chans[stack[-1]] = tok[i + 2 : i + 2 + n]
             i += 2 + n
         else:
             i += 1
     n_frames = int(tok[i + 2])
-    data = np.array(tok[i + 6:], dtype=float).reshape(n_frames, -1)
+    data = np.array(tok[i + 6 :], dtype=float).reshape(n_frames, -1)
     T, J = n_frames, len(names)
     pos = np.zeros((T, J, 3))
     glob = [None] * J
@@ -76,11 +77,16 @@ def reference_fk(text: str) -> tuple[list[str], np.ndarray]:
 
 
 def fk(clip) -> np.ndarray:
-    return fk_axis_angle(torch.from_numpy(clip.rotations), torch.from_numpy(clip.root_translation),
-                         torch.from_numpy(clip.offsets), clip.skeleton.parents).numpy()
+    return fk_axis_angle(
+        torch.from_numpy(clip.rotations),
+        torch.from_numpy(clip.root_translation),
+        torch.from_numpy(clip.offsets),
+        clip.skeleton.parents,
+    ).numpy()
 
 
 # --- a small file with every channel layout ---
+
 
 def unusual_bvh(T: int = 9, moving_head: bool = False, seed: int = 0) -> str:
     """Root: 6 channels, positions first then Y X Z rotations; Spine: 3 channels; Head: 6 channels,
@@ -191,9 +197,18 @@ def test_write_round_trip_and_template(tmp_path):
     assert (tmp_path / "new" / "folder" / "out.bvh").read_text() == text
 
 
-@pytest.mark.parametrize("text, fps", [("0.0333333", 30.0), ("0.033333333", 30.0), ("0.008333", 120.0),
-                                       ("0.0333667", 29.97), ("0.041708", 23.976), ("3.33333e-02", 30.0),
-                                       ("0.0123456789", 1 / 0.0123456789)])
+@pytest.mark.parametrize(
+    "text, fps",
+    [
+        ("0.0333333", 30.0),
+        ("0.033333333", 30.0),
+        ("0.008333", 120.0),
+        ("0.0333667", 29.97),
+        ("0.041708", 23.976),
+        ("3.33333e-02", 30.0),
+        ("0.0123456789", 1 / 0.0123456789),
+    ],
+)
 def test_frame_rate_is_the_roundest_that_prints_as_the_frame_time(text, fps):
     # 1 / 0.0333333 is 30.00003: the file means 30, and 30 spares every clip a resampling
     assert _frame_rate(text) == pytest.approx(fps, rel=1e-12)
@@ -234,6 +249,7 @@ def test_groups_explicit_and_guessed(tmp_path):
 
 # --- errors: one line, naming the file ---
 
+
 def _error_cases() -> dict[str, tuple[str | None, str]]:
     text = unusual_bvh(T=5)
     hier, motion = text.split("MOTION\n")
@@ -255,8 +271,10 @@ def _error_cases() -> dict[str, tuple[str | None, str]]:
         "no_frames_line": (hier + header.replace("Frames: 5\n", "") + "\n".join(rows), "Frames:"),
         "zero_frame_time": (hier + header.replace("0.04", "0") + "\n".join(rows), "Frame Time"),
         "no_frame_time": (hier + header.replace("Frame Time: 0.04\n", "") + "\n".join(rows), "Frame Time"),
-        "bad_channel": (hier.replace("Xrotation Zrotation Yrotation", "Xrotation Zrotation Wrotation") + header
-                        + "\n".join(rows), "Wrotation"),
+        "bad_channel": (
+            hier.replace("Xrotation Zrotation Yrotation", "Xrotation Zrotation Wrotation") + header + "\n".join(rows),
+            "Wrotation",
+        ),
         "unbalanced": (hier.rstrip().rstrip("}") + header + "\n".join(rows), "HIERARCHY"),
     }
 
@@ -283,6 +301,7 @@ def test_wrong_column_count_names_the_line(tmp_path):
 
 
 # --- the real data ---
+
 
 def test_bandai_reference_fk(bandai_files):
     # 4 clips across both parts of the set, and one whose joint_Root moves
@@ -323,11 +342,12 @@ def test_every_bandai_clip(bandai_files):
         clips.append(clip)
     # one FK call for all frames of all clips (per-frame offsets), checked per clip
     lengths = [c.num_frames for c in clips]
-    pos = fk_axis_angle(torch.from_numpy(np.concatenate([c.rotations for c in clips])),
-                        torch.from_numpy(np.concatenate([c.root_translation for c in clips])),
-                        torch.from_numpy(np.concatenate([np.broadcast_to(c.offsets, c.positions.shape)
-                                                         for c in clips])),
-                        clips[0].skeleton.parents).numpy()
+    pos = fk_axis_angle(
+        torch.from_numpy(np.concatenate([c.rotations for c in clips])),
+        torch.from_numpy(np.concatenate([c.root_translation for c in clips])),
+        torch.from_numpy(np.concatenate([np.broadcast_to(c.offsets, c.positions.shape) for c in clips])),
+        clips[0].skeleton.parents,
+    ).numpy()
     for c, p in zip(clips, np.split(pos, np.cumsum(lengths)[:-1])):
         assert np.abs(p - c.positions).max() < 1e-5, c.name
     hips_heights = np.array(hips_heights)

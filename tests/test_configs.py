@@ -1,4 +1,5 @@
 """Configs: packaged pieces and experiments, found by name, merged in order."""
+
 from __future__ import annotations
 
 import pytest
@@ -21,15 +22,26 @@ def test_the_checkout_configs_are_the_packaged_ones():
     assert {"xmae", "xmae_cpu", "xmae_bvh", "motion_dvae", "motion_dvae_denoise"} <= set(packaged_configs())
 
 
-@pytest.mark.parametrize("name", ["xmae", "xmae_cpu", "xmae_bvh", "xmae_amass", "xmae_h36m", "motion_dvae",
-                                  "motion_dvae_bvh", "motion_dvae_denoise_bvh"])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "xmae",
+        "xmae_cpu",
+        "xmae_bvh",
+        "xmae_amass",
+        "xmae_h36m",
+        "motion_dvae",
+        "motion_dvae_bvh",
+        "motion_dvae_denoise_bvh",
+    ],
+)
 def test_every_experiment_names_its_pieces_and_parses(name, tmp_path, capsys):
     text = yaml.safe_load((CONFIG_DIR / f"{name}.yaml").read_text())
     assert set(text["defaults"]) & {"data/synthetic", "data/bvh", "data/amass", "data/h36m"}
-    assert "class_path" not in text.get("model", {})          # the model piece names the class
+    assert "class_path" not in text.get("model", {})  # the model piece names the class
     cfg = print_config(["--config", name, "--data.path", "/nowhere"], tmp_path, capsys)
     assert cfg["experiment"] == name and cfg["model"]["class_path"].startswith("mocapfix.training.")
-    assert cfg["trainer"]["check_val_every_n_epoch"] is None    # from the trainer piece
+    assert cfg["trainer"]["check_val_every_n_epoch"] is None  # from the trainer piece
 
 
 def test_an_experiment_holds_only_differences_and_they_win(tmp_path, capsys):
@@ -41,8 +53,9 @@ def test_an_experiment_holds_only_differences_and_they_win(tmp_path, capsys):
     # by name, by file in the checkout, and a later --config over an earlier one: the same merge
     by_file = print_config(["--config", CONFIGS / "xmae_cpu.yaml", "--data.path", "/nowhere"], tmp_path, capsys)
     assert by_file == cfg
-    cpu_trainer = print_config(["--config", "xmae_bvh", "--config", "trainer/cpu", "--data.path", "/x"],
-                               tmp_path, capsys)
+    cpu_trainer = print_config(
+        ["--config", "xmae_bvh", "--config", "trainer/cpu", "--data.path", "/x"], tmp_path, capsys
+    )
     assert cpu_trainer["trainer"]["accelerator"] == "cpu" and cpu_trainer["trainer"]["precision"] == "32-true"
 
 
@@ -51,11 +64,17 @@ def test_a_users_own_experiment_builds_on_packaged_and_local_pieces(tmp_path, ca
     (tmp_path / "mine" / "fast.yaml").write_text("trainer:\n  max_steps: 7\n")
     (tmp_path / "mine" / "exp.yaml").write_text(
         "defaults: [data/synthetic, model/xmae, trainer/default, fast]\nexperiment: mine\n"
-        "model:\n  init_args:\n    preset: cpu\n")
+        "model:\n  init_args:\n    preset: cpu\n"
+    )
     args = expand_configs(["--config", str(tmp_path / "mine" / "exp.yaml"), "--trainer.max_steps", "9"])
     configs = [args[i + 1] for i, a in enumerate(args) if a == "--config"]
-    assert [c.split("/")[-1] for c in configs] == ["synthetic.yaml", "xmae.yaml", "default.yaml", "fast.yaml",
-                                                   "exp.yaml"]
+    assert [c.split("/")[-1] for c in configs] == [
+        "synthetic.yaml",
+        "xmae.yaml",
+        "default.yaml",
+        "fast.yaml",
+        "exp.yaml",
+    ]
     assert args[-2:] == ["--trainer.max_steps", "9"]
     cfg = print_config(["--config", tmp_path / "mine" / "exp.yaml"], tmp_path, capsys)
     assert cfg["trainer"]["max_steps"] == 7 and cfg["model"]["init_args"]["preset"] == "cpu"

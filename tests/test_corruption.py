@@ -110,7 +110,7 @@ def test_determinism_and_generator_use():
 
 def test_training_gaps_remove_whole_frames_and_keep_counts():
     x = motion()
-    gaps = training_gaps(4000, T, 0.5, gen(1), x)                                   # (4000, T)
+    gaps = training_gaps(4000, T, 0.5, gen(1), x)  # (4000, T)
     has = gaps.any(dim=1)
     assert abs(has.float().mean().item() - 0.5) < 0.04
     length = gaps.sum(dim=1)[has]
@@ -118,13 +118,13 @@ def test_training_gaps_remove_whole_frames_and_keep_counts():
     # one contiguous stretch per window: a single rising edge
     rises = (gaps[:, 1:] & ~gaps[:, :-1]).sum(dim=1) + gaps[:, 0]
     assert (rises[has] == 1).all()
-    assert gaps[:, 0].any() and gaps[:, -1].any()                                   # anywhere, edges too
+    assert gaps[:, 0].any() and gaps[:, -1].any()  # anywhere, edges too
 
     c = mask_and_displace(x, generator=gen(2), gap_ratio=1.0)
-    gaps = training_gaps(B, T, 1.0, gen(2), x)                                      # the same first draws
-    assert not c.observed[gaps].any()                                               # every joint of a gap frame
+    gaps = training_gaps(B, T, 1.0, gen(2), x)  # the same first draws
+    assert not c.observed[gaps].any()  # every joint of a gap frame
     K = round(0.15 * N)
-    left = (~gaps).sum(dim=1) * J                                                   # tokens outside the gap
+    left = (~gaps).sum(dim=1) * J  # tokens outside the gap
     assert c.observed.sum(dim=(1, 2)).tolist() == torch.clamp(left, max=K).tolist()
     # gap_ratio 0 draws nothing extra: the paper's corruption, token for token
     a, b = mask_and_displace(x, generator=gen(2)), mask_and_displace(x, generator=gen(2), gap_ratio=0.0)
@@ -153,14 +153,15 @@ def test_kept_index():
     # gathering with the index returns the observed tokens in t-major, joint-fastest order
     x = torch.arange(4 * 5 * 3).reshape(4, 5 * 3)
     g = x.gather(1, idx)
-    assert g[0, :counts[0]].tolist() == x[0][observed[0].reshape(-1)].tolist()
+    assert g[0, : counts[0]].tolist() == x[0][observed[0].reshape(-1)].tolist()
     idx0, pad0 = kept_index(torch.zeros(2, 3, 4, dtype=torch.bool))
     assert idx0.shape == (2, 0) and pad0.shape == (2, 0)
 
 
-@pytest.mark.parametrize("T_, fps, gap_s, start, stop", [(50, 50, 0.1, 23, 28), (50, 50, 0.3, 18, 33),
-                                                         (60, 60, 0.9, 3, 57), (30, 30, 0.4, 9, 21),
-                                                         (51, 50, 0.5, 13, 38)])
+@pytest.mark.parametrize(
+    "T_, fps, gap_s, start, stop",
+    [(50, 50, 0.1, 23, 28), (50, 50, 0.3, 18, 33), (60, 60, 0.9, 3, 57), (30, 30, 0.4, 9, 21), (51, 50, 0.5, 13, 38)],
+)
 def test_gap_frames_centred(T_, fps, gap_s, start, stop):
     assert gap_frames(T_, fps, gap_s) == (start, stop)
 
@@ -224,8 +225,12 @@ def test_rotation_noise_matches_fk():
     # independent check of one joint's position from rotation matrices
     R = roma.rotvec_to_rotmat(noisy_rot)
     j = 3  # RFoot: 0 -> 1 -> 2 -> 3
-    p = trans + (R[..., 0, :, :] @ offsets[1]) + (R[..., 0, :, :] @ R[..., 1, :, :] @ offsets[2]) \
+    p = (
+        trans
+        + (R[..., 0, :, :] @ offsets[1])
+        + (R[..., 0, :, :] @ R[..., 1, :, :] @ offsets[2])
         + (R[..., 0, :, :] @ R[..., 1, :, :] @ R[..., 2, :, :] @ offsets[3])
+    )
     assert torch.allclose(noisy_pos[..., j, :], p)
     only_arm, _ = rotation_noise(rot, trans, offsets, sk.parents, 0.1, generator=gen(3), joints=[11, 12])
     changed = (only_arm != rot).any(dim=-1).any(dim=(0, 1))

@@ -1,4 +1,5 @@
 """MotionDataModule: splits by file, windows, cache, resampling, errors."""
+
 from __future__ import annotations
 
 import time
@@ -21,23 +22,36 @@ def _positions_folder(tmp_path, n_files=12, seconds=3.0, fps=60.0):
     for i in range(n_files):
         T = int(seconds * fps)
         pos = np.cumsum(rng.normal(0, 0.01, (T, 17, 3)), axis=0).astype(np.float32) + 1.0
-        pos[T // 2: T // 2 + 5, 3] = np.nan  # a missing joint: data, not an error
+        pos[T // 2 : T // 2 + 5, 3] = np.nan  # a missing joint: data, not an error
         write_positions(tmp_path / f"take_{i:02d}.npz", pos, fps, skel)
     return tmp_path
 
 
 def test_split_by_file_no_leak_and_deterministic(tmp_path):
     folder = _positions_folder(tmp_path)
-    dm = MotionDataModule(source="positions", path=str(folder), fps=30, window_s=1.0, stride_s=0.25,
-                          val_fraction=0.25, test_fraction=0.25, cache_dir=None, batch_size=4)
+    dm = MotionDataModule(
+        source="positions",
+        path=str(folder),
+        fps=30,
+        window_s=1.0,
+        stride_s=0.25,
+        val_fraction=0.25,
+        test_fraction=0.25,
+        cache_dir=None,
+        batch_size=4,
+    )
     dm.setup("fit")
     sources = {s: {c.source for c in dm.clips[s]} for s in ("train", "val", "test")}
     assert sources["train"] and sources["val"] and sources["test"]
-    assert not (sources["train"] & sources["val"]) and not (sources["train"] & sources["test"]) \
+    assert (
+        not (sources["train"] & sources["val"])
+        and not (sources["train"] & sources["test"])
         and not (sources["val"] & sources["test"])
+    )
     # the same files land in the same splits on every run
-    dm2 = MotionDataModule(source="positions", path=str(folder), fps=30, val_fraction=0.25, test_fraction=0.25,
-                           cache_dir=None)
+    dm2 = MotionDataModule(
+        source="positions", path=str(folder), fps=30, val_fraction=0.25, test_fraction=0.25, cache_dir=None
+    )
     dm2.setup("fit")
     assert {s: {c.source for c in dm2.clips[s]} for s in sources} == sources
     batch = next(iter(dm.train_dataloader()))
@@ -53,8 +67,16 @@ def test_patterns_override_hash():
 
 def test_windows_cover_clip_and_keep_nan(tmp_path):
     folder = _positions_folder(tmp_path, n_files=2)
-    dm = MotionDataModule(source="positions", path=str(folder), fps=60, window_s=1.0, stride_s=0.5,
-                          val_fraction=0.0, test_fraction=0.0, cache_dir=None)
+    dm = MotionDataModule(
+        source="positions",
+        path=str(folder),
+        fps=60,
+        window_s=1.0,
+        stride_s=0.5,
+        val_fraction=0.0,
+        test_fraction=0.0,
+        cache_dir=None,
+    )
     dm.setup("fit")
     ds = dm.datasets["train"]
     # 3 s at 60 fps, 1 s windows every 0.5 s -> starts 0, 30, ..., 120: 5 per file
@@ -82,6 +104,7 @@ def test_cache_second_run_skips_parsing(tmp_path, monkeypatch):
     assert calls == [1]
     # and so is a cache written by code whose readers changed since
     import mocapfix.data.windows as windows
+
     monkeypatch.setattr(windows, "CACHE_VERSION", windows.CACHE_VERSION + 1)
     with pytest.raises(MotionFileError):
         MotionDataModule(**kw).load_clips()
@@ -109,8 +132,16 @@ def test_resample_positions_marks_neighbours_of_missing_as_missing():
 
 
 def test_synthetic_rotations_in_batches():
-    dm = MotionDataModule(source="synthetic", synthetic_clips=10, synthetic_seconds=3.0, with_rotations=True,
-                          cache_dir=None, batch_size=3, val_fraction=0.2, test_fraction=0.2)
+    dm = MotionDataModule(
+        source="synthetic",
+        synthetic_clips=10,
+        synthetic_seconds=3.0,
+        with_rotations=True,
+        cache_dir=None,
+        batch_size=3,
+        val_fraction=0.2,
+        test_fraction=0.2,
+    )
     dm.setup("fit")
     b = next(iter(dm.train_dataloader()))
     assert b["rotations"].shape == (3, 30, 22, 3) and b["offsets"].shape == (3, 22, 3)
@@ -145,19 +176,38 @@ def test_archive_source_and_what_is_not_an_archive(tmp_path):
     """source: archive reads the cache's format (how parsed data travels to a machine without the
     raw files); anything else is one MotionFileError naming the file."""
     from mocapfix.data.windows import save_clips
+
     clips = generate_clips(3, 2.0, fps=30, seed=0)
     save_clips(tmp_path / "a.npz", clips)
-    dm = MotionDataModule(source="archive", path=str(tmp_path / "a.npz"), cache_dir=None, fps=30,
-                          val_fraction=0.0, test_fraction=0.0, with_rotations=True)
+    dm = MotionDataModule(
+        source="archive",
+        path=str(tmp_path / "a.npz"),
+        cache_dir=None,
+        fps=30,
+        val_fraction=0.0,
+        test_fraction=0.0,
+        with_rotations=True,
+    )
     dm.setup("fit")
-    direct = MotionDataModule(source="synthetic", synthetic_clips=3, synthetic_seconds=2.0, cache_dir=None, fps=30,
-                              val_fraction=0.0, test_fraction=0.0, with_rotations=True)
+    direct = MotionDataModule(
+        source="synthetic",
+        synthetic_clips=3,
+        synthetic_seconds=2.0,
+        cache_dir=None,
+        fps=30,
+        val_fraction=0.0,
+        test_fraction=0.0,
+        with_rotations=True,
+    )
     direct.setup("fit")
     assert len(dm.datasets["train"]) == len(direct.datasets["train"]) > 0 and dm.has_rotations
     write_positions(tmp_path / "positions.npz", clips[0].positions, 30, clips[0].skeleton)
     (tmp_path / "text.csv").write_text("a,b\n1,2\n")
-    for path, problem in (("missing.npz", "no such archive file"), ("positions.npz", "not an archive of parsed clips"),
-                          ("text.csv", "not an npz file")):
+    for path, problem in (
+        ("missing.npz", "no such archive file"),
+        ("positions.npz", "not an archive of parsed clips"),
+        ("text.csv", "not an npz file"),
+    ):
         dm = MotionDataModule(source="archive", path=str(tmp_path / path), cache_dir=None)
         with pytest.raises(MotionFileError, match=problem) as e:
             dm.setup("fit")

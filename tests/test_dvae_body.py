@@ -1,5 +1,6 @@
 """Body models M_beta: SkeletonFK against the readers' positions, SMPLBody against smplx's own
 forward pass on the tiny synthetic SMPL-H model of test_amass.py."""
+
 from __future__ import annotations
 
 import pickle
@@ -17,8 +18,12 @@ from mocapfix.models.body import SkeletonFK, SMPLBody, build_body_model
 def _fk_positions(clip, body=None) -> np.ndarray:
     body = body or SkeletonFK(clip.skeleton.parents)
     rot = torch.from_numpy(clip.rotations).double()
-    out = body(torch.from_numpy(clip.root_translation).double(), rot[:, 0], rot[:, 1:],
-               body.shape_from_offsets(torch.from_numpy(clip.offsets)))
+    out = body(
+        torch.from_numpy(clip.root_translation).double(),
+        rot[:, 0],
+        rot[:, 1:],
+        body.shape_from_offsets(torch.from_numpy(clip.offsets)),
+    )
     return out.joints.numpy()
 
 
@@ -28,9 +33,9 @@ def test_skeleton_fk_reproduces_synthetic_clips_and_batches():
         assert np.abs(_fk_positions(c) - c.positions).max() < 1e-5
     # batched over (B, T) with per-window offsets (B, 1, J, 3)
     body = SkeletonFK(clips[0].skeleton.parents)
-    rot = torch.stack([torch.from_numpy(c.rotations[:20]) for c in clips])              # (2, 20, 22, 3)
+    rot = torch.stack([torch.from_numpy(c.rotations[:20]) for c in clips])  # (2, 20, 22, 3)
     root = torch.stack([torch.from_numpy(c.root_translation[:20]) for c in clips])
-    off = torch.stack([torch.from_numpy(c.offsets) for c in clips])[:, None]            # (2, 1, 22, 3)
+    off = torch.stack([torch.from_numpy(c.offsets) for c in clips])[:, None]  # (2, 1, 22, 3)
     out = body(root, rot[..., 0, :], rot[..., 1:, :], off)
     assert out.joints.shape == (2, 20, 22, 3) and out.markers is None
     want = np.stack([c.positions[:20] for c in clips])
@@ -50,8 +55,9 @@ def test_skeleton_fk_is_differentiable():
     c = generate_clips(1, 1.0, 30.0, seed=0)[0]
     body = SkeletonFK(c.skeleton.parents)
     rot = torch.from_numpy(c.rotations[:3]).requires_grad_(True)
-    body(torch.from_numpy(c.root_translation[:3]), rot[:, 0], rot[:, 1:], torch.from_numpy(c.offsets)
-         ).joints.sum().backward()
+    body(
+        torch.from_numpy(c.root_translation[:3]), rot[:, 0], rot[:, 1:], torch.from_numpy(c.offsets)
+    ).joints.sum().backward()
     assert torch.isfinite(rot.grad).all() and rot.grad[:, 1:].abs().sum() > 0
 
 
@@ -59,6 +65,7 @@ def test_skeleton_fk_is_differentiable():
 def smplh_file(tmp_path):
     pytest.importorskip("smplx", reason="SMPLBody tests compare with smplx (pip install mocapfix[smpl])")
     from test_amass import _model
+
     (tmp_path / "smplh").mkdir()
     with open(tmp_path / "smplh" / "SMPLH_MALE.pkl", "wb") as f:
         pickle.dump(_model(52, 10, hands=True), f)
@@ -68,6 +75,7 @@ def smplh_file(tmp_path):
 def test_smpl_body_matches_smplx_joints_and_marker_vertices(tmp_path, smplh_file):
     import smplx
     from test_amass import VERTEX_IDS, _amass
+
     f = tmp_path / "take_poses.npz"
     d = _amass(f, T=5, pose_dim=156, num_betas=10)
     d["poses"][:, 66:] = 0.0  # SMPLBody poses the 22 body joints; hands stay at rest
@@ -83,11 +91,25 @@ def test_smpl_body_matches_smplx_joints_and_marker_vertices(tmp_path, smplh_file
     assert out.joints.shape == (5, 22, 3) and out.markers.shape == (5, 5, 3)
     np.testing.assert_allclose(out.joints.numpy(), clip.positions, atol=1e-5)
 
-    model = smplx.SMPLH(str(smplh_file / "smplh" / "SMPLH_MALE.pkl"), gender="male", use_pca=False,
-                        flat_hand_mean=True, num_betas=10, vertex_ids=VERTEX_IDS, dtype=torch.float64, batch_size=5)
+    model = smplx.SMPLH(
+        str(smplh_file / "smplh" / "SMPLH_MALE.pkl"),
+        gender="male",
+        use_pca=False,
+        flat_hand_mean=True,
+        num_betas=10,
+        vertex_ids=VERTEX_IDS,
+        dtype=torch.float64,
+        batch_size=5,
+    )
     p = torch.from_numpy(d["poses"])
-    ref = model(betas=torch.from_numpy(d["betas"])[None].expand(5, -1), global_orient=p[:, :3], body_pose=p[:, 3:66],
-                left_hand_pose=p[:, 66:111], right_hand_pose=p[:, 111:], transl=torch.from_numpy(d["trans"]))
+    ref = model(
+        betas=torch.from_numpy(d["betas"])[None].expand(5, -1),
+        global_orient=p[:, :3],
+        body_pose=p[:, 3:66],
+        left_hand_pose=p[:, 66:111],
+        right_hand_pose=p[:, 111:],
+        transl=torch.from_numpy(d["trans"]),
+    )
     want = ref.vertices[:, markers].detach().numpy()
     np.testing.assert_allclose(out.markers.numpy(), want, atol=1e-5)
     assert out.points().shape == (5, 27, 3)

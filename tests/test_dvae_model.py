@@ -1,6 +1,7 @@
 """Motion-DVAE networks and losses on a tiny model: the ELBO terms against a direct computation
 (step-by-step recurrences, torch.distributions, explicit FK), causality of the generative model,
 the inverse-gamma KL and expectations of the denoising ELBO."""
+
 from __future__ import annotations
 
 import shutil
@@ -22,16 +23,26 @@ T = 6  # frames per window: x_0 and x_1..x_5
 def _batch(B=3, seed=2):
     clips = generate_clips(B, 1.0, 30.0, seed=seed)
     s = slice(4, 4 + T)
-    return {"positions": torch.stack([torch.from_numpy(c.positions[s]) for c in clips]),
-            "rotations": torch.stack([torch.from_numpy(c.rotations[s]) for c in clips]),
-            "root_translation": torch.stack([torch.from_numpy(c.root_translation[s]) for c in clips]),
-            "offsets": torch.stack([torch.from_numpy(c.offsets) for c in clips])}, clips[0].skeleton
+    return {
+        "positions": torch.stack([torch.from_numpy(c.positions[s]) for c in clips]),
+        "rotations": torch.stack([torch.from_numpy(c.rotations[s]) for c in clips]),
+        "root_translation": torch.stack([torch.from_numpy(c.root_translation[s]) for c in clips]),
+        "offsets": torch.stack([torch.from_numpy(c.offsets) for c in clips]),
+    }, clips[0].skeleton
 
 
 def _tiny(skeleton, **kw) -> MotionDVAEModule:
     torch.manual_seed(0)
-    m = MotionDVAEModule(latent_dim=4, lstm_hidden=16, mlp_hidden=16, norm_groups=4, skeleton=skeleton.to_dict(),
-                         window_fps=30.0, window_frames=T, **kw)
+    m = MotionDVAEModule(
+        latent_dim=4,
+        lstm_hidden=16,
+        mlp_hidden=16,
+        norm_groups=4,
+        skeleton=skeleton.to_dict(),
+        window_fps=30.0,
+        window_frames=T,
+        **kw,
+    )
     D = m.codec.dim
     m.net.x_mean.copy_(torch.randn(D) * 0.1)  # non-trivial standardisation, so the test sees it
     m.net.x_std.copy_(torch.rand(D) + 0.5)
@@ -85,7 +96,7 @@ def test_prior_elbo_terms_match_a_direct_computation():
         J = skel.num_joints
 
         def fk(s):  # [r, r_dot, phi, phi_dot, Theta, Theta_dot] -> joints
-            theta = s[..., 12:12 + 3 * (J - 1)].reshape(B, T - 1, J - 1, 3)
+            theta = s[..., 12 : 12 + 3 * (J - 1)].reshape(B, T - 1, J - 1, 3)
             rot = torch.cat([s[..., None, 6:9], theta], -2)
             return fk_axis_angle(rot, s[..., 0:3], batch["offsets"][:, None], skel.parents)
 
@@ -231,8 +242,9 @@ def test_encoder_velocities_option_and_old_checkpoints_read_the_whole_state():
     with torch.no_grad():
         xn = m.net.normalize(m.encode_batch(batch)[0])
         noisy = _velocity_noise(xn, velocity_mask("rotations", skel.num_joints))
-        assert not torch.allclose(m.net(noisy[:, 0], noisy[:, 1:], sample=False).q_mu,
-                                  m.net(xn[:, 0], xn[:, 1:], sample=False).q_mu)
+        assert not torch.allclose(
+            m.net(noisy[:, 0], noisy[:, 1:], sample=False).q_mu, m.net(xn[:, 0], xn[:, 1:], sample=False).q_mu
+        )
     # a state dict saved before enc_keep existed loads as an encoder reading everything
     old = {k: v for k, v in _tiny(skel).net.state_dict().items() if k != "enc_keep"}
     fresh = _tiny(skel).net
@@ -245,9 +257,11 @@ def test_estimate_is_in_the_world_frame_and_starts_at_the_observed_pose():
     clean observation its first frame (x_0 = the observed pose) is the data's, and its error is
     the same as the canonical-frame error of the decoded points."""
     from mocapfix.models.dvae_state import to_canonical
+
     batch, skel = _batch()
     turn = torch.tensor([0.0, 0.0, 1.2])  # a heading and an xy offset the canonical frame takes away
     import roma
+
     R = roma.rotvec_to_rotmat(turn)
     batch["positions"] = batch["positions"] @ R.T + torch.tensor([3.0, -2.0, 0.0])
     batch["root_translation"] = batch["root_translation"] @ R.T + torch.tensor([3.0, -2.0, 0.0])

@@ -1,5 +1,6 @@
 """The Motion-DVAE state: canonical first frame, continuous axis-angle, finite differences, and
 the way back to joint positions."""
+
 from __future__ import annotations
 
 import math
@@ -26,9 +27,9 @@ from mocapfix.models.dvae_state import (
 
 def _windows(B=3, T=30, seed=1):
     clips = generate_clips(B, 2.0, 30.0, seed=seed)
-    rot = torch.stack([torch.from_numpy(c.rotations[5:5 + T]) for c in clips])
-    root = torch.stack([torch.from_numpy(c.root_translation[5:5 + T]) for c in clips])
-    pos = torch.stack([torch.from_numpy(c.positions[5:5 + T]) for c in clips])
+    rot = torch.stack([torch.from_numpy(c.rotations[5 : 5 + T]) for c in clips])
+    root = torch.stack([torch.from_numpy(c.root_translation[5 : 5 + T]) for c in clips])
+    pos = torch.stack([torch.from_numpy(c.positions[5 : 5 + T]) for c in clips])
     off = torch.stack([torch.from_numpy(c.offsets) for c in clips])
     return rot, root, pos, off, clips[0].skeleton
 
@@ -49,10 +50,10 @@ def test_rotation_state_layout_and_canonical_first_frame():
     J = skel.num_joints
     assert x.shape == (3, 30, 6 * (J + 1))  # 138 for SMPL's 22 joints, as the paper's 46 x 3
     r, phi, theta = split_rotation_state(x, J)
-    assert torch.allclose(r[:, 0, :2], torch.zeros(3, 2), atol=1e-6)            # xy translation zeroed
-    assert torch.allclose(r[:, 0, 2], root[:, 0, 2], atol=1e-6)                 # height kept
-    assert heading_of_rotation(phi[:, 0]).abs().max() < 1e-5                    # heading aligned
-    assert torch.allclose(theta, rot[:, :, 1:], atol=1e-6)                      # local rotations untouched
+    assert torch.allclose(r[:, 0, :2], torch.zeros(3, 2), atol=1e-6)  # xy translation zeroed
+    assert torch.allclose(r[:, 0, 2], root[:, 0, 2], atol=1e-6)  # height kept
+    assert heading_of_rotation(phi[:, 0]).abs().max() < 1e-5  # heading aligned
+    assert torch.allclose(theta, rot[:, :, 1:], atol=1e-6)  # local rotations untouched
     # the state gives back the canonicalised positions through the body model
     pts = MotionState("rotations", skel.parents, skel.groups, 30.0, SkeletonFK(skel.parents)).points(x, off).joints
     assert (pts - to_canonical(pos, canon)).abs().max() < 1e-5
@@ -84,8 +85,8 @@ def test_unwrap_keeps_axis_angle_continuous_through_half_a_turn():
 
 def test_unwrap_follows_a_spin_of_several_turns_and_a_pass_through_identity():
     axis = torch.tensor([0.48, -0.6, 0.64])
-    spin = torch.linspace(0.5, 9.0, 40)            # about 1.4 turns, 0.22 rad a frame
-    through_zero = torch.linspace(0.6, -0.6, 13)   # the shortest form's axis flips at the identity
+    spin = torch.linspace(0.5, 9.0, 40)  # about 1.4 turns, 0.22 rad a frame
+    through_zero = torch.linspace(0.6, -0.6, 13)  # the shortest form's axis flips at the identity
     for angle in (spin, through_zero):
         shortest = roma.rotmat_to_rotvec(roma.rotvec_to_rotmat(angle[:, None] * axis))[None]
         assert torch.allclose(unwrap_rotvec(shortest)[0], angle[:, None] * axis, atol=1e-4)
@@ -121,7 +122,7 @@ def test_finite_difference_is_exact_on_lines_and_per_second():
     t = torch.arange(10.0) / 30.0
     x = (2.0 * t - 1.0)[None, :, None].expand(2, 10, 3)
     assert torch.allclose(finite_difference(x, 30.0), torch.full_like(x, 2.0), atol=1e-4)
-    q = (t ** 2)[None, :, None]
+    q = (t**2)[None, :, None]
     v = finite_difference(q, 30.0)[0, 1:-1, 0]
     assert torch.allclose(v, 2 * t[1:-1], atol=1e-4)  # central differences inside
 
@@ -158,8 +159,9 @@ def test_velocity_mask_marks_the_finite_differences():
     vel = velocity_mask("rotations", skel.num_joints)
     assert int(vel.sum()) == 3 + 3 + 3 * (skel.num_joints - 1)
     r, phi, theta = split_rotation_state(x, skel.num_joints)
-    want = torch.cat([finite_difference(r, 30.0), finite_difference(phi, 30.0),
-                      finite_difference(theta.flatten(-2), 30.0)], -1)
+    want = torch.cat(
+        [finite_difference(r, 30.0), finite_difference(phi, 30.0), finite_difference(theta.flatten(-2), 30.0)], -1
+    )
     assert torch.equal(x[..., vel], want)
     p, _ = positions_state(pos, skel.groups, 30.0)
     pv = velocity_mask("positions", skel.num_joints)
@@ -172,11 +174,11 @@ def test_joint_reference_changes_the_state_not_the_body():
     plain, canon = codec.encode(rotations=rot, root_translation=root)
     codec.joint_reference.copy_(roma.random_rotmat(skel.num_joints - 1, generator=torch.Generator().manual_seed(0)))
     x, canon2 = codec.encode(rotations=rot, root_translation=root)
-    assert (x - plain).abs().max() > 0.5                                     # another state...
-    assert (codec.points(x, off).joints - to_canonical(pos, canon2)).abs().max() < 1e-5   # ...the same body
-    got = roma.rotvec_to_rotmat(codec.joint_rotations(x))                   # the skeleton's own rotations back
+    assert (x - plain).abs().max() > 0.5  # another state...
+    assert (codec.points(x, off).joints - to_canonical(pos, canon2)).abs().max() < 1e-5  # ...the same body
+    got = roma.rotvec_to_rotmat(codec.joint_rotations(x))  # the skeleton's own rotations back
     assert (got - roma.rotvec_to_rotmat(rot[:, :, 1:])).abs().max() < 1e-5
-    assert torch.equal(canon.yaw, canon2.yaw)                               # the root is not referenced
+    assert torch.equal(canon.yaw, canon2.yaw)  # the root is not referenced
 
 
 def test_mean_pose_reference_takes_joints_away_from_half_a_turn():
@@ -186,10 +188,10 @@ def test_mean_pose_reference_takes_joints_away_from_half_a_turn():
     N = 500
     axis = torch.nn.functional.normalize(torch.tensor([0.3, 1.0, 0.2]) + 0.05 * torch.randn(N, 3, generator=g), dim=-1)
     angle = math.pi + 0.2 * torch.randn(N, 1, generator=g)
-    rotvec = roma.rotmat_to_rotvec(roma.rotvec_to_rotmat(axis * angle))   # as a reader writes it: |angle| <= pi
-    rotations = torch.stack([torch.zeros(N, 3), rotvec], dim=1)          # (N, J=2, 3): root, one joint
-    assert (rotvec[:, None] - rotvec[None]).norm(dim=-1).max() > 5       # the same pose in two far places
-    ref = mean_joint_rotations(rotations)                                 # (1, 3, 3)
+    rotvec = roma.rotmat_to_rotvec(roma.rotvec_to_rotmat(axis * angle))  # as a reader writes it: |angle| <= pi
+    rotations = torch.stack([torch.zeros(N, 3), rotvec], dim=1)  # (N, J=2, 3): root, one joint
+    assert (rotvec[:, None] - rotvec[None]).norm(dim=-1).max() > 5  # the same pose in two far places
+    ref = mean_joint_rotations(rotations)  # (1, 3, 3)
     rel = roma.rotmat_to_rotvec(ref.transpose(-1, -2) @ roma.rotvec_to_rotmat(rotvec))
     assert rel.norm(dim=-1).max() < 1.0 and rel.norm(dim=-1).median() < 0.3
 

@@ -1,5 +1,6 @@
 """The Motion-DVAE prior through the product path: configs, KL annealing, TensorBoard, checkpoints,
 resume, and the positions state on data without rotations."""
+
 from __future__ import annotations
 
 import json
@@ -14,8 +15,14 @@ from mocapfix.skeleton import PRESETS
 from mocapfix.training.dvae_module import MotionDVAEModule, anneal_steps_of, kl_anneal_weight
 
 # Tiny networks: these tests exercise the loop, not the model size.
-TINY_DVAE = ["--model.init_args.lstm_hidden", "32", "--model.init_args.mlp_hidden", "32",
-             "--model.init_args.latent_dim", "8"]
+TINY_DVAE = [
+    "--model.init_args.lstm_hidden",
+    "32",
+    "--model.init_args.mlp_hidden",
+    "32",
+    "--model.init_args.latent_dim",
+    "8",
+]
 CPU = ["--trainer.accelerator", "cpu", "--trainer.precision", "32-true"]
 
 
@@ -26,18 +33,60 @@ def bandai_subset(bandai_files, dest):
     by_name = {f.name: f for f in bandai_files}
     for n in names:
         shutil.copy(by_name[n], dest / n)
-    return ["--data.path", dest, "--data.cache_dir", "null", "--data.val_patterns", f"[{names[1]}]",
-            "--data.test_patterns", f"[{names[2]}]", "--data.eval_batch_size", "8", "--data.batch_size", "4"]
+    return [
+        "--data.path",
+        dest,
+        "--data.cache_dir",
+        "null",
+        "--data.val_patterns",
+        f"[{names[1]}]",
+        "--data.test_patterns",
+        f"[{names[2]}]",
+        "--data.eval_batch_size",
+        "8",
+        "--data.batch_size",
+        "4",
+    ]
 
 
 def test_fast_dev_run_motion_dvae_yaml(tmp_path):
-    assert run_cli(["fit", "--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU,
-                    "--trainer.fast_dev_run", "1"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "motion_dvae.yaml",
+                *TINY_DVAE,
+                *SMALL_DATA,
+                *QUIET,
+                *CPU,
+                "--trainer.fast_dev_run",
+                "1",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
 
 
 def test_fast_dev_run_motion_dvae_bvh_yaml(tmp_path, bandai_files):
-    assert run_cli(["fit", "--config", CONFIGS / "motion_dvae_bvh.yaml", *TINY_DVAE, *QUIET, *CPU,
-                    *bandai_subset(bandai_files, tmp_path / "bvh"), "--trainer.fast_dev_run", "1"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "motion_dvae_bvh.yaml",
+                *TINY_DVAE,
+                *QUIET,
+                *CPU,
+                *bandai_subset(bandai_files, tmp_path / "bvh"),
+                "--trainer.fast_dev_run",
+                "1",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
 
 
 def test_kl_anneal_schedule():
@@ -49,16 +98,34 @@ def test_kl_anneal_schedule():
 
 def _scalars(run_dir):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
     ea = EventAccumulator(str(run_dir), size_guidance={"images": 0, "scalars": 0})
     ea.Reload()
     return ea
 
 
 def test_kl_weight_follows_the_schedule_across_resume_and_tensorboard_has_every_term(tmp_path):
-    common = ["fit", "--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU,
-              "--experiment", "kl", "--trainer.log_every_n_steps", "1", "--trainer.val_check_interval", "3",
-              "--model.init_args.kl_anneal_steps", "4", "--model.init_args.kl_weight", "0.5",
-              "--checkpoint_every_n_steps", "3"]
+    common = [
+        "fit",
+        "--config",
+        CONFIGS / "motion_dvae.yaml",
+        *TINY_DVAE,
+        *SMALL_DATA,
+        *QUIET,
+        *CPU,
+        "--experiment",
+        "kl",
+        "--trainer.log_every_n_steps",
+        "1",
+        "--trainer.val_check_interval",
+        "3",
+        "--model.init_args.kl_anneal_steps",
+        "4",
+        "--model.init_args.kl_weight",
+        "0.5",
+        "--checkpoint_every_n_steps",
+        "3",
+    ]
     assert run_cli([*common, "--trainer.max_steps", "3"], tmp_path) == 0
     assert run_cli([*common, "--trainer.max_steps", "6", "--ckpt_path", "last"], tmp_path) == 0
     weights = {}
@@ -70,8 +137,19 @@ def test_kl_weight_follows_the_schedule_across_resume_and_tensorboard_has_every_
     for step, w in weights.items():
         assert w == pytest.approx(0.5 * min(1.0, step / 4)), (step, w)
     ea = _scalars(tmp_path / "logs" / "kl" / "version_0")
-    for tag in ("train/loss", "train/rec", "train/kl", "train/reg", "train/kl_weight", "val/loss", "val/mpjpe_mm",
-                "val/rec", "val/kl", "val/reg", "lr-Adamax"):
+    for tag in (
+        "train/loss",
+        "train/rec",
+        "train/kl",
+        "train/reg",
+        "train/kl_weight",
+        "val/loss",
+        "val/mpjpe_mm",
+        "val/rec",
+        "val/kl",
+        "val/reg",
+        "lr-Adamax",
+    ):
         assert tag in ea.Tags()["scalars"], tag
     assert "val/reconstruction_example" in ea.Tags()["images"]
 
@@ -92,14 +170,46 @@ def test_kl_weight_follows_the_schedule_across_resume_and_tensorboard_has_every_
 
 
 def test_positions_state_trains_on_data_without_rotations(tmp_path):
-    assert run_cli(["fit", "--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU,
-                    "--model.init_args.state", "positions", "--data.with_rotations", "false",
-                    "--trainer.fast_dev_run", "1"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "motion_dvae.yaml",
+                *TINY_DVAE,
+                *SMALL_DATA,
+                *QUIET,
+                *CPU,
+                "--model.init_args.state",
+                "positions",
+                "--data.with_rotations",
+                "false",
+                "--trainer.fast_dev_run",
+                "1",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
 
 
 def test_rotation_state_without_rotations_says_what_to_set(tmp_path, capsys):
-    rc = run_cli(["fit", "--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU,
-                  "--data.with_rotations", "false", "--trainer.fast_dev_run", "1"], tmp_path)
+    rc = run_cli(
+        [
+            "fit",
+            "--config",
+            CONFIGS / "motion_dvae.yaml",
+            *TINY_DVAE,
+            *SMALL_DATA,
+            *QUIET,
+            *CPU,
+            "--data.with_rotations",
+            "false",
+            "--trainer.fast_dev_run",
+            "1",
+        ],
+        tmp_path,
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and "with_rotations" in err[-1] and "Traceback" not in "".join(err)
 
@@ -113,8 +223,20 @@ def test_a_bvh_without_rotations_among_others_is_named(tmp_path, bandai_files, c
     i = next(k for k, ln in enumerate(lines) if ln.startswith("Frame Time")) + 5
     lines[i] = " ".join(["inf"] + lines[i].split()[1:])
     bad.write_text("\n".join(lines) + "\n")
-    rc = run_cli(["fit", "--config", CONFIGS / "motion_dvae_bvh.yaml", *TINY_DVAE, *QUIET, *CPU, *args,
-                  "--trainer.fast_dev_run", "1"], tmp_path)
+    rc = run_cli(
+        [
+            "fit",
+            "--config",
+            CONFIGS / "motion_dvae_bvh.yaml",
+            *TINY_DVAE,
+            *QUIET,
+            *CPU,
+            *args,
+            "--trainer.fast_dev_run",
+            "1",
+        ],
+        tmp_path,
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and f"{bad}: no joint rotations (non-finite channel values)" in err[-1]
 
@@ -124,15 +246,36 @@ def test_a_split_without_complete_windows_is_one_line(tmp_path, capsys):
     missing gave no val/loss (a Lightning traceback about the monitored key) and NaN tables."""
     from mocapfix.io.positions import write_positions
     from mocapfix.io.synthetic import generate_clips
+
     (tmp_path / "pos").mkdir()
     for i, c in enumerate(generate_clips(4, 3.0, fps=30, seed=0)):
         positions = c.positions.copy()
         positions[:, 5] = float("nan")  # one joint never seen
         write_positions(tmp_path / "pos" / f"take{i}.npz", positions, c.fps, c.skeleton)
-    rc = run_cli(["fit", "--config", CONFIGS / "motion_dvae.yaml", *TINY_DVAE, *SMALL_DATA, *QUIET, *CPU,
-                  "--model.init_args.state", "positions", "--data.with_rotations", "false",
-                  "--data.source", "positions", "--data.path", tmp_path / "pos", "--data.max_missing_fraction", "0.5",
-                  "--trainer.fast_dev_run", "1"], tmp_path)
+    rc = run_cli(
+        [
+            "fit",
+            "--config",
+            CONFIGS / "motion_dvae.yaml",
+            *TINY_DVAE,
+            *SMALL_DATA,
+            *QUIET,
+            *CPU,
+            "--model.init_args.state",
+            "positions",
+            "--data.with_rotations",
+            "false",
+            "--data.source",
+            "positions",
+            "--data.path",
+            tmp_path / "pos",
+            "--data.max_missing_fraction",
+            "0.5",
+            "--trainer.fast_dev_run",
+            "1",
+        ],
+        tmp_path,
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and "windows is complete" in err[-1] and "Traceback" not in "".join(err)
 
@@ -147,8 +290,15 @@ def test_predict_with_a_prior_says_to_use_the_denoising_stage(tmp_path, capsys):
 
 
 def test_optimizer_is_adamax_or_adam():
-    sizes = dict(latent_dim=4, lstm_hidden=16, mlp_hidden=16, norm_groups=4, skeleton=PRESETS["smpl22"].to_dict(),
-                 window_fps=30.0, window_frames=30)
+    sizes = dict(
+        latent_dim=4,
+        lstm_hidden=16,
+        mlp_hidden=16,
+        norm_groups=4,
+        skeleton=PRESETS["smpl22"].to_dict(),
+        window_fps=30.0,
+        window_frames=30,
+    )
     for name, cls in (("adamax", torch.optim.Adamax), ("adam", torch.optim.Adam)):
         opt = MotionDVAEModule(optimizer=name, lr=3e-4, **sizes).configure_optimizers()["optimizer"]
         assert type(opt) is cls and opt.param_groups[0]["lr"] == 3e-4

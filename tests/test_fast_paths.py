@@ -1,5 +1,6 @@
 """The GPU fast paths (issue 6) keep their meaning on the CPU: device-resident batches, a kept
 count known without reading the data, torch.compile behind a flag (bf16 vs fp32: test_xmae_model.py)."""
+
 from __future__ import annotations
 
 import shutil
@@ -31,8 +32,9 @@ def test_kept_index_with_a_given_count_matches_the_data_count():
 def test_padding_with_no_real_token_is_elementwise_and_safe():
     # a sample with nothing observed attends to one zero slot instead of producing NaN
     torch.manual_seed(0)
-    net = XMAE(4, 5, enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64,
-               head_dim=16).eval()
+    net = XMAE(
+        4, 5, enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16
+    ).eval()
     tokens = torch.randn(2, 20, 3)
     kept = torch.tensor([[0, 3, 7], [0, 0, 0]])
     padding = torch.tensor([[False, False, False], [True, True, True]])
@@ -91,8 +93,21 @@ def test_device_batches_short_dataset_gives_one_short_batch():
 
 
 def test_fit_with_batches_on_device(tmp_path):
-    rc = run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET,
-                  "--data.batches_on_device", "true", "--trainer.fast_dev_run", "2"], tmp_path)
+    rc = run_cli(
+        [
+            "fit",
+            "--config",
+            CONFIGS / "xmae.yaml",
+            *TINY,
+            *SMALL_DATA,
+            *QUIET,
+            "--data.batches_on_device",
+            "true",
+            "--trainer.fast_dev_run",
+            "2",
+        ],
+        tmp_path,
+    )
     assert rc == 0
 
 
@@ -103,8 +118,18 @@ def test_compile_mode_is_checked():
 
 def test_compile_flag_keeps_checkpoint_names():
     skel = generate_clips(1, 1.0, fps=10, seed=0)[0].skeleton.to_dict()
-    kwargs = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16,
-                  skeleton=skel, window_fps=10.0, window_frames=10)
+    kwargs = dict(
+        enc_dim=32,
+        enc_depth=1,
+        enc_mlp_dim=64,
+        dec_dim=32,
+        dec_depth=1,
+        dec_mlp_dim=64,
+        head_dim=16,
+        skeleton=skel,
+        window_fps=10.0,
+        window_frames=10,
+    )
     eager, compiled = XMAEModule(**kwargs), XMAEModule(compile_model=True, **kwargs)
     assert list(eager.state_dict()) == list(compiled.state_dict())
     compiled.load_state_dict(eager.state_dict())  # a checkpoint of either loads into the other
@@ -116,8 +141,19 @@ def test_compiled_training_step_matches_eager(mode):
     """torch.compile (inductor on the CPU: needs a C compiler) gives the eager loss and gradients;
     "reduce-overhead" (CUDA graphs on a GPU) leaves the CPU path working."""
     skel = generate_clips(1, 1.0, fps=10, seed=0)[0].skeleton.to_dict()
-    kwargs = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16,
-                  skeleton=skel, window_fps=10.0, window_frames=10, rotate_augment=False)
+    kwargs = dict(
+        enc_dim=32,
+        enc_depth=1,
+        enc_mlp_dim=64,
+        dec_dim=32,
+        dec_depth=1,
+        dec_mlp_dim=64,
+        head_dim=16,
+        skeleton=skel,
+        window_fps=10.0,
+        window_frames=10,
+        rotate_augment=False,
+    )
     eager, compiled = XMAEModule(**kwargs), XMAEModule(compile_model=True, compile_mode=mode, **kwargs)
     compiled.load_state_dict(eager.state_dict())
     x = torch.from_numpy(generate_clips(4, 1.0, fps=10, seed=1)[0].positions[:10])[None].repeat(4, 1, 1, 1)
@@ -140,8 +176,19 @@ def test_cuda_graph_training_steps_match_eager():
     graphs give the eager loss and gradients, step after step (each step's graph outputs reuse
     the last step's memory: a stale reference would show here)."""
     skel = generate_clips(1, 1.0, fps=10, seed=0)[0].skeleton.to_dict()
-    kwargs = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16,
-                  skeleton=skel, window_fps=10.0, window_frames=10, rotate_augment=False)
+    kwargs = dict(
+        enc_dim=32,
+        enc_depth=1,
+        enc_mlp_dim=64,
+        dec_dim=32,
+        dec_depth=1,
+        dec_mlp_dim=64,
+        head_dim=16,
+        skeleton=skel,
+        window_fps=10.0,
+        window_frames=10,
+        rotate_augment=False,
+    )
     eager = XMAEModule(**kwargs).cuda()
     graphed = XMAEModule(compile_model=True, compile_mode="reduce-overhead", **kwargs).cuda()
     graphed.load_state_dict(eager.state_dict())
@@ -169,10 +216,30 @@ def test_cuda_graph_training_steps_match_eager():
 def test_cuda_graph_fit_validates_and_resumes(tmp_path):
     """The whole loop with compile_mode reduce-overhead: bf16, data on the device, validation (a
     second graph, other shapes, its figure kept past the next batch) and a resume from last.ckpt."""
-    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "graphs",
-              "--trainer.accelerator", "gpu", "--trainer.precision", "bf16-mixed", "--data.batches_on_device", "true",
-              "--model.init_args.compile_model", "true", "--model.init_args.compile_mode", "reduce-overhead",
-              "--trainer.val_check_interval", "2", "--checkpoint_every_n_steps", "2"]
+    common = [
+        "fit",
+        "--config",
+        CONFIGS / "xmae.yaml",
+        *TINY,
+        *SMALL_DATA,
+        *QUIET,
+        "--experiment",
+        "graphs",
+        "--trainer.accelerator",
+        "gpu",
+        "--trainer.precision",
+        "bf16-mixed",
+        "--data.batches_on_device",
+        "true",
+        "--model.init_args.compile_model",
+        "true",
+        "--model.init_args.compile_mode",
+        "reduce-overhead",
+        "--trainer.val_check_interval",
+        "2",
+        "--checkpoint_every_n_steps",
+        "2",
+    ]
     assert run_cli([*common, "--trainer.max_steps", "4"], tmp_path) == 0
     assert run_cli([*common, "--trainer.max_steps", "6", "--ckpt_path", "last"], tmp_path) == 0
     ckpt = torch.load(tmp_path / "checkpoints" / "graphs" / "last.ckpt", map_location="cpu", weights_only=True)

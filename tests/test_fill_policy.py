@@ -1,5 +1,6 @@
 """Never worse than the classical fills (issue 18): spline baselines, the fill policy calibrated on
 the val split, its use by test and fix, and denoising that leaves clean tokens alone."""
+
 from __future__ import annotations
 
 import json
@@ -26,17 +27,17 @@ DATA = [*SMALL_DATA, "--data.synthetic_clips", "32", "--data.synthetic_seconds",
 def test_spline_reproduces_a_cubic_where_lerp_cannot():
     T = 30
     t = torch.arange(T, dtype=torch.float64)
-    path = torch.stack([1e-3 * (t - 10) ** 3, 0.02 * t ** 2, 0.5 * t], dim=-1)      # (T, 3) a cubic in time
-    pos = path[None, :, None].repeat(2, 1, 2, 1)                                    # (2, T, 2, 3)
+    path = torch.stack([1e-3 * (t - 10) ** 3, 0.02 * t**2, 0.5 * t], dim=-1)  # (T, 3) a cubic in time
+    pos = path[None, :, None].repeat(2, 1, 2, 1)  # (2, T, 2, 3)
     obs = torch.ones(2, T, 2, dtype=torch.bool)
-    obs[:, 8:20, 0] = False                                                          # a 12-frame hole
-    obs[1, :4, 1] = False                                                            # a hole at the border
+    obs[:, 8:20, 0] = False  # a 12-frame hole
+    obs[1, :4, 1] = False  # a hole at the border
     out = spline_infill(pos, obs)
     hole = ~obs[:, :, 0]
-    assert torch.allclose(out[:, :, 0][hole], pos[:, :, 0][hole], atol=1e-9)       # not-a-knot: exact on cubics
+    assert torch.allclose(out[:, :, 0][hole], pos[:, :, 0][hole], atol=1e-9)  # not-a-knot: exact on cubics
     assert (lerp_infill(pos, obs)[:, :, 0][hole] - pos[:, :, 0][hole]).abs().max() > 0.1
-    assert torch.equal(out[obs], pos[obs])                                           # observed: as given
-    assert torch.equal(out[1, :4, 1], pos[1, 4:5, 1].expand(4, 3))                  # border: the edge value held
+    assert torch.equal(out[obs], pos[obs])  # observed: as given
+    assert torch.equal(out[1, :4, 1], pos[1, 4:5, 1].expand(4, 3))  # border: the edge value held
     pchip = spline_infill(pos, obs, "pchip")
     assert torch.equal(pchip[obs], pos[obs]) and torch.isfinite(pchip).all()
 
@@ -49,14 +50,16 @@ def test_limb_fill_keeps_bone_lengths_and_follows_the_parent():
     angle = 0.12 * t
     upper = 0.3 * torch.stack([torch.cos(angle), torch.zeros(T), -torch.sin(angle)], dim=-1)
     fore = 0.25 * torch.stack([torch.cos(2 * angle), torch.zeros(T), -torch.sin(2 * angle)], dim=-1)
-    pos = torch.stack([shoulder - torch.tensor([0.0, 0.0, 0.4]), shoulder, shoulder + upper,
-                       shoulder + upper + fore], dim=1)[None]                        # (1, T, 4, 3)
+    pos = torch.stack(
+        [shoulder - torch.tensor([0.0, 0.0, 0.4]), shoulder, shoulder + upper, shoulder + upper + fore], dim=1
+    )[None]  # (1, T, 4, 3)
     obs = torch.ones(1, T, 4, dtype=torch.bool)
-    obs[0, 8:22, 2:] = False                                                         # elbow and hand, 14 frames
+    obs[0, 8:22, 2:] = False  # elbow and hand, 14 frames
     from mocapfix.evaluation.baselines import limb_infill
+
     out = limb_infill(pos, obs, [-1, 0, 1, 2])
     assert torch.equal(out[obs], pos[obs])
-    bones = (out[0, :, 1:] - out[0, :, :-1]).norm(dim=-1)                          # (T, 3)
+    bones = (out[0, :, 1:] - out[0, :, :-1]).norm(dim=-1)  # (T, 3)
     assert torch.allclose(bones[:, 1:], torch.tensor([0.3, 0.25], dtype=torch.float64).expand(T, 2), atol=1e-9)
     hole = ~obs
     err = lambda x: (x - pos).norm(dim=-1)[hole].mean()  # noqa: E731
@@ -65,24 +68,30 @@ def test_limb_fill_keeps_bone_lengths_and_follows_the_parent():
 
 def test_hole_lengths_and_parts():
     obs = torch.ones(1, 10, 22, dtype=torch.bool)
-    obs[0, 2:5, 20] = False                   # left wrist: 3 frames
-    obs[0, 6:9] = False                       # everything: 3 frames, body-wide
+    obs[0, 2:5, 20] = False  # left wrist: 3 frames
+    obs[0, 6:9] = False  # everything: 3 frames, body-wide
     obs[0, 6:9, 0] = True
     holes = hole_frames(obs)
     assert holes[0, 3, 20] == 3 and holes[0, 7, 5] == 3 and holes[0, 0, 20] == 0
     parts = token_parts(obs, SMPL)
-    assert parts[0, 3, 20] == 1                # an arm joint in an arm-only hole: the arm table
-    assert parts[0, 7, 20] == 0                # the same joint in a body-wide hole: the full table
+    assert parts[0, 3, 20] == 1  # an arm joint in an arm-only hole: the arm table
+    assert parts[0, 7, 20] == 0  # the same joint in a body-wide hole: the full table
 
 
 def test_apply_fill_policy_takes_the_best_method_per_hole_length():
-    policy = FillPolicy([0.1, 0.5], {"full": {"xmae": [9.0, 20.0], "spline": [2.0, 30.0]},
-                                     "arm": {"xmae": [9.0, 20.0], "spline": [2.0, 30.0]},
-                                     "leg": {"xmae": [9.0, 20.0], "spline": [2.0, 30.0]}}, None)
+    policy = FillPolicy(
+        [0.1, 0.5],
+        {
+            "full": {"xmae": [9.0, 20.0], "spline": [2.0, 30.0]},
+            "arm": {"xmae": [9.0, 20.0], "spline": [2.0, 30.0]},
+            "leg": {"xmae": [9.0, 20.0], "spline": [2.0, 30.0]},
+        },
+        None,
+    )
     assert policy.best("full", 0.1) == "spline" and policy.best("arm", 0.6) == "xmae"
     obs = torch.ones(1, 30, 22, dtype=torch.bool)
-    obs[0, 2:5, 20] = False                    # 0.1 s at 30 fps
-    obs[0, 10:25, 21] = False                  # 0.5 s
+    obs[0, 2:5, 20] = False  # 0.1 s at 30 fps
+    obs[0, 10:25, 21] = False  # 0.5 s
     pos = torch.zeros(1, 30, 22, 3)
     fills = {"xmae": torch.full_like(pos, 1.0), "spline": torch.full_like(pos, 2.0)}
     out, chosen = apply_fill_policy(policy, pos, obs, fills, 30.0, SMPL)
@@ -96,6 +105,7 @@ def test_a_blend_of_two_fills_is_measured_and_taken_where_it_is_best():
     """Two fills that err in opposite directions: their mean is exact, and the policy takes it;
     a blend with the model counts as the model (it needs MODEL_MARGIN over every classical one)."""
     from mocapfix.evaluation.policy import Calibration, blends
+
     truth = torch.zeros(2, 30, 22, 3)
     obs = torch.ones(2, 30, 22, dtype=torch.bool)
     obs[:, 10:25, 21] = False
@@ -108,7 +118,7 @@ def test_a_blend_of_two_fills_is_measured_and_taken_where_it_is_best():
     assert policy.error_mm["arm"]["limb+spline"][0] == pytest.approx(0.0, abs=1e-4)
     assert policy.best("arm", 0.5) == "limb+spline" and policy.methods() == ["limb", "spline", "xmae"]
     out, chosen = apply_fill_policy(policy, truth, obs, fills, 30.0, SMPL)
-    assert out[~obs].abs().max() < 1e-6 and (chosen[~obs] == 3).all()      # the blend, after the 3 singles
+    assert out[~obs].abs().max() < 1e-6 and (chosen[~obs] == 3).all()  # the blend, after the 3 singles
     # the model's blend is 5 mm at best against the classical blend's 0: never taken
     assert "xmae" not in policy.best("leg", 0.5)
     # a blend no better than its best single fill: the single one (in doubt, the simpler)
@@ -132,9 +142,28 @@ def test_suspects_are_the_tokens_the_model_disagrees_with_beyond_the_threshold()
 def trained(tmp_path_factory):
     """A tiny XMAE trained briefly on the synthetic data, with its fill policy from validation."""
     work = tmp_path_factory.mktemp("policy")
-    assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *DATA, *QUIET, "--experiment", "p",
-                    "--trainer.max_steps", "30", "--trainer.val_check_interval", "30",
-                    "--model.init_args.lr", "1e-3"], work) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "xmae.yaml",
+                *TINY,
+                *DATA,
+                *QUIET,
+                "--experiment",
+                "p",
+                "--trainer.max_steps",
+                "30",
+                "--trainer.val_check_interval",
+                "30",
+                "--model.init_args.lr",
+                "1e-3",
+            ],
+            work,
+        )
+        == 0
+    )
     return work, work / "checkpoints" / "p" / "last.ckpt"
 
 
@@ -145,8 +174,12 @@ def test_fit_saves_the_policy_and_test_reports_it_never_worse_than_the_classical
     assert policy.gaps_s == [0.1, 0.3, 0.5, 0.7, 0.9] and set(policy.error_mm) == {"full", "arm", "leg"}
     assert set(policy.methods()) == {"xmae", "lerp", "spline", "pchip", "limb"} and policy.replace_threshold_m > 0
     capsys.readouterr()
-    assert run_cli(["test", "--config", CONFIGS / "xmae.yaml", *DATA, *QUIET, "--experiment", "p",
-                    "--ckpt_path", ckpt], work) == 0
+    assert (
+        run_cli(
+            ["test", "--config", CONFIGS / "xmae.yaml", *DATA, *QUIET, "--experiment", "p", "--ckpt_path", ckpt], work
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "fill policy (val split):" in out
     rows = json.loads(next(work.glob("logs/p/version_*/eval.json")).read_text())
@@ -166,8 +199,13 @@ def test_validate_writes_the_policy_into_a_checkpoint_without_one(trained, capsy
     bare = work / "bare.ckpt"
     torch.save(old, bare)
     capsys.readouterr()
-    assert run_cli(["validate", "--config", CONFIGS / "xmae.yaml", *DATA, *QUIET, "--experiment", "p",
-                    "--ckpt_path", bare], work) == 0
+    assert (
+        run_cli(
+            ["validate", "--config", CONFIGS / "xmae.yaml", *DATA, *QUIET, "--experiment", "p", "--ckpt_path", bare],
+            work,
+        )
+        == 0
+    )
     assert f"fill policy (val split) written into {bare}" in capsys.readouterr().out
     assert "fill_policy" in torch.load(bare, map_location="cpu", weights_only=True)
     assert load_fixer(bare).policy is not None
@@ -176,6 +214,7 @@ def test_validate_writes_the_policy_into_a_checkpoint_without_one(trained, capsy
 class OracleFixer:
     """A fixer that knows the clean motion: it finds each window in the clean clip by its root
     joint (never displaced here) and answers the truth. What fix does with a perfect model."""
+
     kind, state = "xmae", "positions"
 
     def __init__(self, clean: np.ndarray, policy: FillPolicy):
@@ -188,9 +227,9 @@ class OracleFixer:
         for window in positions.numpy():
             root = window[:, 0]
             seen = np.isfinite(root).all(-1)
-            errs = [np.abs(padded[s:s + self.window, 0][seen] - root[seen]).sum() for s in range(len(self.clean))]
+            errs = [np.abs(padded[s : s + self.window, 0][seen] - root[seen]).sum() for s in range(len(self.clean))]
             s = int(np.argmin(errs))
-            out.append(padded[s:s + self.window])
+            out.append(padded[s : s + self.window])
         return torch.from_numpy(np.stack(out)).float()
 
 

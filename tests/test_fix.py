@@ -1,5 +1,6 @@
 """`mocapfix fix`: formats and layouts, modes, windows and blending, fps, errors, atomic writes, and a
 small XMAE trained in the test against Lerp."""
+
 from __future__ import annotations
 
 import json
@@ -64,6 +65,7 @@ def _npz(path):
 class FnFixer:
     """A Fixer whose estimate is fn(positions, observed): for properties that must hold whatever
     the model says."""
+
     kind = "test"
 
     def __init__(self, fn, skeleton=SMPL, fps=30.0, window=30):
@@ -81,9 +83,10 @@ def lerp_fixer(**kw):
 
 # --- the product path: formats, layouts, modes ---
 
+
 def test_infill_keeps_observed_bit_identical_fills_the_rest_and_reports(tmp_path, ckpt, motion, capsys):
     pos = motion[0].copy()
-    pos[40:55] = np.nan                      # full skeleton, 0.5 s
+    pos[40:55] = np.nan  # full skeleton, 0.5 s
     pos[70:80, SMPL.groups["left_arm"]] = np.nan
     write_positions(tmp_path / "take.npz", pos, 30, SMPL)
     rc, out, err = fix([tmp_path / "take.npz", "--ckpt", ckpt], capsys)
@@ -108,8 +111,15 @@ def test_observed_tokens_bit_identical_in_centimetres_y_up(tmp_path, ckpt, motio
     # a unit conversion there and back is not exact in float32: fix must copy the file's own numbers
     raw = (motion[0][..., [0, 2, 1]] * np.array([1, 1, -1]) * 100).astype(np.float32)  # z up -> y up, cm
     raw[30:45, 3:9] = np.nan
-    np.savez(tmp_path / "cm.npz", positions=raw, fps=30.0, joint_names=np.array(SMPL.joint_names),
-             parents=np.array(SMPL.parents), unit="cm", up_axis="y")
+    np.savez(
+        tmp_path / "cm.npz",
+        positions=raw,
+        fps=30.0,
+        joint_names=np.array(SMPL.joint_names),
+        parents=np.array(SMPL.parents),
+        unit="cm",
+        up_axis="y",
+    )
     rc, _, err = fix([tmp_path / "cm.npz", "--ckpt", ckpt, "--out-dir", tmp_path / "out"], capsys)
     assert rc == 0, err
     res = _npz(tmp_path / "out" / "cm.npz")
@@ -147,8 +157,9 @@ def test_multi_person_npz_and_csv_keep_their_layout(tmp_path, ckpt, motion, caps
     pos[1, 20:40, 10:] = np.nan
     write_positions(tmp_path / "two.npz", pos, 30, SMPL)
     write_positions(tmp_path / "two.csv", pos, 30, SMPL, person_ids=["alice", "bob"], first_frame=100)
-    rc, out, err = fix([tmp_path / "two.npz", tmp_path / "two.csv", "--ckpt", ckpt, "--out-dir", tmp_path / "o"],
-                       capsys)
+    rc, out, err = fix(
+        [tmp_path / "two.npz", tmp_path / "two.csv", "--ckpt", ckpt, "--out-dir", tmp_path / "o"], capsys
+    )
     assert rc == 0, err
     assert out.count("2 people") == 2
     res = _npz(tmp_path / "o" / "two.npz")
@@ -157,7 +168,7 @@ def test_multi_person_npz_and_csv_keep_their_layout(tmp_path, ckpt, motion, caps
     lines = (tmp_path / "o" / "two.csv").read_text().splitlines()
     header = next(line for line in lines if not line.startswith("#"))
     assert header.startswith("person,frame,time,pelvis_x")
-    rows = [line.split(",") for line in lines[lines.index(header) + 1:]]
+    rows = [line.split(",") for line in lines[lines.index(header) + 1 :]]
     assert {r[0] for r in rows} == {"alice", "bob"} and len(rows) == 240
     assert rows[0][1] == "100" and all(cell != "" for r in rows for cell in r)
     back = read_motion(tmp_path / "o" / "two.csv")
@@ -190,13 +201,13 @@ def test_infill_runs_only_windows_near_missing_tokens(motion):
 
 def test_windows_centre_short_gaps_and_grid_long_ones():
     need = np.zeros(200, dtype=bool)
-    need[50:54] = True                                   # short: one window, the gap in its middle
+    need[50:54] = True  # short: one window, the gap in its middle
     starts, stride = windows_for(need, 30, 0.5)
     assert starts.tolist() == [37] and stride == 15
-    need[3:5] = True                                     # near the clip start: clamped to 0
+    need[3:5] = True  # near the clip start: clamped to 0
     assert windows_for(need, 30, 0.5)[0].tolist() == [0, 37]
     need[:] = False
-    need[100:160] = True                                 # long: the grid, a quarter window of context
+    need[100:160] = True  # long: the grid, a quarter window of context
     starts = windows_for(need, 30, 0.5)[0]
     assert starts[0] == 93 and starts[-1] + 30 == 167 and (np.diff(starts) <= 15).all()
     assert windows_for(np.ones(200, dtype=bool), 30, 0.5)[0].tolist() == window_layout(200, 30, 0.5)[0].tolist()
@@ -223,8 +234,8 @@ def test_fps_conversion_is_exact_on_linear_motion():
     pos = (SMPL_REST[None] + t[:, None, None] * np.array([0.8, -0.3, 0.1])).astype(np.float32)
     # Lerp stands in for the model: exact on linear motion as long as no window has a gap at its
     # edge (it holds the edge value there), so the gaps avoid model frames 0 and 14 (mod 15).
-    pos[20:27, 3] = np.nan                 # input frames 20-26 = model frames 10-13, and the odd ones between
-    pos[61] = np.nan                       # a whole frame at an instant the model's grid skips
+    pos[20:27, 3] = np.nan  # input frames 20-26 = model frames 10-13, and the odd ones between
+    pos[61] = np.nan  # a whole frame at an instant the model's grid skips
     truth = (SMPL_REST[None] + t[:, None, None] * np.array([0.8, -0.3, 0.1])).astype(np.float32)
     clip = Clip(pos, 60.0, SMPL, name="c", source="c")
     for mode in ("infill", "both"):
@@ -243,7 +254,7 @@ def test_fps_conversion_is_exact_on_linear_motion():
 
 def test_resample_frames_and_model_frames():
     x = np.arange(10, dtype=np.float64)[:, None]
-    assert model_frames(10, 60.0, 30.0) == 6   # frames 0, 2, ..., 10 (the last past the end)
+    assert model_frames(10, 60.0, 30.0) == 6  # frames 0, 2, ..., 10 (the last past the end)
     y = resample_frames(x, 60.0, 30.0, 6)
     assert y[:5, 0].tolist() == [0, 2, 4, 6, 8] and np.isnan(y[5, 0])
     z = resample_frames(y[:5], 30.0, 60.0, 9)
@@ -278,7 +289,7 @@ def test_blending_is_seamless():
         return float(np.mean(ratios))
 
     assert border_ratio(0.5) <= 1.05  # the default overlap
-    assert border_ratio(0.0) > 1.5    # the measure does see seams
+    assert border_ratio(0.0) > 1.5  # the measure does see seams
 
 
 def test_blend_weights_partition_unity():
@@ -287,8 +298,8 @@ def test_blend_weights_partition_unity():
         assert w.min() > 0 and w.max() <= 1
         total = np.zeros(W * 4)
         for s in range(0, W * 3, S):
-            total[s:s + W] += w
-        assert np.allclose(total[W:2 * W], 1.0)
+            total[s : s + W] += w
+        assert np.allclose(total[W : 2 * W], 1.0)
 
 
 def test_pass_through_joints_unchanged(tmp_path, ckpt, motion, capsys):
@@ -296,9 +307,9 @@ def test_pass_through_joints_unchanged(tmp_path, ckpt, motion, capsys):
     names = ("prop",) + SMPL.joint_names[::-1]
     order = list(range(22))[::-1]
     pos = np.concatenate([np.full((120, 1, 3), 0.5, dtype=np.float32), motion[0][:, order]], axis=1)
-    pos[10:20, 0] = np.nan                       # a gap in the unknown joint stays a gap
-    pos[50:60, 5] = np.nan                       # a gap in a model joint is filled
-    parents = [-1] + [0] * 22                    # any tree: only names matter to the model
+    pos[10:20, 0] = np.nan  # a gap in the unknown joint stays a gap
+    pos[50:60, 5] = np.nan  # a gap in a model joint is filled
+    parents = [-1] + [0] * 22  # any tree: only names matter to the model
     write_positions(tmp_path / "x.npz", pos, 30, Skeleton(names, parents))
     rc, _, err = fix([tmp_path / "x.npz", "--ckpt", ckpt, "--mode", "both"], capsys)
     assert rc == 0, err
@@ -317,9 +328,9 @@ def test_map_joints_case_and_missing():
 
 
 def test_nothing_observed_in_a_window_falls_back_to_lerp_and_says_so(ckpt, motion):
-    pos = np.concatenate([motion[0], motion[1]])            # 240 frames
-    pos[60:180] = np.nan                                     # a 4 s hole: windows with nothing in them
-    pos[:, 20] = np.nan                                      # a joint never seen at all
+    pos = np.concatenate([motion[0], motion[1]])  # 240 frames
+    pos[60:180] = np.nan  # a 4 s hole: windows with nothing in them
+    pos[:, 20] = np.nan  # a joint never seen at all
     clip = Clip(pos, 30.0, SMPL, name="h", source="h")
     out, report = fix_clips([clip], load_fixer(ckpt), "both")
     y = out[0].positions
@@ -349,8 +360,12 @@ def test_bvh_input_writes_positions_npz(tmp_path, ckpt, capsys):
 def test_h36m_input_keeps_its_layout(tmp_path, capsys):
     ck = _ckpt(tmp_path / "h36m.ckpt", preset("h36m17"), fps=50.0, frames=50)
     rng = np.random.default_rng(0)
-    tree = {"S9": {"Walking": (np.cumsum(rng.normal(0, 0.003, (80, 32, 3)), 0) + 1).astype(np.float32),
-                   "Eating": (np.cumsum(rng.normal(0, 0.003, (130, 32, 3)), 0) + 1).astype(np.float32)}}
+    tree = {
+        "S9": {
+            "Walking": (np.cumsum(rng.normal(0, 0.003, (80, 32, 3)), 0) + 1).astype(np.float32),
+            "Eating": (np.cumsum(rng.normal(0, 0.003, (130, 32, 3)), 0) + 1).astype(np.float32),
+        }
+    }
     tree["S9"]["Walking"][10:20, 3] = np.nan
     np.savez(tmp_path / "data_3d_h36m.npz", positions_3d=np.array(tree, dtype=object))
     rc, out, err = fix([tmp_path / "data_3d_h36m.npz", "--ckpt", ck], capsys)
@@ -369,7 +384,7 @@ def test_h36m_input_keeps_its_layout(tmp_path, capsys):
     assert rc == 0, err
     with np.load(tmp_path / "mm" / "data_3d_h36m.fixed.npz", allow_pickle=True) as z:
         walking = z["positions_3d"].item()["S9"]["Walking"]
-    given = mm["S9"]["Walking"][:, H36M_KEEP]                                        # (80, 17, 3) mm
+    given = mm["S9"]["Walking"][:, H36M_KEEP]  # (80, 17, 3) mm
     seen = np.isfinite(given)
     np.testing.assert_allclose(walking[seen], given[seen], rtol=1e-6)  # observed kept, in mm
 
@@ -377,12 +392,15 @@ def test_h36m_input_keeps_its_layout(tmp_path, capsys):
 def test_amass_input(tmp_path, capsys):
     pytest.importorskip("smplx", reason="AMASS needs the optional smplx extra (pip install mocapfix[smpl])")
     from test_amass import _amass, _model
+
     with open(tmp_path / "SMPLH_MALE.pkl", "wb") as f:
         pickle.dump(_model(52, 10, hands=True), f)
     _amass(tmp_path / "take_poses.npz", 45, 156, 10)
     ck = _ckpt(tmp_path / "smpl.ckpt")
-    rc, out, err = fix([tmp_path / "take_poses.npz", "--ckpt", ck, "--body-model", tmp_path / "SMPLH_MALE.pkl",
-                        "--mode", "both"], capsys)
+    rc, out, err = fix(
+        [tmp_path / "take_poses.npz", "--ckpt", ck, "--body-model", tmp_path / "SMPLH_MALE.pkl", "--mode", "both"],
+        capsys,
+    )
     assert rc == 0, err
     res = _npz(tmp_path / "take_poses.fixed.npz")
     assert res["positions"].shape[1:] == (22, 3) and np.isfinite(res["positions"]).all()
@@ -400,22 +418,34 @@ def test_json_report(tmp_path, ckpt, motion, capsys):
 
 # --- errors: one line per bad file, the others still processed ---
 
+
 def test_bad_inputs_each_one_line_and_the_rest_still_run(tmp_path, ckpt, motion, capsys):
     good = write_positions(tmp_path / "good.npz", motion[0], 30, SMPL)
     write_positions(tmp_path / "whole.npz", motion[0], 30, SMPL)
     (tmp_path / "trunc.npz").write_bytes((tmp_path / "whole.npz").read_bytes()[:300])
     np.savez(tmp_path / "shape.npz", positions=np.zeros((10, 22, 2)), fps=30.0, joint_names=np.array(SMPL.joint_names))
-    np.savez(tmp_path / "nofps.npz", positions=motion[0], joint_names=np.array(SMPL.joint_names),
-             parents=np.array(SMPL.parents))
+    np.savez(
+        tmp_path / "nofps.npz",
+        positions=motion[0],
+        joint_names=np.array(SMPL.joint_names),
+        parents=np.array(SMPL.parents),
+    )
     two = motion.copy()
     two[1] = np.nan
     write_positions(tmp_path / "nanperson.npz", two, 30, SMPL)
     write_positions(tmp_path / "h36m.npz", motion[0][:, :17], 30, preset("h36m17"))
     (tmp_path / "text.csv").write_text("hello\n")
     write_positions(tmp_path / "mm_as_m.npz", motion[0] * 1000, 30, SMPL, unit="m")  # mm numbers said to be m
-    bad = {"missing.npz": "no such file", "trunc.npz": "not a readable npz", "shape.npz": "(frames, joints, 3)",
-           "nofps.npz": "fps", "nanperson.npz": "person 1: no data", "h36m.npz": "missing pelvis",
-           "text.csv": "columns", "mm_as_m.npz": "m long (median), read as m: not a human body"}
+    bad = {
+        "missing.npz": "no such file",
+        "trunc.npz": "not a readable npz",
+        "shape.npz": "(frames, joints, 3)",
+        "nofps.npz": "fps",
+        "nanperson.npz": "person 1: no data",
+        "h36m.npz": "missing pelvis",
+        "text.csv": "columns",
+        "mm_as_m.npz": "m long (median), read as m: not a human body",
+    }
     args = [tmp_path / n for n in bad] + [good]
     rc, out, err = fix([*args, "--ckpt", ckpt], capsys)
     assert rc == 1
@@ -454,7 +484,8 @@ def test_not_a_mocapfix_checkpoint(tmp_path, motion, capsys, kind):
     assert rc == 1 and out == ""
     assert err.count("\n") == 1 and err.startswith(f"error: {path}: ") and "Traceback" not in err
     words = {"missing": "no such checkpoint", "bad_weights": "weights do not fit"}.get(
-        kind, "not a mocapfix checkpoint")
+        kind, "not a mocapfix checkpoint"
+    )
     assert words in err
     assert not (tmp_path / "a.fixed.npz").exists()
 
@@ -528,12 +559,41 @@ def test_progress_bar_on_a_terminal_and_lines_otherwise():
 
 # --- a small XMAE trained here, against Lerp ---
 
-TRAIN = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *QUIET, "--trainer.logger", "false",
-         "--data.synthetic_clips", "24", "--data.synthetic_seconds", "10", "--data.cache_dir", "null",
-         "--data.fps", "10", "--data.stride_s", "0.1", "--data.val_fraction", "0.1", "--data.test_fraction", "0",
-         "--data.batch_size", "32", "--trainer.limit_val_batches", "0", "--trainer.val_check_interval", "null",
-         "--trainer.check_val_every_n_epoch", "1000", "--model.init_args.lr", "3e-3",
-         "--model.init_args.warmup_steps", "50"]
+TRAIN = [
+    "fit",
+    "--config",
+    CONFIGS / "xmae.yaml",
+    *TINY,
+    *QUIET,
+    "--trainer.logger",
+    "false",
+    "--data.synthetic_clips",
+    "24",
+    "--data.synthetic_seconds",
+    "10",
+    "--data.cache_dir",
+    "null",
+    "--data.fps",
+    "10",
+    "--data.stride_s",
+    "0.1",
+    "--data.val_fraction",
+    "0.1",
+    "--data.test_fraction",
+    "0",
+    "--data.batch_size",
+    "32",
+    "--trainer.limit_val_batches",
+    "0",
+    "--trainer.val_check_interval",
+    "null",
+    "--trainer.check_val_every_n_epoch",
+    "1000",
+    "--model.init_args.lr",
+    "3e-3",
+    "--model.init_args.warmup_steps",
+    "50",
+]
 
 
 def _train(tmp_path, steps: int):
@@ -555,10 +615,16 @@ def _evaluate(ckpt, tmp_path, capsys) -> dict:
     lerp = lerp_infill(torch.from_numpy(bad), torch.from_numpy(~gap)).numpy()
     corrupted = gap | disp
     err_fix, err_lerp = (1000 * np.linalg.norm(p - truth, axis=-1) for p in (fixed, lerp))
-    return {"fixed": fixed, "report": json.loads(out), "fix_mm": err_fix[corrupted].mean(),
-            "lerp_mm": err_lerp[corrupted].mean(), "fix_disp_mm": err_fix[disp].mean(),
-            "lerp_disp_mm": err_lerp[disp].mean(), "fix_gap_mm": err_fix[gap].mean(),
-            "lerp_gap_mm": err_lerp[gap].mean()}
+    return {
+        "fixed": fixed,
+        "report": json.loads(out),
+        "fix_mm": err_fix[corrupted].mean(),
+        "lerp_mm": err_lerp[corrupted].mean(),
+        "fix_disp_mm": err_fix[disp].mean(),
+        "lerp_disp_mm": err_lerp[disp].mean(),
+        "fix_gap_mm": err_fix[gap].mean(),
+        "lerp_gap_mm": err_lerp[gap].mean(),
+    }
 
 
 def test_trained_xmae_checkpoint_sanity(tmp_path, capsys):
@@ -598,7 +664,6 @@ def test_trained_xmae_beats_lerp(tmp_path, capsys):
     assert np.mean(ratios) <= 1.1, ratios
 
 
-
 def test_bf16_precision_stays_close_to_fp32_and_keeps_observed_tokens(ckpt, motion):
     pos = motion[0].copy()
     pos[50:60, 4] = np.nan
@@ -626,9 +691,11 @@ def test_wrong_command_lines_are_usage_errors(tmp_path, ckpt, motion, capsys):
     message), not an error per input file (exit 1, repeated)."""
     write_positions(tmp_path / "a.npz", motion[0], 30, SMPL)
     (tmp_path / "afile").write_text("x")
-    for extra, message in ((["--out-dir", tmp_path / "afile"], "is a file, not a folder"),
-                           (["--fps", "0"], "--fps: must be a positive number"),
-                           (["--fps", "nan"], "--fps: must be a positive number")):
+    for extra, message in (
+        (["--out-dir", tmp_path / "afile"], "is a file, not a folder"),
+        (["--fps", "0"], "--fps: must be a positive number"),
+        (["--fps", "nan"], "--fps: must be a positive number"),
+    ):
         with pytest.raises(SystemExit) as e:
             main(["fix", str(tmp_path / "a.npz"), "--ckpt", str(ckpt), *map(str, extra)])
         err = capsys.readouterr().err
@@ -638,9 +705,12 @@ def test_wrong_command_lines_are_usage_errors(tmp_path, ckpt, motion, capsys):
 def test_an_error_about_another_file_names_the_input_too(tmp_path):
     from mocapfix.clip import MotionFileError
     from mocapfix.fix_cli import _one_line
+
     models = MotionFileError(tmp_path / "models", "no SMPLH model for gender 'robot'")
-    assert _one_line(tmp_path / "a.npz", models) == \
-        f"{tmp_path / 'a.npz'}: {tmp_path / 'models'}: no SMPLH model for gender 'robot'"
+    assert (
+        _one_line(tmp_path / "a.npz", models)
+        == f"{tmp_path / 'a.npz'}: {tmp_path / 'models'}: no SMPLH model for gender 'robot'"
+    )
     own = MotionFileError(tmp_path / "a.npz", "no betas (body shape)")
     assert _one_line(tmp_path / "a.npz", own) == f"{tmp_path / 'a.npz'}: no betas (body shape)"
     assert _one_line(tmp_path / "a.npz", ValueError("bad")) == f"{tmp_path / 'a.npz'}: ValueError: bad"
@@ -654,16 +724,33 @@ def test_sigterm_stops_fix_with_one_line_exit_143_and_no_temp_files(tmp_path, ck
     import subprocess
     import sys
     import time
+
     clips = generate_clips(24, 30.0, fps=30, seed=3)
     for i, c in enumerate(clips):
         pos = c.positions.copy()
         pos[::7, 5] = np.nan
         write_positions(tmp_path / f"take{i:02d}.npz", pos, 30, SMPL)
     env = dict(os.environ, OMP_NUM_THREADS="1")
-    proc = subprocess.Popen([sys.executable, "-m", "mocapfix", "fix", str(tmp_path), "--ckpt", str(ckpt),
-                             "--out-dir", str(tmp_path / "out"), "--progress", "never"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    first = proc.stdout.readline()                     # the first file is done: the run is under way
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "mocapfix",
+            "fix",
+            str(tmp_path),
+            "--ckpt",
+            str(ckpt),
+            "--out-dir",
+            str(tmp_path / "out"),
+            "--progress",
+            "never",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    first = proc.stdout.readline()  # the first file is done: the run is under way
     assert "->" in first, proc.stderr.read()
     time.sleep(0.05)
     proc.send_signal(signal.SIGTERM)
@@ -672,5 +759,5 @@ def test_sigterm_stops_fix_with_one_line_exit_143_and_no_temp_files(tmp_path, ck
     assert "stopped by SIGTERM" in err and "Traceback" not in err
     outputs = sorted(p.name for p in (tmp_path / "out").iterdir())
     assert outputs and not any(n.startswith(".") for n in outputs) and len(outputs) < 24
-    for name in outputs:                               # every file there is whole
+    for name in outputs:  # every file there is whole
         assert np.isfinite(read_motion(tmp_path / "out" / name)[0].positions).all()

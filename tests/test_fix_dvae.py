@@ -2,6 +2,7 @@
 windows, as XMAE) and on the rotations state (a Bandai BVH in, a BVH in the input's hierarchy
 out), the same estimate as the denoising module's, exact rotation windowing, and the errors.
 Checkpoints are tiny untrained denoising modules built here (seconds, no training)."""
+
 from __future__ import annotations
 
 import json
@@ -37,11 +38,18 @@ REPO = Path(__file__).resolve().parents[1]
 def _modules(skeleton, state: str, fps=30.0, frames=30, seed=0, **denoise):
     """A tiny prior and the denoising module built on it (untrained: fix's plumbing, not its quality)."""
     torch.manual_seed(seed)
-    prior = MotionDVAEModule(state=state, latent_dim=4, lstm_hidden=16, mlp_hidden=16, norm_groups=4,
-                             skeleton=skeleton.to_dict(), window_fps=fps, window_frames=frames)
+    prior = MotionDVAEModule(
+        state=state,
+        latent_dim=4,
+        lstm_hidden=16,
+        mlp_hidden=16,
+        norm_groups=4,
+        skeleton=skeleton.to_dict(),
+        window_fps=fps,
+        window_frames=frames,
+    )
     hp = {k: v for k, v in prior.hparams.items() if not k.startswith("_")}
-    denoiser = DVAEDenoiseModule(prior_hparams=hp, noise="rotation" if state == "rotations" else "position",
-                                 **denoise)
+    denoiser = DVAEDenoiseModule(prior_hparams=hp, noise="rotation" if state == "rotations" else "position", **denoise)
     with torch.no_grad():  # a standardisation that is not the identity, so fix must use the stored one
         denoiser.net.x_mean.normal_(0.0, 0.05)
         denoiser.net.x_std.uniform_(0.5, 1.5)
@@ -89,6 +97,7 @@ def rotations_ckpt(tmp_path_factory, bandai_skeleton):
 
 # --- checkpoints ---
 
+
 def test_model_kind_tells_the_denoising_stage_from_the_prior_and_refuses_the_prior(tmp_path):
     prior, denoiser = _modules(SMPL, "positions")
     dn = _save(tmp_path / "dn.ckpt", denoiser)
@@ -97,8 +106,7 @@ def test_model_kind_tells_the_denoising_stage_from_the_prior_and_refuses_the_pri
     assert isinstance(fixer, DVAEFixer) and fixer.kind == "motion-dvae" and fixer.state == "positions"
     assert (fixer.skeleton.joint_names, fixer.fps, fixer.window) == (SMPL.joint_names, 30.0, 30)
     pr = _save(tmp_path / "prior.ckpt", prior)
-    assert model_kind(read_checkpoint(pr)) == \
-        "motion-dvae-prior"
+    assert model_kind(read_checkpoint(pr)) == "motion-dvae-prior"
     with pytest.raises(MotionFileError, match="prior checkpoint; fix needs the denoising stage") as e:
         load_fixer(pr)
     assert "\n" not in str(e.value) and str(pr) in str(e.value)
@@ -121,13 +129,14 @@ def test_checkpoints_missing_what_rebuilds_the_nets_are_one_line_errors(tmp_path
 
 # --- the estimate is the denoising module's ---
 
+
 @pytest.mark.parametrize("estimate", ["decoder", "fusion"])
 def test_positions_fixer_is_the_denoising_modules_regression_estimate(tmp_path, estimate):
     _, denoiser = _modules(SMPL, "positions", noise_lambda=5.0, estimate=estimate)
     fixer = load_fixer(_save(tmp_path / "dn.ckpt", denoiser))
     assert fixer.fusion == (estimate == "fusion")
     clips = generate_clips(3, 1.0, fps=30, seed=3)
-    pos = torch.stack([torch.from_numpy(c.positions[:30]) for c in clips])            # (3, 30, 22, 3)
+    pos = torch.stack([torch.from_numpy(c.positions[:30]) for c in clips])  # (3, 30, 22, 3)
     denoiser.eval()
     with torch.no_grad():
         want = denoiser.estimate(Observation(pos, None, None, None))
@@ -147,24 +156,28 @@ def test_rotations_fixer_is_the_denoising_modules_decoder_motion(bandai_file, ba
     fixer = load_fixer(_save(tmp_path / "rot.ckpt", denoiser))
     assert fixer.state == "rotations"
     c = read_bvh(bandai_file, drop_joints=["joint_Root"])[0]
-    rot = torch.from_numpy(np.stack([c.rotations[0:30], c.rotations[20:50]]))          # (2, 30, 21, 3)
+    rot = torch.from_numpy(np.stack([c.rotations[0:30], c.rotations[20:50]]))  # (2, 30, 21, 3)
     root = torch.from_numpy(np.stack([c.root_translation[0:30], c.root_translation[20:50]]))
     offs = torch.from_numpy(np.stack([c.offsets, c.offsets]))
     est_rot, est_root = fixer.estimate_rotations(rot, root, offs)
     assert est_rot.shape == rot.shape and est_root.shape == root.shape
     denoiser.eval()
     with torch.no_grad():
-        want = denoiser.estimate(Observation(fk_axis_angle(rot, root, offs[:, None], bandai_skeleton.parents), rot,
-                                             root, offs))
+        want = denoiser.estimate(
+            Observation(fk_axis_angle(rot, root, offs[:, None], bandai_skeleton.parents), rot, root, offs)
+        )
     # FK of the fixer's world-frame rotations is the module's estimate (decoder output, Gaussian setting)
-    torch.testing.assert_close(fk_axis_angle(est_rot, est_root, offs[:, None], bandai_skeleton.parents), want,
-                               atol=1e-4, rtol=0)
+    torch.testing.assert_close(
+        fk_axis_angle(est_rot, est_root, offs[:, None], bandai_skeleton.parents), want, atol=1e-4, rtol=0
+    )
 
 
 # --- windows of rotations ---
 
+
 class IdentityRotationFixer:
     """Gives its input back: windowing, resampling and blending must then give the clip back."""
+
     kind, state, notes = "identity", "rotations", []
 
     def __init__(self, skeleton, fps=30.0, window=30):
@@ -178,11 +191,13 @@ class IdentityRotationFixer:
 
 @pytest.mark.parametrize("rate,frames", [(1, None), (2, None), (1, 17)])
 def test_rotation_windows_resampling_and_blending_give_an_identity_model_the_clip_back(
-        bandai_file, bandai_skeleton, rate, frames):
+    bandai_file, bandai_skeleton, rate, frames
+):
     c = read_bvh(bandai_file, drop_joints=["joint_Root"])[0]
     if frames is not None:  # shorter than a window: one window of its own length
-        c = c.replace(positions=c.positions[:frames], rotations=c.rotations[:frames],
-                      root_translation=c.root_translation[:frames])
+        c = c.replace(
+            positions=c.positions[:frames], rotations=c.rotations[:frames], root_translation=c.root_translation[:frames]
+        )
     # the model at the clip's rate (30.00003 fps: Frame Time 0.0333333), or twice it: slerp there and back
     fixer = IdentityRotationFixer(bandai_skeleton, fps=rate * c.fps)
     (out,), report = fix_clips([c], fixer, "denoise", overlap=0.5)
@@ -207,15 +222,17 @@ def test_resample_motion_is_slerp():
 
 # --- the product path ---
 
+
 def test_fix_positions_npz_with_a_positions_state_dvae(tmp_path, positions_ckpt, capsys):
-    pos = generate_clips(1, 4.0, fps=30, seed=7)[0].positions.copy()                  # (120, 22, 3)
+    pos = generate_clips(1, 4.0, fps=30, seed=7)[0].positions.copy()  # (120, 22, 3)
     pos[40:55] = np.nan
     pos[70:80, SMPL.groups["left_arm"]] = np.nan
     write_positions(tmp_path / "take.npz", pos, 30, SMPL)
     seen = ~np.isnan(pos)
     for mode in ("infill", "denoise", "both"):
-        rc, out, err = fix([tmp_path / "take.npz", "--ckpt", positions_ckpt, "--mode", mode,
-                            "-o", tmp_path / f"{mode}.npz"], capsys)
+        rc, out, err = fix(
+            [tmp_path / "take.npz", "--ckpt", positions_ckpt, "--mode", mode, "-o", tmp_path / f"{mode}.npz"], capsys
+        )
         assert rc == 0, err
         with np.load(tmp_path / f"{mode}.npz") as z:
             res, names = z["positions"], list(z["joint_names"])
@@ -229,7 +246,8 @@ def test_fix_positions_npz_with_a_positions_state_dvae(tmp_path, positions_ckpt,
 
 
 def test_fix_bandai_bvh_with_a_rotations_state_dvae_writes_the_inputs_hierarchy(
-        tmp_path, bandai_file, rotations_ckpt, capsys):
+    tmp_path, bandai_file, rotations_ckpt, capsys
+):
     rc, out, err = fix([bandai_file, "--ckpt", rotations_ckpt, "--mode", "denoise", "--out-dir", tmp_path], capsys)
     assert rc == 0, err
     target = tmp_path / bandai_file.name  # BVH stays BVH
@@ -263,12 +281,12 @@ def test_fix_bandai_bvh_with_a_rotations_state_dvae_writes_the_inputs_hierarchy(
     rc, out, err = fix([bandai_file, "--ckpt", rotations_ckpt, "-o", tmp_path / "same.bvh"], capsys)
     assert rc == 0, err
     assert "nothing to fill" in out
-    np.testing.assert_allclose(read_bvh(tmp_path / "same.bvh", keep_joints=whole)[0].positions, inp.positions,
-                               atol=1e-4)
+    np.testing.assert_allclose(
+        read_bvh(tmp_path / "same.bvh", keep_joints=whole)[0].positions, inp.positions, atol=1e-4
+    )
 
 
-def test_wrong_inputs_for_a_dvae_are_one_line_errors(tmp_path, bandai_file, positions_ckpt, rotations_ckpt,
-                                                   capsys):
+def test_wrong_inputs_for_a_dvae_are_one_line_errors(tmp_path, bandai_file, positions_ckpt, rotations_ckpt, capsys):
     pos = generate_clips(1, 2.0, fps=30, seed=1)[0].positions
     write_positions(tmp_path / "smpl.npz", pos, 30, SMPL)
     # a checkpoint of another skeleton, both ways round
@@ -278,8 +296,10 @@ def test_wrong_inputs_for_a_dvae_are_one_line_errors(tmp_path, bandai_file, posi
     # a rotations-state model on a positions file of its joints: it needs rotations
     c = read_bvh(bandai_file, drop_joints=["joint_Root"])[0]
     write_positions(tmp_path / "bandai_pos.npz", c.positions, 30, c.skeleton)
-    rc, out, err = fix([tmp_path / "bandai_pos.npz", "--ckpt", rotations_ckpt, "--mode", "denoise",
-                        "--out-dir", tmp_path / "o"], capsys)
+    rc, out, err = fix(
+        [tmp_path / "bandai_pos.npz", "--ckpt", rotations_ckpt, "--mode", "denoise", "--out-dir", tmp_path / "o"],
+        capsys,
+    )
     assert rc == 1 and err.count("\n") == 1 and "needs joint rotations; this input has none" in err, err
     # a BVH output for a positions model stays refused
     rc, out, err = fix([tmp_path / "smpl.npz", "--ckpt", positions_ckpt, "-o", tmp_path / "x.bvh"], capsys)
@@ -288,9 +308,27 @@ def test_wrong_inputs_for_a_dvae_are_one_line_errors(tmp_path, bandai_file, posi
 
 def test_python_m_mocapfix_fix_with_a_dvae_checkpoint(tmp_path, bandai_file, rotations_ckpt):
     env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
-    proc = subprocess.run([sys.executable, "-m", "mocapfix", "fix", str(bandai_file), "--ckpt", str(rotations_ckpt),
-                           "--mode", "denoise", "--out-dir", str(tmp_path), "--json"],
-                          capture_output=True, text=True, cwd=REPO, timeout=300, env=env)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "mocapfix",
+            "fix",
+            str(bandai_file),
+            "--ckpt",
+            str(rotations_ckpt),
+            "--mode",
+            "denoise",
+            "--out-dir",
+            str(tmp_path),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=300,
+        env=env,
+    )
     assert proc.returncode == 0, proc.stderr
     rec = json.loads(proc.stdout)
     assert rec["model"] == "motion-dvae" and rec["output"].endswith(".bvh") and rec["replaced"] > 0
@@ -299,6 +337,7 @@ def test_python_m_mocapfix_fix_with_a_dvae_checkpoint(tmp_path, bandai_file, rot
 
 def test_bf16_is_refused_for_a_dvae_checkpoint(positions_ckpt, capsys):
     from mocapfix.cli import main
+
     capsys.readouterr()
     assert main(["fix", str(positions_ckpt), "--ckpt", str(positions_ckpt), "--precision", "bf16"]) == 1
     err = capsys.readouterr().err.strip()

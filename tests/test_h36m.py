@@ -1,4 +1,5 @@
 """Human3.6M in VideoPose3D's layout, on a small data_3d_h36m.npz written here."""
+
 import numpy as np
 import pytest
 
@@ -22,8 +23,11 @@ def _write(path, tree):
 
 @pytest.fixture
 def h36m_file(tmp_path):
-    tree = {"S11": {"Walking 1": _seq(7, 0)}, "S1": {"Walking": _seq(5, 1), "Directions 1": _seq(3, 2)},
-            "S9": {"Eating": _seq(4, 3)}}
+    tree = {
+        "S11": {"Walking 1": _seq(7, 0)},
+        "S1": {"Walking": _seq(5, 1), "Directions 1": _seq(3, 2)},
+        "S9": {"Eating": _seq(4, 3)},
+    }
     return _write(tmp_path / "data_3d_h36m.npz", tree), tree
 
 

@@ -1,4 +1,5 @@
 """`inspect`: numbers on files whose answers are known, JSON lines, bad files, a real BVH."""
+
 import json
 
 import numpy as np
@@ -31,6 +32,7 @@ def files(tmp_path):
     np.savez(a, positions=pos * 1000, fps=25, joint_names=np.array(NAMES), parents=np.array(PARENTS), unit="mm")
     b = tmp_path / "b.csv"
     from mocapfix.io.positions import write_positions
+
     write_positions(b, pos[0], 50, Skeleton(NAMES, PARENTS), unit="cm", up_axis="y")
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not a zip")
@@ -55,8 +57,17 @@ def test_json_lines_and_bad_file(files, capsys):
     assert code == 1
     rows = [json.loads(line) for line in out.splitlines()]
     assert [r["file"] for r in rows] == [str(a), str(b)]  # the bad file did not stop the next one
-    for key in ("file", "format", "people", "frames", "fps", "joints", "joint_names", "missing_tokens",
-                "limb_sigma_mm"):
+    for key in (
+        "file",
+        "format",
+        "people",
+        "frames",
+        "fps",
+        "joints",
+        "joint_names",
+        "missing_tokens",
+        "limb_sigma_mm",
+    ):
         assert key in rows[0] and key in rows[1]
     assert rows[1]["format"] == "positions-csv" and rows[1]["unit"] == "cm" and rows[1]["up_axis"] == "y"
     assert rows[1]["hip_height_m"] == pytest.approx(0.9, abs=1e-5) and rows[1]["fps"] == 50.0

@@ -1,4 +1,5 @@
 """Bad input files: one-line MotionFileError naming the file, never a numpy/zip traceback."""
+
 import zipfile
 
 import numpy as np
@@ -39,8 +40,17 @@ def test_positions_wrong_shape(tmp_path, shape):
     _raises(f, "positions must be")
 
 
-@pytest.mark.parametrize("fps,match", [(None, "no 'fps'"), (0, "positive"), (-30, "positive"), (np.nan, "positive"),
-                                       (np.array([30, 60]), "one number"), ("thirty", "one number")])
+@pytest.mark.parametrize(
+    "fps,match",
+    [
+        (None, "no 'fps'"),
+        (0, "positive"),
+        (-30, "positive"),
+        (np.nan, "positive"),
+        (np.array([30, 60]), "one number"),
+        ("thirty", "one number"),
+    ],
+)
 def test_positions_bad_fps(tmp_path, fps, match):
     arrays = {"positions": np.zeros((4, 3, 3)), "parents": PARENTS}
     if fps is not None:
@@ -51,15 +61,18 @@ def test_positions_bad_fps(tmp_path, fps, match):
 def test_positions_bad_skeleton(tmp_path):
     _raises(_npz(tmp_path, positions=np.zeros((4, 3, 3)), fps=30, parents=np.array([-1, 0])), "2 parents for 3 joints")
     _raises(_npz(tmp_path, positions=np.zeros((4, 3, 3)), fps=30, parents=np.array([-1, 2, 0])), "parents must come")
-    _raises(_npz(tmp_path, positions=np.zeros((4, 3, 3)), fps=30, joint_names=np.array(["a", "b"]),
-                 parents=PARENTS), "2 joint names")
+    _raises(
+        _npz(tmp_path, positions=np.zeros((4, 3, 3)), fps=30, joint_names=np.array(["a", "b"]), parents=PARENTS),
+        "2 joint names",
+    )
     _raises(_npz(tmp_path, positions=np.array([["a"] * 3] * 3)[None], fps=30, parents=PARENTS), "numbers")
     _raises(_npz(tmp_path, positions=np.zeros((4, 3, 3)), fps=30, parents=PARENTS, unit="furlong"), "unknown unit")
 
 
 def test_truncated_npz(tmp_path):
-    good = _npz(tmp_path, "good.npz", positions=np.random.default_rng(0).normal(size=(200, 3, 3)), fps=30,
-                parents=PARENTS)
+    good = _npz(
+        tmp_path, "good.npz", positions=np.random.default_rng(0).normal(size=(200, 3, 3)), fps=30, parents=PARENTS
+    )
     f = tmp_path / "truncated.npz"
     f.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
     _raises(f, "not a readable npz")
@@ -79,7 +92,7 @@ def test_corrupt_member_of_npz(tmp_path):
     with zipfile.ZipFile(f) as z:
         info = z.getinfo("positions.npy")
     start = info.header_offset + 30 + len(info.filename) + 40
-    data[start:start + 64] = bytes(64)
+    data[start : start + 64] = bytes(64)
     f.write_bytes(bytes(data))
     _raises(f)
 

@@ -26,10 +26,11 @@ def t(x):
 
 # --- direct numpy references ---
 
+
 def np_mpjpe(pred, target, mask, root_relative=False, root=0):
     if root_relative:
-        pred = pred - pred[:, :, root:root + 1]
-        target = target - target[:, :, root:root + 1]
+        pred = pred - pred[:, :, root : root + 1]
+        target = target - target[:, :, root : root + 1]
     d = np.linalg.norm(pred - target, axis=-1)
     keep = mask & ~np.isnan(d)
     return 1000 * d[keep].mean()
@@ -46,7 +47,7 @@ def np_accel_error(pred, target, mask):
 
 
 def np_joint_accel(x, fps):
-    a = np.linalg.norm(np_second_diff(x), axis=-1) * fps ** 2
+    a = np.linalg.norm(np_second_diff(x), axis=-1) * fps**2
     return a[~np.isnan(a)].mean()
 
 
@@ -69,8 +70,7 @@ def test_mpjpe_matches_numpy(root_relative):
     assert math.isclose(m.compute().item(), np_mpjpe(pred, target, mask, root_relative), rel_tol=1e-6)
     m_all = MPJPE(root_relative=root_relative)
     m_all.update(t(pred), t(target))
-    assert math.isclose(m_all.compute().item(), np_mpjpe(pred, target, np.ones_like(mask), root_relative),
-                        rel_tol=1e-6)
+    assert math.isclose(m_all.compute().item(), np_mpjpe(pred, target, np.ones_like(mask), root_relative), rel_tol=1e-6)
 
 
 def test_mpjpe_root_relative_root_index_and_excluded_frame():
@@ -81,8 +81,7 @@ def test_mpjpe_root_relative_root_index_and_excluded_frame():
     # the whole frame whose root (joint 2) is missing is dropped; elsewhere only NaN tokens
     # (data() leaves target[0, 3, 0] NaN, a non-root joint for root_index=2)
     assert m.count == B * T * J - J - 1
-    assert math.isclose(m.compute().item(), np_mpjpe(pred, target, np.ones((B, T, J), bool), True, 2),
-                        rel_tol=1e-6)
+    assert math.isclose(m.compute().item(), np_mpjpe(pred, target, np.ones((B, T, J), bool), True, 2), rel_tol=1e-6)
     # a rigid translation of the prediction costs nothing root-relative, everything globally
     shift = target + np.array([0.1, 0.0, 0.0])
     rel, glob = MPJPE(root_relative=True), MPJPE()
@@ -121,7 +120,7 @@ def test_joint_acceleration_matches_numpy():
     # free fall sampled at 100 Hz: exactly g
     ts = np.arange(10) / 100.0
     fall = np.zeros((1, 10, 1, 3))
-    fall[0, :, 0, 2] = -0.5 * 9.81 * ts ** 2
+    fall[0, :, 0, 2] = -0.5 * 9.81 * ts**2
     m = JointAcceleration(fps=100)
     m.update(t(fall))
     assert math.isclose(m.compute().item(), 9.81, rel_tol=1e-6)
@@ -129,8 +128,8 @@ def test_joint_acceleration_matches_numpy():
 
 def test_limb_sigma_matches_numpy():
     _, target, _ = data(3, nan_frac=0.2)
-    target[2, :, 5] = np.nan       # a joint never present: its limbs skipped in sample 2
-    target[3, 1:, 7] = np.nan      # one frame only: limbs with joint 7 skipped in sample 3
+    target[2, :, 5] = np.nan  # a joint never present: its limbs skipped in sample 2
+    target[3, 1:, 7] = np.nan  # one frame only: limbs with joint 7 skipped in sample 3
     limbs = list(preset("h36m17").limbs)
     m = LimbSigma(limbs)
     m.update(t(target))
@@ -144,8 +143,13 @@ def test_limb_sigma_matches_numpy():
 
 def make_metrics():
     limbs = list(preset("h36m17").limbs)
-    return [(lambda: MPJPE(), "pt"), (lambda: MPJPE(root_relative=True), "ptm"), (lambda: AccelError(), "ptm"),
-            (lambda: JointAcceleration(50), "t"), (lambda: LimbSigma(limbs), "t")]
+    return [
+        (lambda: MPJPE(), "pt"),
+        (lambda: MPJPE(root_relative=True), "ptm"),
+        (lambda: AccelError(), "ptm"),
+        (lambda: JointAcceleration(50), "t"),
+        (lambda: LimbSigma(limbs), "t"),
+    ]
 
 
 # the hand-summed instance never saw update(): torchmetrics warns, harmlessly here

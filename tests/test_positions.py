@@ -1,4 +1,5 @@
 """Positions files (.npz, .csv): layouts, units, axes, skeletons, missing data and round trips."""
+
 import numpy as np
 import pytest
 
@@ -12,10 +13,27 @@ CHAIN_PARENTS = [-1, 0, 1, 1]  # root, spine, left_arm, right_arm
 
 
 # A standing adult on the h36m17 skeleton (metres, z up): the readers measure the body for the unit.
-_STANDING = np.array([[0, 0, 1.0], [-0.13, 0, 1.0], [-0.13, 0, 0.55], [-0.13, 0, 0.1], [0.13, 0, 1.0],
-                      [0.13, 0, 0.55], [0.13, 0, 0.1], [0, 0, 1.23], [0, 0, 1.48], [0, -0.05, 1.58], [0, 0, 1.7],
-                      [0.17, 0, 1.45], [0.17, 0, 1.17], [0.17, 0, 0.92], [-0.17, 0, 1.45], [-0.17, 0, 1.17],
-                      [-0.17, 0, 0.92]])
+_STANDING = np.array(
+    [
+        [0, 0, 1.0],
+        [-0.13, 0, 1.0],
+        [-0.13, 0, 0.55],
+        [-0.13, 0, 0.1],
+        [0.13, 0, 1.0],
+        [0.13, 0, 0.55],
+        [0.13, 0, 0.1],
+        [0, 0, 1.23],
+        [0, 0, 1.48],
+        [0, -0.05, 1.58],
+        [0, 0, 1.7],
+        [0.17, 0, 1.45],
+        [0.17, 0, 1.17],
+        [0.17, 0, 0.92],
+        [-0.17, 0, 1.45],
+        [-0.17, 0, 1.17],
+        [-0.17, 0, 0.92],
+    ]
+)
 
 
 def _motion(P=2, T=6, J=17, seed=0):
@@ -88,8 +106,7 @@ def test_names_without_parents_must_match_a_preset(tmp_path):
 def test_custom_names_get_guessed_groups_and_groups_option(tmp_path):
     names = ["Hips", "Spine", "LeftArm", "RightArm"]
     f = tmp_path / "x.npz"
-    np.savez(f, positions=_motion(P=1, J=4)[0], fps=30, joint_names=np.array(names),
-             parents=np.array(CHAIN_PARENTS))
+    np.savez(f, positions=_motion(P=1, J=4)[0], fps=30, joint_names=np.array(names), parents=np.array(CHAIN_PARENTS))
     [clip] = read_positions(f)
     assert clip.skeleton.groups == {"left_arm": (2,), "right_arm": (3,)}
     [clip] = read_motion(f, groups={"left_arm": ["LeftArm", "Spine"]})
@@ -108,14 +125,16 @@ def test_all_missing_person_is_still_a_clip(tmp_path):
 def test_csv_hand_written(tmp_path):
     """Comments, header, a missing frame (2), an empty cell and 'nan': all become missing joints."""
     f = tmp_path / "cam.csv"
-    f.write_text("# exported by some tracker\n"
-                 "# unit=cm up_axis=z\n"
-                 "# parents=-1,0,1,1\n"
-                 "frame,time,Hips_x,Hips_y,Hips_z,Spine_x,Spine_y,Spine_z,LeftArm_x,LeftArm_y,LeftArm_z,"
-                 "RightArm_x,RightArm_y,RightArm_z\n"
-                 "10,0.0,0,0,90,0,0,120,10,0,140,-10,0,140\n"
-                 "11,0.04,1,0,90,1,0,120,11,,140,-9,0,140\n"
-                 "13,0.12,3,0,90,3,0,120,13,0,140,nan,nan,nan\n")
+    f.write_text(
+        "# exported by some tracker\n"
+        "# unit=cm up_axis=z\n"
+        "# parents=-1,0,1,1\n"
+        "frame,time,Hips_x,Hips_y,Hips_z,Spine_x,Spine_y,Spine_z,LeftArm_x,LeftArm_y,LeftArm_z,"
+        "RightArm_x,RightArm_y,RightArm_z\n"
+        "10,0.0,0,0,90,0,0,120,10,0,140,-10,0,140\n"
+        "11,0.04,1,0,90,1,0,120,11,,140,-9,0,140\n"
+        "13,0.12,3,0,90,3,0,120,13,0,140,nan,nan,nan\n"
+    )
     [clip] = read_positions(f)
     assert clip.fps == pytest.approx(25.0)  # from the time column
     assert clip.num_frames == 4 and clip.meta["first_frame"] == 10
@@ -130,8 +149,10 @@ def test_csv_hand_written(tmp_path):
 
 def test_csv_without_frame_column_and_fps_comment(tmp_path):
     f = tmp_path / "c.csv"
-    f.write_text("# fps=60 parents=-1,0\nperson,Hip_x,Hip_y,Hip_z,Knee_x,Knee_y,Knee_z\n"
-                 "b,0,0,1,0,0,0.5\na,5,0,1,5,0,0.5\nb,1,0,1,1,0,0.5\n")
+    f.write_text(
+        "# fps=60 parents=-1,0\nperson,Hip_x,Hip_y,Hip_z,Knee_x,Knee_y,Knee_z\n"
+        "b,0,0,1,0,0,0.5\na,5,0,1,5,0,0.5\nb,1,0,1,1,0,0.5\n"
+    )
     clips = read_positions(f, fps=None, unit="m")
     assert [c.meta["person_id"] for c in clips] == ["a", "b"] and [c.name for c in clips] == ["c#p0", "c#p1"]
     assert clips[0].fps == 60.0 and clips[0].num_frames == 2 and clips[1].num_frames == 2
@@ -194,6 +215,7 @@ def test_atomic_write_leaves_the_old_file_on_failure(tmp_path, monkeypatch):
 
     def boom(*a, **k):
         raise OSError("disk full")
+
     monkeypatch.setattr(np, "savez_compressed", boom)
     with pytest.raises(OSError):
         write_positions(f, _motion(P=1, seed=3)[0], 30, H36M)
@@ -203,8 +225,11 @@ def test_atomic_write_leaves_the_old_file_on_failure(tmp_path, monkeypatch):
 
 def _chain_csv(path, frames, times, comment="# parents=-1,0,1,1 unit=m\n"):
     """A 4-joint csv with the given frame numbers (None: no frame column) and time cells (text)."""
-    head = ("frame," if frames is not None else "") + "time," + \
-        ",".join(f"{n}_{a}" for n in ("Hips", "Spine", "LeftArm", "RightArm") for a in "xyz")
+    head = (
+        ("frame," if frames is not None else "")
+        + "time,"
+        + ",".join(f"{n}_{a}" for n in ("Hips", "Spine", "LeftArm", "RightArm") for a in "xyz")
+    )
     rows = []
     for k, t in enumerate(times):
         xyz = [round(0.01 * k, 4), 0, 0.9, 0, 0, 1.2, 0.1, 0, 1.4, -0.1, 0, 1.4]
@@ -223,6 +248,7 @@ def test_csv_keeps_its_times_through_the_fix_writer(tmp_path):
     """Frame numbers from 100 with times from 0: `fix` writes the input's times, not (100 + t) / fps;
     a skipped frame (103) gets a time between its neighbours'."""
     from mocapfix.fix_cli import write_output  # what `fix` writes its output with
+
     frames = [100, 101, 102, 104, 105]
     times = ["0.000", "0.033", "0.067", "0.133", "0.167"]
     f = _chain_csv(tmp_path / "take.csv", frames, times)
@@ -247,8 +273,10 @@ def test_csv_unix_times_and_per_person_times_survive_write_clips(tmp_path):
     assert [float(t) for t in _written_times(out)] == [float(t) for t in times]
     # two people: each row keeps its own time; a frame one person lacks takes the other's
     c = tmp_path / "two.csv"
-    c.write_text("# fps=30 parents=-1\nperson,frame,time,A_x,A_y,A_z\n"
-                 "a,0,10.5,0,0,1\na,1,10.533,0,0,1\nb,0,10.501,1,0,1\nb,2,10.567,1,0,1\n")
+    c.write_text(
+        "# fps=30 parents=-1\nperson,frame,time,A_x,A_y,A_z\n"
+        "a,0,10.5,0,0,1\na,1,10.533,0,0,1\nb,0,10.501,1,0,1\nb,2,10.567,1,0,1\n"
+    )
     clips = read_positions(c)
     out = write_clips(tmp_path / "two_out.csv", clips)
     assert _written_times(out) == ["10.5", "10.533", "10.567", "10.501", "10.533", "10.567"]
@@ -286,8 +314,10 @@ def test_fps_from_times_keeps_exact_rates(tmp_path):
 def test_csv_numbers_come_back_as_written(tmp_path):
     """Each number is written with the fewest digits that read back as the same float32 metres."""
     c = tmp_path / "cm.csv"
-    c.write_text("# fps=30 parents=-1,0 unit=cm up_axis=y\nA_x,A_y,A_z,B_x,B_y,B_z\n"
-                 "-13.7228,90,0.1,1234.567,4.5,3\n0.333333,-0.5,7,1e-05,,3\n")
+    c.write_text(
+        "# fps=30 parents=-1,0 unit=cm up_axis=y\nA_x,A_y,A_z,B_x,B_y,B_z\n"
+        "-13.7228,90,0.1,1234.567,4.5,3\n0.333333,-0.5,7,1e-05,,3\n"
+    )
     clips = read_positions(c)
     out = write_clips(tmp_path / "out.csv", clips)
     rows = [ln.split(",") for ln in out.read_text().splitlines()[3:]]
@@ -303,6 +333,7 @@ def test_csv_numbers_come_back_as_written(tmp_path):
 def test_written_files_get_the_usual_mode(tmp_path):
     """Outputs are readable as any file the user writes (0666 less the umask), not mkstemp's private 0600."""
     import os
+
     mask = os.umask(0o022)
     os.umask(mask)
     out = write_positions(tmp_path / "out.npz", np.zeros((2, 17, 3)), 30, H36M)

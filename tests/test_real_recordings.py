@@ -1,6 +1,7 @@
 """Real recordings read at their true size and orientation (issue 17): units from the body,
 robust up axis, absurd values as missing data, helper roots found from the data, and files that
 contribute nothing named."""
+
 from __future__ import annotations
 
 import json
@@ -23,9 +24,15 @@ from mocapfix.skeleton import PRESETS
 
 def _bandai(bandai_files, i=3, frames=None):
     clip = read_bvh(bandai_files[i])[0]
-    return clip if frames is None else clip.replace(positions=clip.positions[:frames],
-                                                    rotations=clip.rotations[:frames],
-                                                    root_translation=clip.root_translation[:frames])
+    return (
+        clip
+        if frames is None
+        else clip.replace(
+            positions=clip.positions[:frames],
+            rotations=clip.rotations[:frames],
+            root_translation=clip.root_translation[:frames],
+        )
+    )
 
 
 def _hip_height(clip) -> float:
@@ -53,8 +60,9 @@ def test_bandai_in_other_units_and_axes_reads_at_its_size(bandai_files, tmp_path
     np.testing.assert_allclose(again.positions, back.positions, atol=1e-5)
     with np.load(out) as data:
         raw = data["positions"]
-    assert np.nanmax(np.abs(raw)) == pytest.approx(np.nanmax(np.abs(back.positions)) / parse_unit(
-        back.meta["unit"]).metres, rel=1e-4)
+    assert np.nanmax(np.abs(raw)) == pytest.approx(
+        np.nanmax(np.abs(back.positions)) / parse_unit(back.meta["unit"]).metres, rel=1e-4
+    )
 
 
 def test_any_number_of_metres_is_a_unit(bandai_files, tmp_path, capsys):
@@ -73,7 +81,7 @@ def test_any_number_of_metres_is_a_unit(bandai_files, tmp_path, capsys):
 
 def test_a_wrong_explicit_unit_is_a_warning_naming_the_file_and_the_setting(bandai_files, caplog):
     with caplog.at_level(logging.WARNING, logger="mocapfix"):
-        clip = read_motion(bandai_files[3], unit="inch")[0]   # the file is in cm: a 4.2 m giant
+        clip = read_motion(bandai_files[3], unit="inch")[0]  # the file is in cm: a 4.2 m giant
     assert clip.meta["stature_m"] > 2.2
     assert str(bandai_files[3]) in clip.meta["warning"] and "--unit" in clip.meta["warning"]
     assert any("tall" in r.getMessage() for r in caplog.records)
@@ -110,7 +118,7 @@ def test_absurd_values_are_missing_and_cannot_turn_the_body_over(bandai_files, t
     back = read_motion(f)[0]
     assert back.meta["up_axis"] == "z" and back.meta["unit"] == "cm"
     J = back.skeleton.num_joints
-    assert back.meta["absurd_tokens"] == 2 * J                     # both frames, every joint
+    assert back.meta["absurd_tokens"] == 2 * J  # both frames, every joint
     assert back.missing_mask()[[5, 9]].all() and back.missing_mask().sum() == 2 * J
     seen = np.delete(np.arange(60), [5, 9])
     np.testing.assert_allclose(back.positions[seen], clip.positions[seen], atol=1e-4)
@@ -119,9 +127,10 @@ def test_absurd_values_are_missing_and_cannot_turn_the_body_over(bandai_files, t
 
 def test_one_absurd_joint_in_a_positions_file(tmp_path):
     from test_positions import _motion
-    pos = np.repeat(_motion(P=1)[0], 10, axis=0)                  # (60, 17, 3) m
+
+    pos = np.repeat(_motion(P=1)[0], 10, axis=0)  # (60, 17, 3) m
     pos[7, 13] = 1e30
-    pos[20, 3, 2] = 40.0                                          # a foot 40 m up: no body does that
+    pos[20, 3, 2] = 40.0  # a foot 40 m up: no body does that
     f = tmp_path / "x.npz"
     np.savez(f, positions=pos, fps=30, joint_names=np.array(PRESETS["h36m17"].joint_names))
     [clip] = read_motion(f)
@@ -151,24 +160,60 @@ def test_fit_on_a_folder_with_absurd_values_stays_finite_and_fix_fills_them(band
     data.mkdir()
     for i, name in enumerate(["a", "b", "c"]):
         _with_absurd_values(_bandai(bandai_files, i=3 + 40 * i, frames=90), data / f"{name}.bvh", "y")
-    assert run_cli(["fit", "--config", CONFIGS / "xmae_bvh.yaml", *TINY, *QUIET, "--data.path", data,
-                    "--data.cache_dir", "null", "--data.batches_on_device", "false", "--data.batch_size", "8",
-                    "--data.eval_batch_size", "8", "--data.val_fraction", "0", "--data.test_fraction", "0",
-                    "--data.val_patterns", '["b.bvh"]', "--data.test_patterns",
-                    '["c.bvh"]', "--trainer.precision", "32", "--trainer.max_steps", "4",
-                    "--trainer.val_check_interval", "2", "--experiment", "glitch"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "xmae_bvh.yaml",
+                *TINY,
+                *QUIET,
+                "--data.path",
+                data,
+                "--data.cache_dir",
+                "null",
+                "--data.batches_on_device",
+                "false",
+                "--data.batch_size",
+                "8",
+                "--data.eval_batch_size",
+                "8",
+                "--data.val_fraction",
+                "0",
+                "--data.test_fraction",
+                "0",
+                "--data.val_patterns",
+                '["b.bvh"]',
+                "--data.test_patterns",
+                '["c.bvh"]',
+                "--trainer.precision",
+                "32",
+                "--trainer.max_steps",
+                "4",
+                "--trainer.val_check_interval",
+                "2",
+                "--experiment",
+                "glitch",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
     ckpt = tmp_path / "checkpoints" / "glitch" / "last.ckpt"
     state = torch.load(ckpt, map_location="cpu", weights_only=True)["state_dict"]
     assert all(torch.isfinite(v).all() for v in state.values() if v.is_floating_point())
 
     from mocapfix.fix_cli import main as fix_main
-    assert fix_main([str(data / "a.bvh"), "--ckpt", str(ckpt), "--out-dir", str(tmp_path / "out"),
-                     "--progress", "never"]) == 0
+
+    assert (
+        fix_main([str(data / "a.bvh"), "--ckpt", str(ckpt), "--out-dir", str(tmp_path / "out"), "--progress", "never"])
+        == 0
+    )
     [fixed] = read_motion(tmp_path / "out" / "a.npz")
-    assert not fixed.missing_mask().any()                           # the absurd frames were filled
+    assert not fixed.missing_mask().any()  # the absurd frames were filled
     pos = fixed.positions
     centre = np.median(pos.reshape(-1, 3), axis=0)
-    assert np.abs(pos - centre).max() < 5.0                          # metres: nothing beyond the body's range
+    assert np.abs(pos - centre).max() < 5.0  # metres: nothing beyond the body's range
 
 
 def test_helper_root_found_from_the_data_not_by_name(bandai_files, tmp_path):
@@ -189,6 +234,7 @@ def test_helper_root_found_from_the_data_not_by_name(bandai_files, tmp_path):
 
 def test_files_that_contribute_nothing_are_named(bandai_files, tmp_path, caplog):
     from mocapfix.data.datamodule import MotionDataModule
+
     data = tmp_path / "takes"
     data.mkdir()
     for i, frames in enumerate([90, 90, 20]):
@@ -203,6 +249,7 @@ def test_files_that_contribute_nothing_are_named(bandai_files, tmp_path, caplog)
 
 def test_unreadable_folder_says_so(tmp_path, monkeypatch):
     import os
+
     (tmp_path / "sub").mkdir()
     (tmp_path / "sub" / "x.bvh").write_text("HIERARCHY\n")
     real = os.scandir
@@ -218,7 +265,8 @@ def test_unreadable_folder_says_so(tmp_path, monkeypatch):
 
 
 def test_ckpt_path_last_without_a_last_ckpt_is_one_line(tmp_path, capsys):
-    rc = run_cli(["test", "--config", CONFIGS / "xmae.yaml", *QUIET, "--experiment", "typo", "--ckpt_path", "last"],
-                 tmp_path)
+    rc = run_cli(
+        ["test", "--config", CONFIGS / "xmae.yaml", *QUIET, "--experiment", "typo", "--ckpt_path", "last"], tmp_path
+    )
     err = capsys.readouterr().err
     assert rc == 2 and "checkpoints/typo/last.ckpt: no such checkpoint" in err and "Traceback" not in err

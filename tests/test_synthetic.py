@@ -1,4 +1,5 @@
 """Procedural smpl22 motion: determinism, FK consistency, a plausible body, smooth physical motion."""
+
 import numpy as np
 import pytest
 import torch
@@ -30,7 +31,7 @@ def segments(clips, names, margin=8, min_len=30):
 
 def body_frame(c):
     """Positions relative to the pelvis, in the pelvis's own frame: (T, J, 3)."""
-    rot = Rotation.from_rotvec(c.rotations[:, 0].astype(np.float64)).as_matrix()   # (T, 3, 3)
+    rot = Rotation.from_rotvec(c.rotations[:, 0].astype(np.float64)).as_matrix()  # (T, 3, 3)
     return np.einsum("tji,tkj->tki", rot, c.positions - c.positions[:, :1])
 
 
@@ -67,8 +68,12 @@ def test_deterministic_under_seed():
 def test_positions_are_fk_of_rotations(clips):
     for c in clips:
         for dtype in (torch.float64, torch.float32):
-            pos = fk_axis_angle(torch.from_numpy(c.rotations).to(dtype), torch.from_numpy(c.root_translation).to(dtype),
-                                torch.from_numpy(c.offsets).to(dtype), SKEL.parents).numpy()
+            pos = fk_axis_angle(
+                torch.from_numpy(c.rotations).to(dtype),
+                torch.from_numpy(c.root_translation).to(dtype),
+                torch.from_numpy(c.offsets).to(dtype),
+                SKEL.parents,
+            ).numpy()
             assert np.abs(pos - c.positions).max() < 1e-5
         np.testing.assert_allclose(c.root_translation, c.positions[:, 0], atol=1e-6)
 
@@ -80,7 +85,7 @@ def test_bone_lengths_constant_in_time_and_varied_across_clips(clips):
         assert (bones.max(0) - bones.min(0)).max() < 1e-5
         np.testing.assert_allclose(bones[0], np.linalg.norm(c.offsets[1:], axis=-1), atol=1e-5)
         lengths.append(bones[0])
-    lengths = np.array(lengths)                                  # (clips, 21)
+    lengths = np.array(lengths)  # (clips, 21)
     thigh = lengths[:, J["left_knee"] - 1]
     assert thigh.std() > 0.015 and 0.3 < thigh.min() and thigh.max() < 0.5
     # Left and right bones match within a body (symmetric variation).
@@ -89,34 +94,38 @@ def test_bone_lengths_constant_in_time_and_varied_across_clips(clips):
 
 def test_rest_pose_is_a_standing_person_facing_x(clips):
     for c in clips[:4]:
-        rest = fk_axis_angle(torch.zeros(22, 3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64),
-                             torch.from_numpy(c.offsets).double(), SKEL.parents).numpy()  # (J, 3)
+        rest = fk_axis_angle(
+            torch.zeros(22, 3, dtype=torch.float64),
+            torch.zeros(3, dtype=torch.float64),
+            torch.from_numpy(c.offsets).double(),
+            SKEL.parents,
+        ).numpy()  # (J, 3)
         feet = rest[FEET, 2].min()
-        assert 1.2 < rest[J["head"], 2] - feet < 1.9                     # head above the feet (≈ 1.55 m at scale 1)
-        assert 0.75 < rest[0, 2] - feet < 1.15                           # pelvis height
+        assert 1.2 < rest[J["head"], 2] - feet < 1.9  # head above the feet (≈ 1.55 m at scale 1)
+        assert 0.75 < rest[0, 2] - feet < 1.15  # pelvis height
         for name in ("hip", "knee", "ankle", "shoulder", "elbow", "wrist"):
             assert rest[J[f"left_{name}"], 1] > 0.03 and rest[J[f"right_{name}"], 1] < -0.03
-        assert (rest[J["left_foot"], 0] > rest[J["left_ankle"], 0] + 0.08)    # toes point forward (+x)
+        assert rest[J["left_foot"], 0] > rest[J["left_ankle"], 0] + 0.08  # toes point forward (+x)
         assert rest[J["left_wrist"], 2] < rest[J["left_elbow"], 2] < rest[J["left_shoulder"], 2]  # arms hang
 
 
 def test_pelvis_height_and_ground_contact(clips):
     for c in clips:
-        assert c.positions[..., 2].min() > -0.03                         # nothing sinks into the floor
+        assert c.positions[..., 2].min() > -0.03  # nothing sinks into the floor
         assert 0.55 < c.positions[:, 0, 2].min() and c.positions[:, 0, 2].max() < 1.6
     for c, _, sl in segments(clips, GAIT + STANDING):
         pelvis = c.positions[sl, 0, 2]
         assert 0.7 < pelvis.min() and pelvis.max() < 1.2
-        feet = c.positions[sl][:, FEET, 2].min(axis=1)                   # lowest foot joint, per frame
+        feet = c.positions[sl][:, FEET, 2].min(axis=1)  # lowest foot joint, per frame
         assert -0.05 < feet.min() and feet.max() < 0.1
 
 
 def test_stance_foot_is_planted_while_walking(clips):
     n = 0
     for c, _, sl in segments(clips, ("walk",)):
-        feet = c.positions[sl][:, FEET]                                  # (T, 4, 3)
+        feet = c.positions[sl][:, FEET]  # (T, 4, 3)
         low = feet[:-1, :, 2].argmin(axis=1)
-        step = np.linalg.norm(np.diff(feet[..., :2], axis=0), axis=-1) * c.fps   # (T-1, 4) m/s
+        step = np.linalg.norm(np.diff(feet[..., :2], axis=0), axis=-1) * c.fps  # (T-1, 4) m/s
         body = np.linalg.norm(np.diff(c.positions[sl, 0, :2], axis=0), axis=-1).mean() * c.fps
         assert np.median(step[np.arange(len(low)), low]) < 0.15 * body  # the lowest foot barely slides
         n += 1
@@ -126,7 +135,7 @@ def test_stance_foot_is_planted_while_walking(clips):
 def test_smooth(clips):
     for c in clips:
         vel = np.diff(c.positions, axis=0) * c.fps
-        acc = np.diff(c.positions, n=2, axis=0) * c.fps ** 2
+        acc = np.diff(c.positions, n=2, axis=0) * c.fps**2
         assert np.linalg.norm(vel, axis=-1).max() < 12.0
         assert np.linalg.norm(acc, axis=-1).max() < 300.0
 
@@ -175,8 +184,10 @@ def test_arms_move_and_swing_against_the_legs(clips):
             wrist_std.append(body[:, SKEL.groups[group]].std(axis=0).sum(-1).mean())
     assert min(wrist_std) > 0.01 and np.mean(wrist_std) > 0.08
     # Walking: the left hand is forward when the left foot is back.
-    corr = [np.corrcoef(body_frame(c)[sl, J["left_wrist"], 0], body_frame(c)[sl, J["left_ankle"], 0])[0, 1]
-            for c, _, sl in segments(clips, ("walk",))]
+    corr = [
+        np.corrcoef(body_frame(c)[sl, J["left_wrist"], 0], body_frame(c)[sl, J["left_ankle"], 0])[0, 1]
+        for c, _, sl in segments(clips, ("walk",))
+    ]
     assert len(corr) > 0 and max(corr) < -0.5
 
 
@@ -184,7 +195,7 @@ def test_jumps_leave_the_ground(clips):
     n = 0
     for c, _, sl in segments(clips, ("jump",), margin=0):
         feet = c.positions[sl][:, FEET, 2].min(axis=1)
-        assert feet.max() > 0.12                                         # both feet in the air at once
+        assert feet.max() > 0.12  # both feet in the air at once
         n += 1
     assert n > 0
 

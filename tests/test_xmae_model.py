@@ -1,4 +1,5 @@
 """XMAE network: sizes, masking semantics, variable observed counts."""
+
 from __future__ import annotations
 
 import pytest
@@ -16,8 +17,22 @@ def test_paper_size_parameter_count():
 
 def _tiny(decoder="cross"):
     torch.manual_seed(0)
-    return XMAE(5, 6, enc_dim=32, enc_depth=2, enc_mlp_dim=64, dec_dim=32, dec_depth=2, dec_mlp_dim=64,
-                head_dim=16, decoder=decoder).double().eval()
+    return (
+        XMAE(
+            5,
+            6,
+            enc_dim=32,
+            enc_depth=2,
+            enc_mlp_dim=64,
+            dec_dim=32,
+            dec_depth=2,
+            dec_mlp_dim=64,
+            head_dim=16,
+            decoder=decoder,
+        )
+        .double()
+        .eval()
+    )
 
 
 @pytest.mark.parametrize("decoder", ["cross", "mae"])
@@ -33,7 +48,7 @@ def test_variable_observed_count_matches_per_sample_loop(decoder):
     batched = net(x, kept, pad)
     for b in range(B):
         idx = observed[b].nonzero()[:, 0][None]
-        single = net(x[b:b + 1], idx)
+        single = net(x[b : b + 1], idx)
         torch.testing.assert_close(batched[b], single[0], atol=1e-10, rtol=1e-10)
 
 
@@ -128,9 +143,20 @@ def test_fill_input_starts_at_the_fill_and_learns_a_correction():
     correction head starts at zero), and one optimiser step moves it off."""
     from mocapfix.evaluation.baselines import lerp_infill
     from mocapfix.inference import xmae_reconstruct
+
     torch.manual_seed(0)
-    net = XMAE(5, 6, enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64,
-               head_dim=16, fill_input=True)
+    net = XMAE(
+        5,
+        6,
+        enc_dim=32,
+        enc_depth=1,
+        enc_mlp_dim=64,
+        dec_dim=32,
+        dec_depth=1,
+        dec_mlp_dim=64,
+        head_dim=16,
+        fill_input=True,
+    )
     g = torch.Generator().manual_seed(2)
     x = torch.randn(3, 6, 5, 3, generator=g)
     observed = torch.rand(3, 6, 5, generator=g) < 0.6
@@ -141,6 +167,6 @@ def test_fill_input_starts_at_the_fill_and_learns_a_correction():
     assert (xmae_reconstruct(net, x, observed) - lerp_infill(x, observed)).abs().max() > 1e-4
     kept, pad = kept_index(observed)
     with pytest.raises(ValueError, match="fill_input"):
-        net(x.reshape(3, 30, 3), kept, pad)                       # built with fill_input: a fill is needed
+        net(x.reshape(3, 30, 3), kept, pad)  # built with fill_input: a fill is needed
     with pytest.raises(ValueError, match="cross"):
         XMAE(5, 6, decoder="mae", fill_input=True)

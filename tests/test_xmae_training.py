@@ -1,4 +1,5 @@
 """XMAE through the product path: configs, fit/validate/test/predict, checkpoints, resume, TensorBoard."""
+
 from __future__ import annotations
 
 import json
@@ -15,33 +16,94 @@ from cli_utils import CONFIGS, QUIET, SMALL_DATA, TINY, run_cli
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.training.xmae_module import XMAEModule
 
-FAST = ["--trainer.fast_dev_run", "1", "--data.batch_size", "4", "--data.eval_batch_size", "4",
-        "--trainer.precision", "32-true", "--trainer.accelerator", "cpu", *QUIET]
+FAST = [
+    "--trainer.fast_dev_run",
+    "1",
+    "--data.batch_size",
+    "4",
+    "--data.eval_batch_size",
+    "4",
+    "--trainer.precision",
+    "32-true",
+    "--trainer.accelerator",
+    "cpu",
+    *QUIET,
+]
 
 
 def test_fast_dev_run_xmae_yaml(tmp_path):
-    assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *FAST, "--data.synthetic_clips", "8",
-                    "--data.synthetic_seconds", "3", "--data.cache_dir", "null", "--data.val_fraction", "0.25",
-                    "--data.test_fraction", "0.25"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "xmae.yaml",
+                *FAST,
+                "--data.synthetic_clips",
+                "8",
+                "--data.synthetic_seconds",
+                "3",
+                "--data.cache_dir",
+                "null",
+                "--data.val_fraction",
+                "0.25",
+                "--data.test_fraction",
+                "0.25",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
 
 
 def test_fast_dev_run_xmae_bvh_yaml(tmp_path, bandai_dir):
-    assert run_cli(["fit", "--config", CONFIGS / "xmae_bvh.yaml", *FAST, "--data.path", bandai_dir,
-                    "--data.cache_dir", tmp_path / "cache"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "xmae_bvh.yaml",
+                *FAST,
+                "--data.path",
+                bandai_dir,
+                "--data.cache_dir",
+                tmp_path / "cache",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
 
 
 def test_fast_dev_run_xmae_h36m_yaml(tmp_path):
     rng = np.random.default_rng(0)
-    tree = {s: {a: (np.cumsum(rng.normal(0, 0.005, (120, 32, 3)), 0) + 1).astype(np.float32)
-                for a in ("Walking", "Eating")} for s in ("S1", "S5", "S9", "S11")}
+    tree = {
+        s: {a: (np.cumsum(rng.normal(0, 0.005, (120, 32, 3)), 0) + 1).astype(np.float32) for a in ("Walking", "Eating")}
+        for s in ("S1", "S5", "S9", "S11")
+    }
     np.savez(tmp_path / "data_3d_h36m.npz", positions_3d=np.array(tree, dtype=object))
-    assert run_cli(["fit", "--config", CONFIGS / "xmae_h36m.yaml", *FAST, "--data.path",
-                    tmp_path / "data_3d_h36m.npz", "--data.cache_dir", "null"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "xmae_h36m.yaml",
+                *FAST,
+                "--data.path",
+                tmp_path / "data_3d_h36m.npz",
+                "--data.cache_dir",
+                "null",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
 
 
 def test_fast_dev_run_xmae_amass_yaml(tmp_path):
     pytest.importorskip("smplx", reason="AMASS needs the optional smplx extra (pip install mocapfix[smpl])")
     from test_amass import _amass, _model
+
     models = tmp_path / "models" / "smplh"
     models.mkdir(parents=True)
     with open(models / "SMPLH_MALE.pkl", "wb") as f:
@@ -49,21 +111,66 @@ def test_fast_dev_run_xmae_amass_yaml(tmp_path):
     for split_dir in ("CMU", "HumanEva", "SFU"):
         (tmp_path / "amass" / split_dir / "s1").mkdir(parents=True)
         _amass(tmp_path / "amass" / split_dir / "s1" / "take_poses.npz", 180, 156, 10)
-    assert run_cli(["fit", "--config", CONFIGS / "xmae_amass.yaml", *FAST, "--data.path", tmp_path / "amass",
-                    "--data.body_model_path", tmp_path / "models", "--data.cache_dir", "null"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "xmae_amass.yaml",
+                *FAST,
+                "--data.path",
+                tmp_path / "amass",
+                "--data.body_model_path",
+                tmp_path / "models",
+                "--data.cache_dir",
+                "null",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
 
 
 def test_fit_writes_tensorboard_scalars_hparams_and_figures(tmp_path):
-    assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "tb",
-                    "--trainer.max_steps", "6", "--trainer.val_check_interval", "3",
-                    "--trainer.log_every_n_steps", "1", "--model.init_args.warmup_steps", "2"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "xmae.yaml",
+                *TINY,
+                *SMALL_DATA,
+                *QUIET,
+                "--experiment",
+                "tb",
+                "--trainer.max_steps",
+                "6",
+                "--trainer.val_check_interval",
+                "3",
+                "--trainer.log_every_n_steps",
+                "1",
+                "--model.init_args.warmup_steps",
+                "2",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
     run_dir = tmp_path / "logs" / "tb" / "version_0"
     ea = EventAccumulator(str(run_dir), size_guidance={"images": 0, "scalars": 0})
     ea.Reload()
     scalars = set(ea.Tags()["scalars"])
-    for tag in ("train/loss", "val/loss", "val/mpjpe_mm", "val/gap0.5s_mpjpe_mm/xmae", "val/gap0.5s_mpjpe_mm/lerp",
-                "lr-Adam", "hp_metric"):
+    for tag in (
+        "train/loss",
+        "val/loss",
+        "val/mpjpe_mm",
+        "val/gap0.5s_mpjpe_mm/xmae",
+        "val/gap0.5s_mpjpe_mm/lerp",
+        "lr-Adam",
+        "hp_metric",
+    ):
         assert tag in scalars, f"{tag} missing from {sorted(scalars)}"
     assert "val/infill_example" in ea.Tags()["images"]
     assert len(ea.Images("val/infill_example")) == 2  # one figure per validation
@@ -76,9 +183,24 @@ def test_fit_writes_tensorboard_scalars_hparams_and_figures(tmp_path):
 
 
 def test_resume_continues_step_and_optimiser(tmp_path):
-    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "resume",
-              "--trainer.val_check_interval", "4", "--checkpoint_every_n_steps", "2",
-              "--model.init_args.total_steps", "8", "--model.init_args.warmup_steps", "2"]
+    common = [
+        "fit",
+        "--config",
+        CONFIGS / "xmae.yaml",
+        *TINY,
+        *SMALL_DATA,
+        *QUIET,
+        "--experiment",
+        "resume",
+        "--trainer.val_check_interval",
+        "4",
+        "--checkpoint_every_n_steps",
+        "2",
+        "--model.init_args.total_steps",
+        "8",
+        "--model.init_args.warmup_steps",
+        "2",
+    ]
     assert run_cli([*common, "--trainer.max_steps", "4"], tmp_path) == 0
     last = tmp_path / "checkpoints" / "resume" / "last.ckpt"
     first = torch.load(last, map_location="cpu", weights_only=True)
@@ -99,8 +221,18 @@ def test_resume_continues_step_and_optimiser(tmp_path):
 def test_a_new_fit_of_the_same_experiment_writes_last_ckpt(tmp_path):
     """last.ckpt is the file configs and docs name (e.g. a denoising stage's prior_ckpt): a second
     fit of the same experiment must not leave it stale beside a last-v1.ckpt."""
-    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "again",
-              "--trainer.val_check_interval", "2"]
+    common = [
+        "fit",
+        "--config",
+        CONFIGS / "xmae.yaml",
+        *TINY,
+        *SMALL_DATA,
+        *QUIET,
+        "--experiment",
+        "again",
+        "--trainer.val_check_interval",
+        "2",
+    ]
     assert run_cli([*common, "--trainer.max_steps", "2"], tmp_path) == 0
     assert run_cli([*common, "--trainer.max_steps", "4"], tmp_path) == 0
     folder = tmp_path / "checkpoints" / "again"
@@ -113,11 +245,26 @@ def test_resume_draws_new_masks_not_the_first_steps_again(tmp_path):
     resets at every start: a resumed run goes on from the checkpoint's generator state instead of
     replaying the masks and batches of steps 0, 1, ... (lr 0: a loss depends on its batch and
     masks only)."""
-    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "rng",
-              "--trainer.val_check_interval", "2", "--trainer.log_every_n_steps", "1", "--model.init_args.lr", "0"]
+    common = [
+        "fit",
+        "--config",
+        CONFIGS / "xmae.yaml",
+        *TINY,
+        *SMALL_DATA,
+        *QUIET,
+        "--experiment",
+        "rng",
+        "--trainer.val_check_interval",
+        "2",
+        "--trainer.log_every_n_steps",
+        "1",
+        "--model.init_args.lr",
+        "0",
+    ]
     assert run_cli([*common, "--trainer.max_steps", "2"], tmp_path) == 0
     assert run_cli([*common, "--trainer.max_steps", "4", "--ckpt_path", "last"], tmp_path) == 0
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
     losses = {}
     for version in ("version_0", "version_1"):
         ea = EventAccumulator(str(tmp_path / "logs" / "rng" / version), size_guidance={"scalars": 0})
@@ -132,8 +279,17 @@ def test_resume_draws_new_masks_not_the_first_steps_again(tmp_path):
 def test_resume_from_last_takes_the_checkpoints_model_settings(tmp_path):
     """`--ckpt_path last` builds the model from the checkpoint, as a path does: a run trained with
     other sizes than the config's resumes without repeating them."""
-    common = ["fit", "--config", CONFIGS / "xmae.yaml", *SMALL_DATA, *QUIET, "--experiment", "sizes",
-              "--trainer.val_check_interval", "2"]
+    common = [
+        "fit",
+        "--config",
+        CONFIGS / "xmae.yaml",
+        *SMALL_DATA,
+        *QUIET,
+        "--experiment",
+        "sizes",
+        "--trainer.val_check_interval",
+        "2",
+    ]
     assert run_cli([*common, *TINY, "--trainer.max_steps", "2"], tmp_path) == 0
     assert run_cli([*common, "--trainer.max_steps", "4", "--ckpt_path", "last"], tmp_path) == 0
     ckpt = torch.load(tmp_path / "checkpoints" / "sizes" / "last.ckpt", map_location="cpu", weights_only=True)
@@ -142,16 +298,36 @@ def test_resume_from_last_takes_the_checkpoints_model_settings(tmp_path):
 
 def test_bad_checkpoint_path_is_one_line(tmp_path, capsys):
     (tmp_path / "text.ckpt").write_text("not a checkpoint")
-    for path, problem in ((tmp_path / "missing.ckpt", "no such checkpoint file"),
-                          (tmp_path / "text.ckpt", "not a checkpoint that torch.load reads safely")):
+    for path, problem in (
+        (tmp_path / "missing.ckpt", "no such checkpoint file"),
+        (tmp_path / "text.ckpt", "not a checkpoint that torch.load reads safely"),
+    ):
         rc = run_cli(["test", "--config", CONFIGS / "xmae.yaml", *QUIET, "--ckpt_path", path], tmp_path)
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 2 and f"{path}: {problem}" in err[-1] and "Traceback" not in "".join(err)
 
 
 def test_checkpoint_is_self_contained_and_loads_safely(tmp_path):
-    assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "ck",
-                    "--trainer.max_steps", "2", "--trainer.val_check_interval", "2"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "xmae.yaml",
+                *TINY,
+                *SMALL_DATA,
+                *QUIET,
+                "--experiment",
+                "ck",
+                "--trainer.max_steps",
+                "2",
+                "--trainer.val_check_interval",
+                "2",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
     path = tmp_path / "checkpoints" / "ck" / "last.ckpt"
     ckpt = torch.load(path, map_location="cpu", weights_only=True)  # plain hyperparameters only
     hp = ckpt["hyper_parameters"]
@@ -164,12 +340,47 @@ def test_checkpoint_is_self_contained_and_loads_safely(tmp_path):
 
 
 def test_test_writes_eval_json_in_paper_layout(tmp_path, capsys):
-    assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "ev",
-                    "--trainer.max_steps", "2", "--trainer.val_check_interval", "2"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "xmae.yaml",
+                *TINY,
+                *SMALL_DATA,
+                *QUIET,
+                "--experiment",
+                "ev",
+                "--trainer.max_steps",
+                "2",
+                "--trainer.val_check_interval",
+                "2",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
     capsys.readouterr()
-    assert run_cli(["test", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "ev",
-                    "--ckpt_path", tmp_path / "checkpoints" / "ev" / "last.ckpt",
-                    "--trainer.limit_test_batches", "1"], tmp_path) == 0
+    assert (
+        run_cli(
+            [
+                "test",
+                "--config",
+                CONFIGS / "xmae.yaml",
+                *TINY,
+                *SMALL_DATA,
+                *QUIET,
+                "--experiment",
+                "ev",
+                "--ckpt_path",
+                tmp_path / "checkpoints" / "ev" / "last.ckpt",
+                "--trainer.limit_test_batches",
+                "1",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
     out = capsys.readouterr().out.strip().splitlines()
     assert out[-1].startswith("eval.json: ")
     path = tmp_path / out[-1].split(": ", 1)[1]
@@ -200,8 +411,27 @@ def test_predict_command_writes_the_windows(tmp_path, capsys):
 
 def test_predict_fills_only_missing(tmp_path):
     from mocapfix.data.datamodule import MotionDataModule
-    assert run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "pr",
-                    "--trainer.max_steps", "1", "--trainer.val_check_interval", "1"], tmp_path) == 0
+
+    assert (
+        run_cli(
+            [
+                "fit",
+                "--config",
+                CONFIGS / "xmae.yaml",
+                *TINY,
+                *SMALL_DATA,
+                *QUIET,
+                "--experiment",
+                "pr",
+                "--trainer.max_steps",
+                "1",
+                "--trainer.val_check_interval",
+                "1",
+            ],
+            tmp_path,
+        )
+        == 0
+    )
     model = XMAEModule.load_from_checkpoint(tmp_path / "checkpoints" / "pr" / "last.ckpt", map_location="cpu")
     dm = MotionDataModule(synthetic_clips=4, synthetic_seconds=2.0, cache_dir=None, val_fraction=0, test_fraction=1.0)
     dm.setup("predict")
@@ -225,8 +455,9 @@ def test_missing_data_is_one_line_naming_the_path(tmp_path, capsys):
 def test_a_model_setting_error_is_its_own_line(tmp_path, capsys):
     """A setting the module's constructor refuses: its message alone, not jsonargparse's union
     error with every setting of the model dumped after it."""
-    rc = run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *QUIET, "--model.init_args.mask_ratio", "1.5"],
-                 tmp_path)
+    rc = run_cli(
+        ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *QUIET, "--model.init_args.mask_ratio", "1.5"], tmp_path
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1, err
     assert err[0].startswith("mocapfix fit: mask_ratio must be in [0, 1]")
@@ -235,6 +466,7 @@ def test_a_model_setting_error_is_its_own_line(tmp_path, capsys):
 def test_version(capsys):
     from mocapfix import __version__
     from mocapfix.cli import main
+
     assert main(["--version"]) == 0 and capsys.readouterr().out.strip() == f"mocapfix {__version__}"
 
 
@@ -249,14 +481,35 @@ def test_wrong_key_is_a_short_error(tmp_path, capsys):
 @pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_gpu_checkpoint_resumes_on_cpu_and_back(tmp_path):
-    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "dev",
-              "--trainer.val_check_interval", "2", "--checkpoint_every_n_steps", "2"]
-    assert run_cli([*common, "--trainer.max_steps", "2", "--trainer.accelerator", "gpu",
-                    "--trainer.precision", "bf16-mixed"], tmp_path) == 0
-    assert run_cli([*common, "--trainer.max_steps", "4", "--trainer.accelerator", "cpu", "--ckpt_path", "last"],
-                   tmp_path) == 0
-    assert run_cli([*common, "--trainer.max_steps", "6", "--trainer.accelerator", "gpu", "--ckpt_path", "last"],
-                   tmp_path) == 0
+    common = [
+        "fit",
+        "--config",
+        CONFIGS / "xmae.yaml",
+        *TINY,
+        *SMALL_DATA,
+        *QUIET,
+        "--experiment",
+        "dev",
+        "--trainer.val_check_interval",
+        "2",
+        "--checkpoint_every_n_steps",
+        "2",
+    ]
+    assert (
+        run_cli(
+            [*common, "--trainer.max_steps", "2", "--trainer.accelerator", "gpu", "--trainer.precision", "bf16-mixed"],
+            tmp_path,
+        )
+        == 0
+    )
+    assert (
+        run_cli([*common, "--trainer.max_steps", "4", "--trainer.accelerator", "cpu", "--ckpt_path", "last"], tmp_path)
+        == 0
+    )
+    assert (
+        run_cli([*common, "--trainer.max_steps", "6", "--trainer.accelerator", "gpu", "--ckpt_path", "last"], tmp_path)
+        == 0
+    )
     ckpt = torch.load(tmp_path / "checkpoints" / "dev" / "last.ckpt", map_location="cpu", weights_only=True)
     assert ckpt["global_step"] == 6
 
@@ -264,13 +517,25 @@ def test_gpu_checkpoint_resumes_on_cpu_and_back(tmp_path):
 def test_training_gaps_apply_in_training_only():
     """gap_ratio reaches the training corruption; validation keeps the paper's (comparable val/mpjpe_mm)."""
     skel = generate_clips(1, 1.0, fps=10, seed=0)[0].skeleton.to_dict()
-    m = XMAEModule(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16,
-                   skeleton=skel, window_fps=10.0, window_frames=10, gap_ratio=1.0)
+    m = XMAEModule(
+        enc_dim=32,
+        enc_depth=1,
+        enc_mlp_dim=64,
+        dec_dim=32,
+        dec_depth=1,
+        dec_mlp_dim=64,
+        head_dim=16,
+        skeleton=skel,
+        window_fps=10.0,
+        window_frames=10,
+        gap_ratio=1.0,
+    )
     x = torch.from_numpy(generate_clips(1, 1.0, fps=10, seed=1)[0].positions[:10])[None].repeat(16, 1, 1, 1)
 
     def frames_without_tokens():
         *_, c, _, _ = m._corrupt_and_predict(x, torch.Generator().manual_seed(0))
-        return (~c.observed.any(dim=2)).any(dim=1)                                   # (B,) some frame empty
+        return (~c.observed.any(dim=2)).any(dim=1)  # (B,) some frame empty
+
     m.train()
     assert frames_without_tokens().all()
     m.eval()
@@ -292,16 +557,42 @@ def test_loss_token_settings_are_checked_and_clean_tokens_follow_the_generator()
     with pytest.raises(ValueError, match="clean_loss_ratio 0.5"):
         XMAEModule(mask_ratio=0.85, displace_ratio=0.05, clean_loss_ratio=0.5)  # only 10 % of tokens are clean
     skel = generate_clips(1, 1.0, fps=10, seed=0)[0].skeleton.to_dict()
-    m = XMAEModule(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16,
-                   skeleton=skel, window_fps=10.0, window_frames=10, clean_loss_ratio=0.05).eval()
+    m = XMAEModule(
+        enc_dim=32,
+        enc_depth=1,
+        enc_mlp_dim=64,
+        dec_dim=32,
+        dec_depth=1,
+        dec_mlp_dim=64,
+        head_dim=16,
+        skeleton=skel,
+        window_fps=10.0,
+        window_frames=10,
+        clean_loss_ratio=0.05,
+    ).eval()
     x = torch.from_numpy(generate_clips(1, 1.0, fps=10, seed=1)[0].positions[:10])[None].repeat(8, 1, 1, 1)
     scored = [m._corrupt_and_predict(x, torch.Generator().manual_seed(3))[4] for _ in range(2)]
     assert torch.equal(scored[0], scored[1])  # validation's generator draws the clean tokens too
 
 
 def test_a_misspelt_monitor_is_one_line_before_training(tmp_path, capsys):
-    rc = run_cli(["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "mon",
-                  "--monitor", "val/mpjpe", "--trainer.max_steps", "4"], tmp_path)
+    rc = run_cli(
+        [
+            "fit",
+            "--config",
+            CONFIGS / "xmae.yaml",
+            *TINY,
+            *SMALL_DATA,
+            *QUIET,
+            "--experiment",
+            "mon",
+            "--monitor",
+            "val/mpjpe",
+            "--trainer.max_steps",
+            "4",
+        ],
+        tmp_path,
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and "--monitor val/mpjpe: the model logs no such metric" in err[-1] and "val/mpjpe_mm" in err[-1]
     assert "Traceback" not in "".join(err)
@@ -316,10 +607,21 @@ class SigtermAtStep3(L.Callback):
 
 
 def test_sigterm_during_fit_keeps_the_step_reached_and_exits_nonzero(tmp_path, capsys):
-    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "term",
-              "--trainer.val_check_interval", "2"]
-    rc = run_cli([*common, "--trainer.max_steps", "100", "--trainer.callbacks+=test_xmae_training.SigtermAtStep3"],
-                 tmp_path)
+    common = [
+        "fit",
+        "--config",
+        CONFIGS / "xmae.yaml",
+        *TINY,
+        *SMALL_DATA,
+        *QUIET,
+        "--experiment",
+        "term",
+        "--trainer.val_check_interval",
+        "2",
+    ]
+    rc = run_cli(
+        [*common, "--trainer.max_steps", "100", "--trainer.callbacks+=test_xmae_training.SigtermAtStep3"], tmp_path
+    )
     assert rc == 128 + signal.SIGTERM and "stopped by SIGTERM" in capsys.readouterr().err
     last = tmp_path / "checkpoints" / "term" / "last.ckpt"
     assert torch.load(last, map_location="cpu", weights_only=True)["global_step"] == 3  # not 2, the last validation
@@ -328,6 +630,7 @@ def test_sigterm_during_fit_keeps_the_step_reached_and_exits_nonzero(tmp_path, c
 
 def test_no_command_is_the_usage_and_a_usage_error(capsys):
     from mocapfix.cli import main
+
     assert main([]) == 2
     captured = capsys.readouterr()
     assert captured.err.startswith("usage: mocapfix") and "Traceback" not in captured.err
@@ -337,8 +640,21 @@ def test_no_command_is_the_usage_and_a_usage_error(capsys):
 def test_fill_input_trains_resumes_and_fixes(tmp_path):
     """The fill_input switch end to end: a checkpoint that fix loads as the same network."""
     from mocapfix.fixers import load_fixer
-    common = ["fit", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "fill",
-              "--model.init_args.fill_input", "true", "--trainer.val_check_interval", "2"]
+
+    common = [
+        "fit",
+        "--config",
+        CONFIGS / "xmae.yaml",
+        *TINY,
+        *SMALL_DATA,
+        *QUIET,
+        "--experiment",
+        "fill",
+        "--model.init_args.fill_input",
+        "true",
+        "--trainer.val_check_interval",
+        "2",
+    ]
     assert run_cli([*common, "--trainer.max_steps", "2"], tmp_path) == 0
     assert run_cli([*common, "--trainer.max_steps", "4", "--ckpt_path", "last"], tmp_path) == 0
     fixer = load_fixer(tmp_path / "checkpoints" / "fill" / "last.ckpt")

@@ -14,6 +14,7 @@ Conventions shared by every function here:
   on another device than the batch: the numbers are drawn on the generator's device and moved,
   so a seeded CPU generator gives the same corruption on CPU and GPU.
 """
+
 from __future__ import annotations
 
 import math
@@ -26,7 +27,7 @@ from mocapfix.kinematics import fk_axis_angle
 
 class Corrupted(NamedTuple):
     positions: torch.Tensor  # (B, T, J, 3) corrupted input; 0 where not observed, never NaN
-    observed: torch.Tensor   # (B, T, J) bool: token is given to the model
+    observed: torch.Tensor  # (B, T, J) bool: token is given to the model
     displaced: torch.Tensor  # (B, T, J) bool: observed token whose position was moved (subset of observed)
 
 
@@ -34,6 +35,7 @@ class Corrupted(NamedTuple):
 
 # Drawn in float32 whatever the batch dtype: bf16 scores would tie and bias the token choice,
 # and the same seed then gives the same corruption in every precision.
+
 
 def uniform_like(shape, generator: torch.Generator | None, like: torch.Tensor) -> torch.Tensor:
     device = generator.device if generator is not None else like.device
@@ -61,9 +63,11 @@ def available(positions: torch.Tensor) -> torch.Tensor:
 
 def _pack(positions: torch.Tensor, observed: torch.Tensor, displaced: torch.Tensor) -> Corrupted:
     # torch.where, not multiplication: 0 * NaN would leak NaN into the model input
-    return Corrupted(torch.where(observed[..., None], positions, torch.zeros((), dtype=positions.dtype,
-                                                                             device=positions.device)),
-                     observed, displaced)
+    return Corrupted(
+        torch.where(observed[..., None], positions, torch.zeros((), dtype=positions.dtype, device=positions.device)),
+        observed,
+        displaced,
+    )
 
 
 def _pick_random(candidates: torch.Tensor, counts: torch.Tensor, generator, like: torch.Tensor) -> torch.Tensor:
@@ -83,8 +87,9 @@ def kept_count(num_tokens: int, mask_ratio: float) -> int:
     return round((1.0 - mask_ratio) * num_tokens)
 
 
-def training_gaps(B: int, T: int, gap_ratio: float, generator: torch.Generator | None,
-                  like: torch.Tensor) -> torch.Tensor:
+def training_gaps(
+    B: int, T: int, gap_ratio: float, generator: torch.Generator | None, like: torch.Tensor
+) -> torch.Tensor:
     """Whole-skeleton gaps for training: a fraction gap_ratio of the windows get one gap of
     1..T-2 frames (uniform), anywhere in the window (uniform start); the others none.
     -> (B, T) bool, True on the gap's frames.
@@ -92,17 +97,23 @@ def training_gaps(B: int, T: int, gap_ratio: float, generator: torch.Generator |
     Random token masking at 85% leaves a few joints in nearly every frame, so a model trained
     on it alone seldom has to carry the whole body across a long hole, which is exactly the
     evaluation's (and real data's) hardest case: the full skeleton gone for up to 0.9 s."""
-    draw = uniform_like((3, B), generator, like)                                          # (3, B)
+    draw = uniform_like((3, B), generator, like)  # (3, B)
     has_gap = draw[0] < gap_ratio
-    length = 1 + (draw[1] * max(T - 2, 1)).long().clamp_max(max(T - 3, 0))        # (B,) in 1..T-2
-    start = (draw[2] * (T - length + 1)).long().clamp_max(T - length)              # (B,)
-    t = torch.arange(T, device=like.device)[None, :]                               # (1, T)
+    length = 1 + (draw[1] * max(T - 2, 1)).long().clamp_max(max(T - 3, 0))  # (B,) in 1..T-2
+    start = (draw[2] * (T - length + 1)).long().clamp_max(T - length)  # (B,)
+    t = torch.arange(T, device=like.device)[None, :]  # (1, T)
     return has_gap[:, None] & (t >= start[:, None]) & (t < (start + length)[:, None])
 
 
-def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displace_ratio: float = 0.05,
-                      max_displacement_m: float = 1.0, fixed_kept_count: bool = True,
-                      generator: torch.Generator | None = None, gap_ratio: float = 0.0) -> Corrupted:
+def mask_and_displace(
+    positions: torch.Tensor,
+    mask_ratio: float = 0.85,
+    displace_ratio: float = 0.05,
+    max_displacement_m: float = 1.0,
+    fixed_kept_count: bool = True,
+    generator: torch.Generator | None = None,
+    gap_ratio: float = 0.0,
+) -> Corrupted:
     """Training corruption of XMAE: mask most tokens, displace a few of the kept ones.
 
     positions: (B, T, J, 3) metres, NaN = missing (never kept).
@@ -123,13 +134,15 @@ def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displac
     are drawn from the rest; a window whose gap leaves fewer than K tokens keeps what is left.
     """
     if not (0.0 <= mask_ratio <= 1.0 and 0.0 <= displace_ratio <= 1.0 - mask_ratio + 1e-9):
-        raise ValueError(f"need 0 <= mask_ratio <= 1 and 0 <= displace_ratio <= 1 - mask_ratio, "
-                         f"got mask_ratio={mask_ratio}, displace_ratio={displace_ratio}")
+        raise ValueError(
+            f"need 0 <= mask_ratio <= 1 and 0 <= displace_ratio <= 1 - mask_ratio, "
+            f"got mask_ratio={mask_ratio}, displace_ratio={displace_ratio}"
+        )
     if not 0.0 <= gap_ratio <= 1.0:
         raise ValueError(f"need 0 <= gap_ratio <= 1, got gap_ratio={gap_ratio}")
     B, T, J, _ = positions.shape
     N = T * J
-    avail = available(positions)                                                   # (B, T, J)
+    avail = available(positions)  # (B, T, J)
     if gap_ratio > 0:
         avail = avail & ~training_gaps(B, T, gap_ratio, generator, positions)[..., None]
     avail = avail.reshape(B, N)
@@ -158,23 +171,31 @@ def mask_and_displace(positions: torch.Tensor, mask_ratio: float = 0.85, displac
 
 
 class TrainingInput(NamedTuple):
-    tokens: torch.Tensor     # (B, N, 3) the model's input: normalised (and rotated) corrupted positions
-    target: torch.Tensor     # (B, T, J, 3) the clean positions in the same frame (NaN where the data has none)
-    corrupted: Corrupted     # which tokens are observed / displaced
-    offset: torch.Tensor     # (B, 1, 1, 3) the normalisation offset
-    kept: torch.Tensor       # (B, K) observed token indices
-    padding: torch.Tensor    # (B, K) True where a sample kept fewer than K tokens
+    tokens: torch.Tensor  # (B, N, 3) the model's input: normalised (and rotated) corrupted positions
+    target: torch.Tensor  # (B, T, J, 3) the clean positions in the same frame (NaN where the data has none)
+    corrupted: Corrupted  # which tokens are observed / displaced
+    offset: torch.Tensor  # (B, 1, 1, 3) the normalisation offset
+    kept: torch.Tensor  # (B, K) observed token indices
+    padding: torch.Tensor  # (B, K) True where a sample kept fewer than K tokens
 
 
-def xmae_training_input(positions: torch.Tensor, mask_ratio: float, displace_ratio: float,
-                        max_displacement_m: float, fixed_kept_count: bool = True, rotate: bool = True,
-                        generator: torch.Generator | None = None, gap_ratio: float = 0.0) -> TrainingInput:
+def xmae_training_input(
+    positions: torch.Tensor,
+    mask_ratio: float,
+    displace_ratio: float,
+    max_displacement_m: float,
+    fixed_kept_count: bool = True,
+    rotate: bool = True,
+    generator: torch.Generator | None = None,
+    gap_ratio: float = 0.0,
+) -> TrainingInput:
     """XMAE's training corruption of a batch (B, T, J, 3), all on the batch's device: mask and
     displace, normalise, rotate about z (rotate=True), index the observed tokens. With a fixed
     kept count, K is known without reading the data: no host-device sync."""
     B, T, J, _ = positions.shape
-    c = mask_and_displace(positions, mask_ratio, displace_ratio, max_displacement_m, fixed_kept_count, generator,
-                          gap_ratio)
+    c = mask_and_displace(
+        positions, mask_ratio, displace_ratio, max_displacement_m, fixed_kept_count, generator, gap_ratio
+    )
     x, offset = normalize(c.positions, c.observed)
     target = positions - offset
     if rotate:
@@ -207,6 +228,7 @@ def kept_index(observed: torch.Tensor, count: int | None = None) -> tuple[torch.
 
 # --- evaluation tasks (XMAE section 4.1) ---
 
+
 def gap_frames(T: int, fps: float, gap_s: float) -> tuple[int, int]:
     """[start, stop) frames of a gap of round(gap_s * fps) frames centred in a window of T frames:
     start = T//2 - n//2."""
@@ -235,9 +257,15 @@ def infill_gap(positions: torch.Tensor, fps: float, gap_s: float, joints: list[i
     return _pack(positions, observed, torch.zeros_like(observed))
 
 
-def constant_displacement(positions: torch.Tensor, fps: float, gap_s: float, joints: list[int] | None,
-                          generator: torch.Generator | None = None, min_m: float = 0.5,
-                          max_m: float = 1.0) -> Corrupted:
+def constant_displacement(
+    positions: torch.Tensor,
+    fps: float,
+    gap_s: float,
+    joints: list[int] | None,
+    generator: torch.Generator | None = None,
+    min_m: float = 0.5,
+    max_m: float = 1.0,
+) -> Corrupted:
     """Constant displacement task: per sample, one random direction and a length uniform in
     [min_m, max_m]; the same offset moves `joints` (None: all) over the centred gap.
     Every non-NaN token stays observed; `displaced` marks the moved ones."""
@@ -258,9 +286,15 @@ def gaussian_noise(positions: torch.Tensor, sigma_m: float, generator: torch.Gen
     return _pack(noisy, observed, observed.clone())
 
 
-def rotation_noise(rotations: torch.Tensor, root_translation: torch.Tensor, offsets: torch.Tensor, parents,
-                   sigma_rad: float, generator: torch.Generator | None = None,
-                   joints: list[int] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+def rotation_noise(
+    rotations: torch.Tensor,
+    root_translation: torch.Tensor,
+    offsets: torch.Tensor,
+    parents,
+    sigma_rad: float,
+    generator: torch.Generator | None = None,
+    joints: list[int] | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Gaussian noise task on rotations (Pose-NDF / Motion-DVAE protocol): N(0, sigma_rad^2) on each
     axis-angle coordinate of `joints` (default: every joint but the root 0, the root orientation
     stays clean), then forward kinematics.
@@ -279,6 +313,7 @@ def rotation_noise(rotations: torch.Tensor, root_translation: torch.Tensor, offs
 
 # --- normalisation and augmentation (XMAE section 4.1, implementation details) ---
 
+
 def normalize(positions: torch.Tensor, observed: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Subtract each window's mean x and y over its observed tokens (displaced ones included);
     z (up) is untouched.
@@ -290,7 +325,7 @@ def normalize(positions: torch.Tensor, observed: torch.Tensor) -> tuple[torch.Te
     """
     zero = torch.zeros((), dtype=positions.dtype, device=positions.device)
     obs = observed[..., None]
-    total = torch.where(obs, positions, zero).sum(dim=(1, 2), keepdim=True)   # (B, 1, 1, 3)
+    total = torch.where(obs, positions, zero).sum(dim=(1, 2), keepdim=True)  # (B, 1, 1, 3)
     count = obs.sum(dim=(1, 2), keepdim=True).clamp_min(1).to(positions.dtype)  # (B, 1, 1, 1)
     offset = total / count
     offset = torch.cat([offset[..., :2], torch.zeros_like(offset[..., 2:])], dim=-1)
@@ -312,8 +347,9 @@ def rotate_z(positions: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     return torch.stack([c * x - s * y, s * x + c * y, z], dim=-1)
 
 
-def random_z_rotation(positions: torch.Tensor, generator: torch.Generator | None = None
-                      ) -> tuple[torch.Tensor, torch.Tensor]:
+def random_z_rotation(
+    positions: torch.Tensor, generator: torch.Generator | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Augmentation: each sample rotated about z by an angle uniform in [0, 2 pi).
     Apply after normalize so that the rotation axis passes through the window's centre.
     positions: (B, T, J, 3) -> rotated (B, T, J, 3), angle (B,); rotate targets with rotate_z(x, angle)."""

@@ -4,6 +4,7 @@ file -> io reader -> Clip -> joint selection -> resample -> (cache) -> windows (
 Corruption is not done here: it runs on the device, inside the LightningModule, where the
 batch already is.
 """
+
 from __future__ import annotations
 
 import logging
@@ -39,8 +40,9 @@ class WindowDataset(Dataset):
 
     def __init__(self, clips: list[Clip], window: int, stride: int, with_rotations: bool = False):
         self.window = window
-        self.positions = torch.from_numpy(np.concatenate([c.positions for c in clips])) if clips else \
-            torch.zeros(0, 0, 3)
+        self.positions = (
+            torch.from_numpy(np.concatenate([c.positions for c in clips])) if clips else torch.zeros(0, 0, 3)
+        )
         self.with_rotations = with_rotations and bool(clips) and all(c.has_rotations for c in clips)
         if self.with_rotations:
             self.rotations = torch.from_numpy(np.concatenate([c.rotations for c in clips]))
@@ -53,7 +55,9 @@ class WindowDataset(Dataset):
             clip_index.append(np.full(len(s), i))
             first += c.num_frames
         self.starts = torch.from_numpy(np.concatenate(starts)) if starts else torch.zeros(0, dtype=torch.long)
-        self.clip_index = torch.from_numpy(np.concatenate(clip_index)) if clip_index else torch.zeros(0, dtype=torch.long)
+        self.clip_index = (
+            torch.from_numpy(np.concatenate(clip_index)) if clip_index else torch.zeros(0, dtype=torch.long)
+        )
         self.clip_names = [c.name for c in clips]
 
     def __len__(self) -> int:
@@ -68,12 +72,14 @@ class WindowDataset(Dataset):
 
     def __getitems__(self, indices: list[int] | torch.Tensor) -> dict[str, torch.Tensor]:
         frames = self.starts[indices][:, None] + torch.arange(self.window, device=self.starts.device)  # (B, T)
-        batch = {"positions": self.positions[frames],  # (B, T, J, 3)
-                 "clip_index": self.clip_index[indices]}
+        batch = {
+            "positions": self.positions[frames],  # (B, T, J, 3)
+            "clip_index": self.clip_index[indices],
+        }
         if self.with_rotations:
-            batch["rotations"] = self.rotations[frames]                    # (B, T, J, 3)
-            batch["root_translation"] = self.root_translation[frames]      # (B, T, 3)
-            batch["offsets"] = self.offsets[self.clip_index[indices]]      # (B, J, 3)
+            batch["rotations"] = self.rotations[frames]  # (B, T, J, 3)
+            batch["root_translation"] = self.root_translation[frames]  # (B, T, 3)
+            batch["offsets"] = self.offsets[self.clip_index[indices]]  # (B, J, 3)
         return batch
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
@@ -92,8 +98,9 @@ class DeviceBatches:
     window of the same permutation, so the ranks see disjoint windows. Incomplete last batches
     are dropped, as the training loader does."""
 
-    def __init__(self, dataset: WindowDataset, batch_size: int, device: torch.device, rank: int = 0,
-                 world_size: int = 1):
+    def __init__(
+        self, dataset: WindowDataset, batch_size: int, device: torch.device, rank: int = 0, world_size: int = 1
+    ):
         self.dataset = dataset.to(device)
         self.batch_size, self.device, self.rank, self.world_size = batch_size, device, rank, world_size
         self.epoch = 0
@@ -111,9 +118,9 @@ class DeviceBatches:
         # the same permutation on every rank: seeded by the epoch, not by the rank's RNG state
         g = torch.Generator(device=self.device).manual_seed(torch.initial_seed() + self.epoch)
         order = torch.randperm(len(self.dataset), generator=g, device=self.device)
-        order = order[self.rank::self.world_size][:len(self.dataset) // self.world_size]  # equal share per rank
+        order = order[self.rank :: self.world_size][: len(self.dataset) // self.world_size]  # equal share per rank
         for i in range(len(self)):
-            yield self.dataset.__getitems__(order[i * self.batch_size:(i + 1) * self.batch_size])
+            yield self.dataset.__getitems__(order[i * self.batch_size : (i + 1) * self.batch_size])
 
 
 def _keep_batch(batch):
@@ -180,8 +187,10 @@ class MotionDataModule(L.LightningDataModule):
         if source != "synthetic" and not path:
             raise ValueError(f"data.path: source {source!r} needs a file or folder path")
         if not (0.0 <= val_fraction and 0.0 <= test_fraction and val_fraction + test_fraction <= 1.0):
-            raise ValueError(f"data.val_fraction {val_fraction} and data.test_fraction {test_fraction}: fractions "
-                             "of the files, together at most 1 (the rest is the training split)")
+            raise ValueError(
+                f"data.val_fraction {val_fraction} and data.test_fraction {test_fraction}: fractions "
+                "of the files, together at most 1 (the rest is the training split)"
+            )
         self.save_hyperparameters()
         self.skeleton: Skeleton | None = None
         self.clips: dict[str, list[Clip]] = {}
@@ -195,23 +204,35 @@ class MotionDataModule(L.LightningDataModule):
 
     def _files(self) -> list[Path]:
         from mocapfix.io import list_motion_files
+
         return list_motion_files(self.hparams.path, self.hparams.source)
 
     def _read_all(self) -> list[Clip]:
         hp = self.hparams
         if hp.source == "synthetic":
             from mocapfix.io.synthetic import generate_clips
+
             return generate_clips(hp.synthetic_clips, hp.synthetic_seconds, hp.fps, hp.synthetic_seed)
         if hp.source == "archive":  # a dataset parsed before (the cache's format): no re-parsing
             return load_clips(Path(hp.path))
         from mocapfix.io import read_motion
+
         clips = []
         for f in self._files():
             # Joint selection happens in the reader where it can (BVH: exact re-rooted rotations),
             # and again in _prepare for readers that don't take it (a no-op after the reader).
-            clips.extend(read_motion(f, hp.source, unit=hp.unit, up_axis=hp.up_axis, groups=hp.groups,
-                                     body_model_path=hp.body_model_path, keep_joints=hp.keep_joints,
-                                     drop_joints=hp.drop_joints))
+            clips.extend(
+                read_motion(
+                    f,
+                    hp.source,
+                    unit=hp.unit,
+                    up_axis=hp.up_axis,
+                    groups=hp.groups,
+                    body_model_path=hp.body_model_path,
+                    keep_joints=hp.keep_joints,
+                    drop_joints=hp.drop_joints,
+                )
+            )
         return clips
 
     def _prepare(self, clips: list[Clip]) -> list[Clip]:
@@ -229,8 +250,11 @@ class MotionDataModule(L.LightningDataModule):
         others = [c for c in clips if c.meta.get("format") != "bvh"]
         unknown = set(hp.drop_joints or ()) - {n for c in others for n in c.skeleton.joint_names}
         if unknown and others:
-            raise MotionFileError(hp.path, f"drop_joints not in any file's skeleton: {sorted(unknown)} "
-                                           f"(joints: {', '.join(others[0].skeleton.joint_names)})")
+            raise MotionFileError(
+                hp.path,
+                f"drop_joints not in any file's skeleton: {sorted(unknown)} "
+                f"(joints: {', '.join(others[0].skeleton.joint_names)})",
+            )
         for c in clips:
             names = c.skeleton.joint_names
             keep = list(range(len(names)))
@@ -253,16 +277,33 @@ class MotionDataModule(L.LightningDataModule):
             ref = out[0].skeleton
             for c in out[1:]:
                 if c.skeleton.joint_names != ref.joint_names or c.skeleton.parents != ref.parents:
-                    raise MotionFileError(c.source, f"skeleton differs from {out[0].source}'s "
-                                          f"({c.skeleton.num_joints} vs {ref.num_joints} joints); "
-                                          "use keep_joints / drop_joints to bring them to one skeleton")
+                    raise MotionFileError(
+                        c.source,
+                        f"skeleton differs from {out[0].source}'s "
+                        f"({c.skeleton.num_joints} vs {ref.num_joints} joints); "
+                        "use keep_joints / drop_joints to bring them to one skeleton",
+                    )
         return out
 
     def load_clips(self) -> list[Clip]:
         """Parsed, prepared clips: from the cache when files and options are unchanged."""
         hp = self.hparams
-        options = {k: hp[k] for k in ("source", "fps", "drop_joints", "keep_joints", "groups", "unit", "up_axis",
-                                      "body_model_path", "synthetic_clips", "synthetic_seconds", "synthetic_seed")}
+        options = {
+            k: hp[k]
+            for k in (
+                "source",
+                "fps",
+                "drop_joints",
+                "keep_joints",
+                "groups",
+                "unit",
+                "up_axis",
+                "body_model_path",
+                "synthetic_clips",
+                "synthetic_seconds",
+                "synthetic_seed",
+            )
+        }
         if hp.source == "archive" and not Path(hp.path).is_file():
             raise MotionFileError(hp.path, "no such archive file")
         cache = None
@@ -310,8 +351,9 @@ class MotionDataModule(L.LightningDataModule):
         eval_stride = hp.eval_stride_s or hp.window_s
         for s in SPLITS:
             stride = hp.stride_s if s == "train" else eval_stride
-            ds = WindowDataset(self.clips[s], self.window_frames, max(1, int(round(stride * hp.fps))),
-                               hp.with_rotations)
+            ds = WindowDataset(
+                self.clips[s], self.window_frames, max(1, int(round(stride * hp.fps))), hp.with_rotations
+            )
             if s == "train" and len(ds):
                 self._drop_mostly_missing(ds)
             self.datasets[s] = ds
@@ -341,10 +383,13 @@ class MotionDataModule(L.LightningDataModule):
         if lacking and len(lacking) < len(clips):
             c = next((c for c in lacking if c.meta.get("no_rotations")), lacking[0])
             why = c.meta.get("no_rotations") or f"its {c.meta.get('format', self.hparams.source)} data has none"
-            raise MotionFileError(c.source, f"no joint rotations ({why}), and {len(clips) - len(lacking)} other clips "
-                                            f"have them: with_rotations needs them in every clip ({len(lacking)} "
-                                            "lack them): mend or leave out those files, or train on positions "
-                                            "(data.with_rotations: false, model.state: positions)")
+            raise MotionFileError(
+                c.source,
+                f"no joint rotations ({why}), and {len(clips) - len(lacking)} other clips "
+                f"have them: with_rotations needs them in every clip ({len(lacking)} "
+                "lack them): mend or leave out those files, or train on positions "
+                "(data.with_rotations: false, model.state: positions)",
+            )
 
     @property
     def has_rotations(self) -> bool:
@@ -355,8 +400,10 @@ class MotionDataModule(L.LightningDataModule):
         """How many of the split's windows miss nothing (models without a notion of a missing
         joint, Motion-DVAE, learn from and are scored on those only)."""
         ds = self.datasets[split]
-        return sum(int(complete_windows(ds.__getitems__(list(range(i, min(i + 4096, len(ds)))))).sum())
-                   for i in range(0, len(ds), 4096))
+        return sum(
+            int(complete_windows(ds.__getitems__(list(range(i, min(i + 4096, len(ds)))))).sum())
+            for i in range(0, len(ds), 4096)
+        )
 
     def _drop_mostly_missing(self, ds: WindowDataset) -> None:
         keep = []
@@ -373,19 +420,30 @@ class MotionDataModule(L.LightningDataModule):
         hp = self.hparams
         ds = self.datasets[split]
         if len(ds) == 0:
-            raise MotionFileError(hp.path or hp.source, f"the {split} split has no {hp.window_s} s windows; "
-                                  "adjust val_fraction / test_fraction / patterns or window_s")
+            raise MotionFileError(
+                hp.path or hp.source,
+                f"the {split} split has no {hp.window_s} s windows; "
+                "adjust val_fraction / test_fraction / patterns or window_s",
+            )
         bs = hp.batch_size if split == "train" else (hp.eval_batch_size or hp.batch_size)
-        return DataLoader(ds, batch_size=bs, shuffle=shuffle, drop_last=shuffle and len(ds) >= bs,
-                          num_workers=hp.num_workers, pin_memory=hp.pin_memory,
-                          persistent_workers=hp.persistent_workers and hp.num_workers > 0, collate_fn=_keep_batch)
+        return DataLoader(
+            ds,
+            batch_size=bs,
+            shuffle=shuffle,
+            drop_last=shuffle and len(ds) >= bs,
+            num_workers=hp.num_workers,
+            pin_memory=hp.pin_memory,
+            persistent_workers=hp.persistent_workers and hp.num_workers > 0,
+            collate_fn=_keep_batch,
+        )
 
     def train_dataloader(self) -> DataLoader | DeviceBatches:
         if self.hparams.batches_on_device and self.trainer is not None:
             self._loader("train", shuffle=True)  # the same checks and messages
             t = self.trainer
-            return DeviceBatches(self.datasets["train"], self.hparams.batch_size, t.strategy.root_device,
-                                 t.global_rank, t.world_size)
+            return DeviceBatches(
+                self.datasets["train"], self.hparams.batch_size, t.strategy.root_device, t.global_rank, t.world_size
+            )
         return self._loader("train", shuffle=True)
 
     def val_dataloader(self) -> DataLoader:

@@ -2,6 +2,7 @@
 
 Everything here is numpy: it runs once per dataset (then comes from the cache), not per batch.
 """
+
 from __future__ import annotations
 
 import fnmatch
@@ -45,6 +46,7 @@ def resample(clip: Clip, fps: float) -> Clip:
     if not clip.has_rotations:
         return clip.replace(positions=lerp(clip.positions), fps=float(fps))
     from scipy.spatial.transform import Rotation
+
     T, J, _ = clip.rotations.shape
     q = Rotation.from_rotvec(clip.rotations.reshape(-1, 3)).as_quat().reshape(T, J, 4)
     q0, q1 = q[i0], q[i1]
@@ -60,8 +62,9 @@ def resample(clip: Clip, fps: float) -> Clip:
     qn /= np.linalg.norm(qn, axis=-1, keepdims=True)
     rotations = Rotation.from_quat(qn.reshape(-1, 4)).as_rotvec().reshape(num_new, J, 3).astype(np.float32)
     root = lerp(clip.root_translation)
-    positions = fk_axis_angle(torch.from_numpy(rotations), torch.from_numpy(root), torch.from_numpy(clip.offsets),
-                              clip.skeleton.parents).numpy()
+    positions = fk_axis_angle(
+        torch.from_numpy(rotations), torch.from_numpy(root), torch.from_numpy(clip.offsets), clip.skeleton.parents
+    ).numpy()
     return clip.replace(positions=positions, rotations=rotations, root_translation=root, fps=float(fps))
 
 
@@ -72,8 +75,9 @@ def window_starts(num_frames: int, window: int, stride: int) -> np.ndarray:
     return np.arange(0, num_frames - window + 1, stride, dtype=np.int64)
 
 
-def split_of(source: str, val_fraction: float, test_fraction: float, seed: int,
-             patterns: dict[str, list[str]] | None = None) -> str:
+def split_of(
+    source: str, val_fraction: float, test_fraction: float, seed: int, patterns: dict[str, list[str]] | None = None
+) -> str:
     """'train' | 'val' | 'test' for a file. Whole files go to one split, so no clip leaks.
 
     Patterns (fnmatch on the file name, then on the full path) win; otherwise a seeded hash of
@@ -118,11 +122,17 @@ def save_clips(path: Path, clips: list[Clip]) -> None:
         "positions": np.concatenate([c.positions for c in clips]),
         "lengths": lengths,
         "fps": np.array([c.fps for c in clips], dtype=np.float64),
-        "header": np.array(json.dumps({
-            "skeleton": clips[0].skeleton.to_dict(),
-            "names": [c.name for c in clips], "sources": [c.source for c in clips],
-            "meta": [c.meta for c in clips],
-        }, default=str)),
+        "header": np.array(
+            json.dumps(
+                {
+                    "skeleton": clips[0].skeleton.to_dict(),
+                    "names": [c.name for c in clips],
+                    "sources": [c.source for c in clips],
+                    "meta": [c.meta for c in clips],
+                },
+                default=str,
+            )
+        ),
     }
     if all(c.has_rotations for c in clips):
         arrays["rotations"] = np.concatenate([c.rotations for c in clips])
@@ -136,8 +146,11 @@ def save_clips(path: Path, clips: list[Clip]) -> None:
 def load_clips(path: Path) -> list[Clip]:
     z = load_npz(Path(path))
     if not isinstance(z, np.lib.npyio.NpzFile) or not {"header", "positions", "lengths", "fps"} <= set(z.files):
-        raise MotionFileError(path, "not an archive of parsed clips (the .npz the data cache and "
-                                    "`bench/gpu_session.sh prepare` write: header, positions, lengths, fps)")
+        raise MotionFileError(
+            path,
+            "not an archive of parsed clips (the .npz the data cache and "
+            "`bench/gpu_session.sh prepare` write: header, positions, lengths, fps)",
+        )
     with z:
         header = json.loads(str(z["header"]))
         skeleton = Skeleton.from_dict(header["skeleton"])
@@ -149,8 +162,17 @@ def load_clips(path: Path) -> list[Clip]:
         offsets = z["offsets"] if has_rot else None
         clips = []
         for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
-            clips.append(Clip(positions[a:b], float(z["fps"][i]), skeleton, header["names"][i], header["sources"][i],
-                              rotations=rot[a:b] if has_rot else None,
-                              root_translation=root[a:b] if has_rot else None,
-                              offsets=offsets[i] if has_rot else None, meta=header["meta"][i]))
+            clips.append(
+                Clip(
+                    positions[a:b],
+                    float(z["fps"][i]),
+                    skeleton,
+                    header["names"][i],
+                    header["sources"][i],
+                    rotations=rot[a:b] if has_rot else None,
+                    root_translation=root[a:b] if has_rot else None,
+                    offsets=offsets[i] if has_rot else None,
+                    meta=header["meta"][i],
+                )
+            )
     return clips

@@ -1,6 +1,7 @@
 """Classical fills, the baselines of the test tables: Lerp (the XMAE paper's) and splines
 through each joint's observed frames (what capture software does: a cubic spline, or PCHIP, which
 does not overshoot). A learned model is worth using only where it beats the best of these."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -36,7 +37,7 @@ def lerp_infill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor
 
     # Weight of the next frame; one-sided gaps get 0 or 1 (hold the edge value).
     span = (nxt - prev).clamp_min(1).to(positions.dtype)
-    w = ((t - prev).to(positions.dtype) / span)
+    w = (t - prev).to(positions.dtype) / span
     w = torch.where(has_prev, torch.where(has_next, w, 0.0), 1.0)[..., None]
     # the branch not taken may hold NaN (clamped gathers of missing tokens): where() keeps it out
     filled = torch.where(w == 0, p_val, torch.where(w == 1, n_val, p_val + w * (n_val - p_val)))
@@ -70,15 +71,15 @@ def spline_infill(positions: torch.Tensor, observed: torch.Tensor, kind: str = "
     x = out.detach().permute(0, 2, 1, 3).reshape(B * J, T, 3).cpu().double().numpy()
     obs = obs.cpu().numpy()
     t = np.arange(T)
-    first, last = obs.argmax(axis=1), T - 1 - obs[:, ::-1].argmax(axis=1)            # (B*J,)
-    inside = (t >= first[:, None]) & (t <= last[:, None])                            # (B*J, T)
+    first, last = obs.argmax(axis=1), T - 1 - obs[:, ::-1].argmax(axis=1)  # (B*J,)
+    inside = (t >= first[:, None]) & (t <= last[:, None])  # (B*J, T)
     todo = np.flatnonzero((obs.sum(axis=1) >= 3) & (inside & ~obs).any(axis=1))
     if todo.size == 0:
         return out
     # Sequences with the same observed frames share one spline call (vector-valued along axis 1):
     # the evaluation tasks cut the same gap into every window, so there are few patterns.
     keys = np.packbits(obs[todo], axis=1)
-    keys = keys.view(np.dtype((np.void, keys.shape[1]))).reshape(-1)                 # one bytes key per row
+    keys = keys.view(np.dtype((np.void, keys.shape[1]))).reshape(-1)  # one bytes key per row
     _, first_of, which = np.unique(keys, return_index=True, return_inverse=True)
     for k, row in enumerate(first_of):
         rows = todo[which.reshape(-1) == k]
@@ -101,16 +102,16 @@ def limb_infill(positions: torch.Tensor, observed: torch.Tensor, parents) -> tor
     positions: (B, T, J, 3), observed: (B, T, J) bool, parents: (J,) with parents[j] < j
     -> (B, T, J, 3), observed tokens as given."""
     obs = observed.to(torch.bool) & ~torch.isnan(positions).any(dim=-1)
-    own = spline_infill(positions, obs)                                              # fallback for every joint
+    own = spline_infill(positions, obs)  # fallback for every joint
     p = torch.as_tensor(list(parents), device=positions.device)
     child = torch.nonzero(p >= 0).flatten()
-    both = obs[:, :, child] & obs[:, :, p[child]]                                    # (B, T, C)
-    bone = positions[:, :, child] - positions[:, :, p[child]]                        # (B, T, C, 3)
+    both = obs[:, :, child] & obs[:, :, p[child]]  # (B, T, C)
+    bone = positions[:, :, child] - positions[:, :, p[child]]  # (B, T, C, 3)
     bone = spline_infill(torch.where(both[..., None], bone, torch.nan), both)
     length = torch.where(both, (positions[:, :, child] - positions[:, :, p[child]]).norm(dim=-1), torch.nan)
-    length = length.nanmedian(dim=1, keepdim=True).values                           # (B, 1, C)
+    length = length.nanmedian(dim=1, keepdim=True).values  # (B, 1, C)
     bone = bone * (length / bone.norm(dim=-1).clamp_min(1e-9))[..., None]
-    seen = both.any(dim=1)                                                           # (B, C) the bone has a length
+    seen = both.any(dim=1)  # (B, C) the bone has a length
     out = own.clone()
     for k, j in enumerate(child.tolist()):  # parents before children: a parent is final before its child
         along = out[:, :, parents[j]] + bone[:, :, k]
@@ -119,7 +120,9 @@ def limb_infill(positions: torch.Tensor, observed: torch.Tensor, parents) -> tor
     return out
 
 
-CLASSICAL = {"lerp": lambda p, o, parents: lerp_infill(p, o),
-             "spline": lambda p, o, parents: spline_infill(p, o, "spline"),
-             "pchip": lambda p, o, parents: spline_infill(p, o, "pchip"),
-             "limb": limb_infill}
+CLASSICAL = {
+    "lerp": lambda p, o, parents: lerp_infill(p, o),
+    "spline": lambda p, o, parents: spline_infill(p, o, "spline"),
+    "pchip": lambda p, o, parents: spline_infill(p, o, "pchip"),
+    "limb": limb_infill,
+}

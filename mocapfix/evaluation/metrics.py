@@ -10,6 +10,7 @@ NaN in the target means "no ground truth here": those tokens are never evaluated
 prediction at an evaluated token is a model bug and is not hidden: it makes the result NaN.
 compute() returns NaN, not an error, when nothing was evaluated (e.g. an all-NaN target).
 """
+
 from __future__ import annotations
 
 import torch
@@ -52,8 +53,9 @@ class _MeanMetric(Metric):
 
     def _accumulate(self, values: torch.Tensor, valid: torch.Tensor) -> None:
         # torch.where, not values * valid: values are NaN at invalid items and 0 * NaN = NaN
-        self.total += torch.where(valid, values, torch.zeros((), dtype=values.dtype, device=values.device)
-                                  ).sum(dtype=torch.float64)
+        self.total += torch.where(valid, values, torch.zeros((), dtype=values.dtype, device=values.device)).sum(
+            dtype=torch.float64
+        )
         self.count += valid.sum()
 
     def compute(self) -> torch.Tensor:
@@ -83,8 +85,8 @@ class MPJPE(_MeanMetric):
             valid = valid & mask.to(torch.bool)
         if self.root_relative:
             r = self.root_index
-            pred = pred - pred[:, :, r:r + 1]
-            target = target - target[:, :, r:r + 1]
+            pred = pred - pred[:, :, r : r + 1]
+            target = target - target[:, :, r : r + 1]
             valid = valid & _finite_token(target)  # drops every joint of a frame whose root is NaN
         self._accumulate(M_TO_MM * (pred - target).norm(dim=-1), valid)
 
@@ -117,7 +119,7 @@ class JointAcceleration(_MeanMetric):
         self.fps = float(fps)
 
     def update(self, positions: torch.Tensor, mask: torch.Tensor | None = None) -> None:
-        acc = _second_difference(positions).norm(dim=-1) * self.fps ** 2
+        acc = _second_difference(positions).norm(dim=-1) * self.fps**2
         self._accumulate(acc, _valid_centre(positions, mask))
 
 

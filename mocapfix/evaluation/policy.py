@@ -13,6 +13,7 @@ A candidate is a single method ("spline") or the mean of two ("limb+spline"): tw
 in different directions average to a smaller error than either (a spline overshoots where the
 limb fill bends), and which pair that is differs by hole length and part, so it is measured too.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -23,10 +24,10 @@ from mocapfix.skeleton import Skeleton
 
 PARTS = ("full", "arm", "leg")
 CLEAN_QUANTILE = 0.995  # of the model's disagreement with clean observed tokens: above it, a token is suspect
-LEARNED = ("xmae",)     # the methods that are models; every other is a classical fill
-MODEL_MARGIN = 0.98     # a model fills a hole only where its val error is 2 % below the best classical fill's
-BLEND = "+"             # "a+b": the mean of fills a and b
-BLEND_MARGIN = 0.99     # a blend of classical fills only where 1 % below the best single one (in doubt, the simpler)
+LEARNED = ("xmae",)  # the methods that are models; every other is a classical fill
+MODEL_MARGIN = 0.98  # a model fills a hole only where its val error is 2 % below the best classical fill's
+BLEND = "+"  # "a+b": the mean of fills a and b
+BLEND_MARGIN = 0.99  # a blend of classical fills only where 1 % below the best single one (in doubt, the simpler)
 
 
 def components(method: str) -> list[str]:
@@ -44,17 +45,17 @@ def blends(fills: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     names = sorted(fills)
     out = dict(fills)
     for i, a in enumerate(names):
-        for b in names[i + 1:]:
+        for b in names[i + 1 :]:
             out[a + BLEND + b] = 0.5 * (fills[a] + fills[b])
     return out
 
 
 @dataclass
 class FillPolicy:
-    gaps_s: list[float]                                  # the hole lengths measured, ascending
-    error_mm: dict[str, dict[str, list[float]]]          # part -> method -> MPJPE per gap (val split)
-    replace_threshold_m: float | None = None             # None: never replace an observed token
-    windows: int = 0                                     # val windows it was measured on
+    gaps_s: list[float]  # the hole lengths measured, ascending
+    error_mm: dict[str, dict[str, list[float]]]  # part -> method -> MPJPE per gap (val split)
+    replace_threshold_m: float | None = None  # None: never replace an observed token
+    windows: int = 0  # val windows it was measured on
     notes: list[str] = field(default_factory=list)
 
     def best(self, part: str, gap_s: float) -> str:
@@ -91,19 +92,31 @@ class FillPolicy:
                 cells.append(f"{g:g}s {m} {table[m][i]:.1f} (classical {classical:.1f})")
             lines.append(f"{part}: " + ", ".join(cells))
         if self.replace_threshold_m is not None:
-            lines.append(f"observed tokens replaced where the model disagrees by more than "
-                         f"{1000 * self.replace_threshold_m:.0f} mm")
+            lines.append(
+                f"observed tokens replaced where the model disagrees by more than "
+                f"{1000 * self.replace_threshold_m:.0f} mm"
+            )
         return lines
 
     def to_dict(self) -> dict:
         """Plain values (a checkpoint loaded with weights_only=True holds nothing else)."""
-        return {"gaps_s": list(self.gaps_s), "error_mm": self.error_mm, "replace_threshold_m": self.replace_threshold_m,
-                "windows": self.windows, "notes": list(self.notes)}
+        return {
+            "gaps_s": list(self.gaps_s),
+            "error_mm": self.error_mm,
+            "replace_threshold_m": self.replace_threshold_m,
+            "windows": self.windows,
+            "notes": list(self.notes),
+        }
 
     @classmethod
     def from_dict(cls, d: dict) -> FillPolicy:
-        return cls([float(g) for g in d["gaps_s"]], d["error_mm"], d.get("replace_threshold_m"),
-                   int(d.get("windows", 0)), list(d.get("notes", [])))
+        return cls(
+            [float(g) for g in d["gaps_s"]],
+            d["error_mm"],
+            d.get("replace_threshold_m"),
+            int(d.get("windows", 0)),
+            list(d.get("notes", [])),
+        )
 
 
 def hole_frames(observed: torch.Tensor) -> torch.Tensor:
@@ -111,8 +124,8 @@ def hole_frames(observed: torch.Tensor) -> torch.Tensor:
     run of missing frames of its joint that it is in; 0 for observed tokens."""
     B, T, J = observed.shape
     t = torch.arange(T, device=observed.device).view(1, T, 1).expand(B, T, J)
-    prev = torch.where(observed, t, -1).cummax(dim=1).values                     # last observed at or before t
-    nxt = torch.where(observed, t, T).flip(1).cummin(dim=1).values.flip(1)       # first observed at or after t
+    prev = torch.where(observed, t, -1).cummax(dim=1).values  # last observed at or before t
+    nxt = torch.where(observed, t, T).flip(1).cummin(dim=1).values.flip(1)  # first observed at or after t
     return torch.where(observed, 0, nxt - prev - 1)
 
 
@@ -124,28 +137,34 @@ def token_parts(observed: torch.Tensor, skeleton: Skeleton) -> torch.Tensor:
     limb = torch.zeros(J, dtype=torch.long, device=observed.device)
     for group, members in skeleton.groups.items():
         limb[list(members)] = PARTS.index(group.split("_")[-1])
-    body_wide = (~observed).float().mean(dim=-1, keepdim=True) >= 0.5             # (B, T, 1)
+    body_wide = (~observed).float().mean(dim=-1, keepdim=True) >= 0.5  # (B, T, 1)
     return torch.where(body_wide, 0, limb.view(1, 1, J).expand(B, T, J))
 
 
-def apply_fill_policy(policy: FillPolicy, positions: torch.Tensor, observed: torch.Tensor,
-                      fills: dict[str, torch.Tensor], fps: float, skeleton: Skeleton
-                      ) -> tuple[torch.Tensor, torch.Tensor]:
+def apply_fill_policy(
+    policy: FillPolicy,
+    positions: torch.Tensor,
+    observed: torch.Tensor,
+    fills: dict[str, torch.Tensor],
+    fps: float,
+    skeleton: Skeleton,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Each missing token from the fill the policy names for its hole; observed tokens as given.
 
     positions: (B, T, J, 3); observed: (B, T, J) bool; fills: method -> (B, T, J, 3), holding
     every single method of policy.methods() -> (B, T, J, 3), and (B, T, J) the index into
     policy_names(policy, fills) of the candidate each token took (-1 for observed tokens)."""
     names = policy_names(policy, fills)
-    stacked = torch.stack([_candidate(fills, m) for m in names])                  # (M, B, T, J, 3)
+    stacked = torch.stack([_candidate(fills, m) for m in names])  # (M, B, T, J, 3)
     seconds = hole_frames(observed).float() / fps
     parts = token_parts(observed, skeleton)
     # the choice depends only on (part, nearest measured gap): a lookup table, not a per-token loop
     edges = torch.tensor([(a + b) / 2 for a, b in zip(policy.gaps_s, policy.gaps_s[1:])], device=observed.device)
-    gap_index = torch.bucketize(seconds.contiguous(), edges)                      # (B, T, J) into gaps_s
-    table = torch.tensor([[names.index(policy.best(p, g)) for g in policy.gaps_s] for p in PARTS],
-                         device=observed.device)                                  # (parts, gaps)
-    choice = table[parts, gap_index]                                              # (B, T, J)
+    gap_index = torch.bucketize(seconds.contiguous(), edges)  # (B, T, J) into gaps_s
+    table = torch.tensor(
+        [[names.index(policy.best(p, g)) for g in policy.gaps_s] for p in PARTS], device=observed.device
+    )  # (parts, gaps)
+    choice = table[parts, gap_index]  # (B, T, J)
     out = stacked.gather(0, choice[None, ..., None].expand(1, *choice.shape, 3))[0]
     return torch.where(observed[..., None], positions, out), torch.where(observed, -1, choice)
 
@@ -162,8 +181,9 @@ def _candidate(fills: dict[str, torch.Tensor], method: str) -> torch.Tensor:
     return fills[method] if method in fills else sum(fills[m] for m in parts) / len(parts)
 
 
-def suspect_tokens(policy: FillPolicy, estimate: torch.Tensor, positions: torch.Tensor,
-                   observed: torch.Tensor) -> torch.Tensor:
+def suspect_tokens(
+    policy: FillPolicy, estimate: torch.Tensor, positions: torch.Tensor, observed: torch.Tensor
+) -> torch.Tensor:
     """(B, T, J) bool: observed tokens the model disagrees with by more than it does with clean data
     (displaced or glitched joints); none without a calibrated threshold.
     estimate: the model's estimate with every available token observed."""
@@ -183,8 +203,9 @@ class Calibration:
         self.clean: list[torch.Tensor] = []
         self.windows = 0
 
-    def add_infill(self, part: str, gap_s: float, method: str, pred: torch.Tensor, target: torch.Tensor,
-                   scored: torch.Tensor) -> None:
+    def add_infill(
+        self, part: str, gap_s: float, method: str, pred: torch.Tensor, target: torch.Tensor, scored: torch.Tensor
+    ) -> None:
         """pred, target: (B, T, J, 3) metres; scored: (B, T, J) bool (the filled tokens with truth).
         Pass blends(fills) through add_fills to measure the pairs too."""
         err = (pred.float() - torch.nan_to_num(target.float())).norm(dim=-1)[scored]
@@ -192,8 +213,9 @@ class Calibration:
         s[0] += float(err.sum())
         s[1] += int(err.numel())
 
-    def add_fills(self, part: str, gap_s: float, fills: dict[str, torch.Tensor], target: torch.Tensor,
-                  scored: torch.Tensor) -> None:
+    def add_fills(
+        self, part: str, gap_s: float, fills: dict[str, torch.Tensor], target: torch.Tensor, scored: torch.Tensor
+    ) -> None:
         """Every single fill and the mean of every pair of them (see the module's docstring)."""
         for method, pred in blends(fills).items():
             self.add_infill(part, gap_s, method, pred, target, scored)
@@ -209,8 +231,15 @@ class Calibration:
         error: dict[str, dict[str, list[float]]] = {}
         for part in PARTS:
             methods = sorted({m for (p, _, m) in self.sums if p == part})
-            rows = {m: [1000.0 * self.sums[(part, g, m)][0] / max(self.sums[(part, g, m)][1], 1)
-                        if (part, g, m) in self.sums else float("inf") for g in self.gaps_s] for m in methods}
+            rows = {
+                m: [
+                    1000.0 * self.sums[(part, g, m)][0] / max(self.sums[(part, g, m)][1], 1)
+                    if (part, g, m) in self.sums
+                    else float("inf")
+                    for g in self.gaps_s
+                ]
+                for m in methods
+            }
             if rows:
                 error[part] = rows
         threshold = None

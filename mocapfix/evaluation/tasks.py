@@ -4,6 +4,7 @@ Tasks: infilling (full skeleton, arms, legs) and constant arm displacement over 
 Gaussian noise on positions. Left and right limbs are scored separately and averaged in the
 table, as the paper reports them.
 """
+
 from __future__ import annotations
 
 import json
@@ -21,8 +22,8 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Task:
-    task: str                  # infill | displacement | noise
-    part: str                  # full | left_arm | right_arm | left_leg | right_leg
+    task: str  # infill | displacement | noise
+    part: str  # full | left_arm | right_arm | left_leg | right_leg
     gap_s: float | None = None
     sigma_m: float | None = None
 
@@ -31,8 +32,9 @@ class Task:
         param = f"gap{self.gap_s}" if self.gap_s is not None else f"sigma{self.sigma_m}"
         return f"{self.task}/{self.part}/{param}"
 
-    def corrupt(self, positions: torch.Tensor, fps: float, skeleton: Skeleton,
-                generator: torch.Generator | None) -> Corrupted:
+    def corrupt(
+        self, positions: torch.Tensor, fps: float, skeleton: Skeleton, generator: torch.Generator | None
+    ) -> Corrupted:
         joints = None if self.part == "full" else list(skeleton.groups[self.part])
         if self.task == "infill":
             return infill_gap(positions, fps, self.gap_s, joints)
@@ -54,8 +56,11 @@ def paper_tasks(skeleton: Skeleton, gaps_s=(0.1, 0.3, 0.5, 0.7, 0.9), noise_sigm
     legs = [g for g in ("left_leg", "right_leg") if g in skeleton.groups]
     if len(arms) + len(legs) < 4:
         absent = sorted({"left_arm", "right_arm", "left_leg", "right_leg"} - set(arms) - set(legs))
-        log.info("skeleton %r has no %s group: those tasks are left out of the tables (data.groups names "
-                 "their joints)", skeleton.name, ", ".join(absent))
+        log.info(
+            "skeleton %r has no %s group: those tasks are left out of the tables (data.groups names their joints)",
+            skeleton.name,
+            ", ".join(absent),
+        )
     for gap in gaps_s:
         tasks += [Task("infill", p, gap_s=gap) for p in ["full", *arms, *legs]]
         tasks += [Task("displacement", p, gap_s=gap) for p in arms]
@@ -77,8 +82,11 @@ def table_rows(results: dict[tuple[str, str], tuple[float, float]], tasks: list[
     for (task, part, gap, sigma, m), vals in groups.items():
         row = {"task": task, "part": part}
         row.update({"gap_s": gap} if gap is not None else {"sigma_m": sigma})
-        row.update(method=m, mpjpe_mm=round(sum(v[0] for v in vals) / len(vals), 2),
-                   mpjpe_rel_mm=round(sum(v[1] for v in vals) / len(vals), 2))
+        row.update(
+            method=m,
+            mpjpe_mm=round(sum(v[0] for v in vals) / len(vals), 2),
+            mpjpe_rel_mm=round(sum(v[1] for v in vals) / len(vals), 2),
+        )
         rows.append(row)
     return rows
 
@@ -97,7 +105,9 @@ def format_table(rows: list[dict]) -> str:
             for m in dict.fromkeys(r["method"] for r in sub if r["part"] == part):
                 for col, label in (("mpjpe_mm", "global"), ("mpjpe_rel_mm", "rel.")):
                     vals = {r[pkey]: r[col] for r in sub if r["part"] == part and r["method"] == m}
-                    lines.append(f"{part:6s} {m:20s} {label:6s} " + " ".join(f"{vals.get(p, float('nan')):7.1f}" for p in params))
+                    lines.append(
+                        f"{part:6s} {m:20s} {label:6s} " + " ".join(f"{vals.get(p, float('nan')):7.1f}" for p in params)
+                    )
         lines.append("")
     return "\n".join(lines)
 

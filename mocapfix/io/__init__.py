@@ -4,6 +4,7 @@ read_motion(path, source) is the one entry point; list_motion_files finds the fi
 Readers are imported inside the functions: AMASS pulls in torch and smplx, which reading a BVH
 file should not pay for.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,13 +34,23 @@ def _frame_rate(text: str) -> float:
 def add_read_arguments(parser) -> None:
     """The reader options every file-taking command shares (inspect, fix): an argparse parser."""
     parser.add_argument("--source", default="auto", choices=SOURCES)
-    parser.add_argument("--unit", default="auto",
-                        help="the file's unit: m, cm, mm, inch or metres per file unit (0.0564); auto: from the body")
+    parser.add_argument(
+        "--unit",
+        default="auto",
+        help="the file's unit: m, cm, mm, inch or metres per file unit (0.0564); auto: from the body",
+    )
     parser.add_argument("--up-axis", default="auto", help="override the file's up axis: z, y")
     parser.add_argument("--fps", type=_frame_rate, default=None, help="frame rate for files that lack one")
     parser.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
-_EXTENSIONS = {"bvh": (".bvh",), "positions": (".npz", ".csv"), "h36m": (".npz",), "amass": (".npz",),
-               "auto": (".bvh", ".csv", ".npz")}
+
+
+_EXTENSIONS = {
+    "bvh": (".bvh",),
+    "positions": (".npz", ".csv"),
+    "h36m": (".npz",),
+    "amass": (".npz",),
+    "auto": (".bvh", ".csv", ".npz"),
+}
 # AMASS folders keep each subject's betas in shape.npz beside the motions: not a motion.
 _NOT_MOTION = {"shape.npz"}
 
@@ -47,14 +58,18 @@ _NOT_MOTION = {"shape.npz"}
 def _reader(source: str):
     if source == "bvh":
         from mocapfix.io.bvh import read_bvh
+
         return read_bvh
     if source == "positions":
         from mocapfix.io.positions import read_positions
+
         return read_positions
     if source == "h36m":
         from mocapfix.io.h36m import read_h36m
+
         return read_h36m
     from mocapfix.io.amass import read_amass
+
     return read_amass
 
 
@@ -68,6 +83,7 @@ def detect_source(path) -> str:
         return "positions"
     if suffix == ".npz":
         from mocapfix.io.positions import load_npz
+
         with load_npz(path) as data:
             keys = set(data.files)
         if "positions_3d" in keys:
@@ -76,8 +92,11 @@ def detect_source(path) -> str:
             return "amass"
         if "positions" in keys:
             return "positions"
-        raise MotionFileError(path, f"npz with unknown keys ({', '.join(sorted(keys)) or 'none'}); expected "
-                                    "positions (positions file), positions_3d (Human3.6M) or poses+trans (AMASS)")
+        raise MotionFileError(
+            path,
+            f"npz with unknown keys ({', '.join(sorted(keys)) or 'none'}); expected "
+            "positions (positions file), positions_3d (Human3.6M) or poses+trans (AMASS)",
+        )
     raise MotionFileError(path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz")
 
 
@@ -134,5 +153,8 @@ def list_motion_files(path, source: str = "auto") -> list[Path]:
         raise MotionFileError(e.filename or path, f"cannot read this folder ({e.strerror or type(e).__name__})")
 
     found = [Path(root) / name for root, _, names in os.walk(path, onerror=unreadable) for name in names]
-    return sorted(p for p in found if p.suffix.lower() in exts and p.name.lower() not in _NOT_MOTION
-                  and not p.name.startswith(".") and p.is_file())
+    return sorted(
+        p
+        for p in found
+        if p.suffix.lower() in exts and p.name.lower() not in _NOT_MOTION and not p.name.startswith(".") and p.is_file()
+    )

@@ -9,6 +9,7 @@ Two tests, both on robust statistics so that the bad values cannot hide themselv
   second: the frame's centre against a running median of the centres over about 0.5 s).
 Joints that never move (a helper at the origin) are not part of the body and are never absurd.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -19,25 +20,26 @@ from scipy.ndimage import median_filter
 from mocapfix.clip import Clip
 from mocapfix.io.conventions import REFERENCE_STATURE_M
 
-MIN_REACH_M = 3.0    # a joint farther than max(this, 1.5 statures) from its body's median joint
-MIN_JUMP_M = 3.0     # a frame farther than max(this, 2 statures) from the running median: 12 m/s for 0.25 s
+MIN_REACH_M = 3.0  # a joint farther than max(this, 1.5 statures) from its body's median joint
+MIN_JUMP_M = 3.0  # a frame farther than max(this, 2 statures) from the running median: 12 m/s for 0.25 s
 MEDIAN_WINDOW_S = 0.5
 
 
 def absurd_mask(positions: np.ndarray, fps: float, stature_m: float = REFERENCE_STATURE_M) -> np.ndarray:
     """positions: (T, J, 3) metres, NaN = missing -> (T, J) bool, True where a seen joint is absurd."""
-    pos = positions.astype(np.float64)                          # 1e30 squared overflows float32
+    pos = positions.astype(np.float64)  # 1e30 squared overflows float32
     T, J, _ = pos.shape
-    seen = np.isfinite(pos).all(axis=-1)                        # (T, J)
+    seen = np.isfinite(pos).all(axis=-1)  # (T, J)
     stature = stature_m if np.isfinite(stature_m) else REFERENCE_STATURE_M
     with np.errstate(invalid="ignore", over="ignore"):
-        moves = np.nanmax(np.where(seen[..., None], pos, -np.inf), axis=0) - \
-            np.nanmin(np.where(seen[..., None], pos, np.inf), axis=0)  # (J, 3)
-    body = (moves > 1e-9).any(axis=-1)                          # (J,) joints that ever move
+        moves = np.nanmax(np.where(seen[..., None], pos, -np.inf), axis=0) - np.nanmin(
+            np.where(seen[..., None], pos, np.inf), axis=0
+        )  # (J, 3)
+    body = (moves > 1e-9).any(axis=-1)  # (J,) joints that ever move
     if not body.any():
         return np.zeros((T, J), dtype=bool)
     with np.errstate(invalid="ignore", over="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)        # frames with no joint seen
+        warnings.simplefilter("ignore", RuntimeWarning)  # frames with no joint seen
         centre = np.nanmedian(np.where(seen[:, body, None], pos[:, body], np.nan), axis=1)  # (T, 3)
         far = np.linalg.norm(pos - centre[:, None], axis=-1) > max(MIN_REACH_M, 1.5 * stature)  # (T, J)
 

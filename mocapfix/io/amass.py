@@ -16,6 +16,7 @@ does the body-model math; we read the model file ourselves because smplx's class
 most 10 betas of a model with fewer than 300 shape components (AMASS uses 16) and print to
 stdout.
 """
+
 from __future__ import annotations
 
 import pickle
@@ -30,15 +31,26 @@ from mocapfix.skeleton import PRESETS
 NUM_BODY_JOINTS = 22
 # Standard AMASS split (sub-dataset folder names; newer releases renamed some: both listed).
 AMASS_SPLIT = {
-    "train": ["CMU", "MPI_Limits", "PosePrior", "TotalCapture", "Eyes_Japan_Dataset", "KIT",
-              "BioMotionLab_NTroje", "BMLrub", "BMLmovi", "EKUT", "ACCAD"],
+    "train": [
+        "CMU",
+        "MPI_Limits",
+        "PosePrior",
+        "TotalCapture",
+        "Eyes_Japan_Dataset",
+        "KIT",
+        "BioMotionLab_NTroje",
+        "BMLrub",
+        "BMLmovi",
+        "EKUT",
+        "ACCAD",
+    ],
     "val": ["MPI_HDM05", "HDM05", "SFU", "MPI_mosh", "MoSh"],
     "test": ["Transitions_mocap", "Transitions", "HumanEva"],
 }
 
 
 def amass_split_of(path) -> str | None:
-    """"train" / "val" / "test" from the AMASS sub-dataset folder in the path, None if none matches."""
+    """ "train" / "val" / "test" from the AMASS sub-dataset folder in the path, None if none matches."""
     parts = set(Path(path).parts)
     for split, names in AMASS_SPLIT.items():
         if parts & set(names):
@@ -79,8 +91,16 @@ def find_body_model(body_model_path, model_type: str, gender: str) -> Path:
     if not root.is_dir():
         raise MotionFileError(root, "body model path does not exist")
     t, T, g, G = model_type.lower(), model_type.upper(), gender.lower(), gender.upper()
-    names = [f"{t}/{T}_{G}.pkl", f"{t}/{T}_{G}.npz", f"{T}_{G}.pkl", f"{T}_{G}.npz",
-             f"{t}/{g}/model.npz", f"{g}/model.npz", f"{t}/{g}/model.pkl", f"{g}/model.pkl"]
+    names = [
+        f"{t}/{T}_{G}.pkl",
+        f"{t}/{T}_{G}.npz",
+        f"{T}_{G}.pkl",
+        f"{T}_{G}.npz",
+        f"{t}/{g}/model.npz",
+        f"{g}/model.npz",
+        f"{t}/{g}/model.pkl",
+        f"{g}/model.pkl",
+    ]
     for n in names:
         if (root / n).is_file():
             return root / n
@@ -99,8 +119,9 @@ def load_body_model(model_file: Path) -> dict:
                 raw = pickle.load(f, encoding="latin1")  # the official SMPL pickles are python 2
     except ModuleNotFoundError as e:
         # The official .pkl files hold chumpy arrays; converting them to .npz avoids chumpy.
-        raise MotionFileError(model_file, f"unpickling needs the {e.name} package (pip install {e.name}, or "
-                                          "convert the model to .npz)") from None
+        raise MotionFileError(
+            model_file, f"unpickling needs the {e.name} package (pip install {e.name}, or convert the model to .npz)"
+        ) from None
     except Exception as e:
         raise MotionFileError(model_file, f"not a readable body model ({type(e).__name__}: {e})") from None
     missing = [k for k in ("v_template", "shapedirs", "J_regressor", "kintree_table") if k not in raw]
@@ -109,15 +130,21 @@ def load_body_model(model_file: Path) -> dict:
     J_regressor = raw["J_regressor"]
     if hasattr(J_regressor, "toarray"):  # scipy.sparse in the official SMPL pickles
         J_regressor = J_regressor.toarray()
-    out = {"v_template": np.asarray(raw["v_template"], dtype=np.float64),
-           "shapedirs": np.asarray(raw["shapedirs"], dtype=np.float64),
-           "J_regressor": np.asarray(J_regressor, dtype=np.float64)}
+    out = {
+        "v_template": np.asarray(raw["v_template"], dtype=np.float64),
+        "shapedirs": np.asarray(raw["shapedirs"], dtype=np.float64),
+        "J_regressor": np.asarray(J_regressor, dtype=np.float64),
+    }
     parents = np.asarray(raw["kintree_table"])[0].astype(np.int64)
     parents[0] = -1  # stored as 2**32 - 1
     out["parents"] = parents
     V = out["v_template"].shape[0]
-    if out["shapedirs"].ndim != 3 or out["shapedirs"].shape[:2] != (V, 3) or out["J_regressor"].shape[1] != V \
-            or out["J_regressor"].shape[0] != len(parents):
+    if (
+        out["shapedirs"].ndim != 3
+        or out["shapedirs"].shape[:2] != (V, 3)
+        or out["J_regressor"].shape[1] != V
+        or out["J_regressor"].shape[0] != len(parents)
+    ):
         raise MotionFileError(model_file, "inconsistent body model arrays")
     if len(parents) < NUM_BODY_JOINTS or tuple(parents[:NUM_BODY_JOINTS]) != PRESETS["smpl22"].parents:
         raise MotionFileError(model_file, "not an SMPL-family model: its first 22 joints are not the SMPL body tree")
@@ -131,8 +158,9 @@ def _body_shape(path, betas: np.ndarray) -> np.ndarray:
         raise MotionFileError(path, f"betas must be numbers, got dtype {betas.dtype}")
     if betas.ndim == 2 and len(betas) > 1:
         if not np.allclose(betas, betas[:1], rtol=0, atol=1e-6, equal_nan=True):
-            raise MotionFileError(path, f"betas {betas.shape} change from frame to frame: one body shape per "
-                                        "file is supported")
+            raise MotionFileError(
+                path, f"betas {betas.shape} change from frame to frame: one body shape per file is supported"
+            )
         betas = betas[:1]
     if betas.ndim > 2 or betas.size == 0:
         raise MotionFileError(path, f"betas must be (B,) or (frames, B), got {betas.shape}")
@@ -150,9 +178,12 @@ def read_amass(path, body_model_path: str | None = None, gender: str | None = No
     (72 SMPL, 156 SMPL-H, 165 SMPL-X) and the gender the file's, unless `gender` is given."""
     path = Path(path)
     if body_model_path is None:
-        raise MotionFileError(path, "AMASS positions need an SMPL-H body model: give its path (--body-model "
-                                    "for inspect and fix, data.body_model_path for training: your model file "
-                                    "or the folder holding smplh/SMPLH_<GENDER>.pkl)")
+        raise MotionFileError(
+            path,
+            "AMASS positions need an SMPL-H body model: give its path (--body-model "
+            "for inspect and fix, data.body_model_path for training: your model file "
+            "or the folder holding smplh/SMPLH_<GENDER>.pkl)",
+        )
     smplx = _import_smplx(path)
     import torch  # after smplx: a clear message when the extra is missing
 
@@ -171,8 +202,7 @@ def read_amass(path, body_model_path: str | None = None, gender: str | None = No
         surface = _npz_str(path, data, "surface_model_type")
     if poses.dtype.kind not in "iuf":
         raise MotionFileError(path, f"poses must be numbers (axis-angle, radians), got dtype {poses.dtype}")
-    if poses.ndim != 2 or poses.shape[1] < 3 * NUM_BODY_JOINTS \
-            or poses.shape[1] % 3 or poses.shape[0] == 0:
+    if poses.ndim != 2 or poses.shape[1] < 3 * NUM_BODY_JOINTS or poses.shape[1] % 3 or poses.shape[0] == 0:
         raise MotionFileError(path, f"poses must be (frames, 3 x joints) with at least 22 joints, got {poses.shape}")
     T = poses.shape[0]
     if trans.dtype.kind not in "iuf" or trans.shape != (T, 3):
@@ -185,8 +215,11 @@ def read_amass(path, body_model_path: str | None = None, gender: str | None = No
     gender = (gender or file_gender or "").lower()
     if not gender:
         raise MotionFileError(path, "no gender in the file: pass gender= ('male', 'female' or 'neutral')")
-    model_type = surface if surface in ("smpl", "smplh", "smplx") else \
-        {72: "smpl", 156: "smplh", 165: "smplx"}.get(poses.shape[1], "smplh")
+    model_type = (
+        surface
+        if surface in ("smpl", "smplh", "smplx")
+        else {72: "smpl", 156: "smplh", 165: "smplx"}.get(poses.shape[1], "smplh")
+    )
 
     model_file = find_body_model(body_model_path, model_type, gender)
     model = load_body_model(model_file)
@@ -194,10 +227,11 @@ def read_amass(path, body_model_path: str | None = None, gender: str | None = No
 
     t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
     # J_rest: (J, 3) rest joints of this body shape; only the first 22 matter.
-    v_shaped = t(model["v_template"])[None] + smplx.lbs.blend_shapes(t(betas[:nb])[None],
-                                                                     t(model["shapedirs"][..., :nb]))  # (1, V, 3)
+    v_shaped = t(model["v_template"])[None] + smplx.lbs.blend_shapes(
+        t(betas[:nb])[None], t(model["shapedirs"][..., :nb])
+    )  # (1, V, 3)
     J_rest = smplx.lbs.vertices2joints(t(model["J_regressor"]), v_shaped)[0, :NUM_BODY_JOINTS]
-    aa = t(poses[:, :3 * NUM_BODY_JOINTS]).reshape(T, NUM_BODY_JOINTS, 3)
+    aa = t(poses[:, : 3 * NUM_BODY_JOINTS]).reshape(T, NUM_BODY_JOINTS, 3)
     rotmats = smplx.lbs.batch_rodrigues(aa.reshape(-1, 3)).reshape(T, NUM_BODY_JOINTS, 3, 3)
     parents = torch.as_tensor(model["parents"][:NUM_BODY_JOINTS])
     posed, _ = smplx.lbs.batch_rigid_transform(rotmats, J_rest.expand(T, -1, -1), parents, dtype=torch.float64)
@@ -212,11 +246,28 @@ def read_amass(path, body_model_path: str | None = None, gender: str | None = No
             skel = skel.with_groups(groups)
         except (KeyError, ValueError) as e:
             raise MotionFileError(path, f"bad groups: {e}") from None
-    meta = {"format": "amass", "unit": "m", "up_axis": "z", "gender": gender, "model_type": model_type,
-            "body_model": str(model_file), "betas_used": nb, "betas_in_file": len(betas),
-            "dataset": path.parent.parent.name, "split": amass_split_of(path)}
-    return [Clip(positions.numpy().astype(np.float32), float(fps.reshape(())), skel,
-                 name=f"{path.parent.name}/{path.stem}", source=str(path),
-                 rotations=aa.numpy().astype(np.float32),
-                 root_translation=(np.asarray(trans, dtype=np.float64) + J_rest[0]).astype(np.float32),
-                 offsets=offsets.astype(np.float32), meta=meta)]
+    meta = {
+        "format": "amass",
+        "unit": "m",
+        "up_axis": "z",
+        "gender": gender,
+        "model_type": model_type,
+        "body_model": str(model_file),
+        "betas_used": nb,
+        "betas_in_file": len(betas),
+        "dataset": path.parent.parent.name,
+        "split": amass_split_of(path),
+    }
+    return [
+        Clip(
+            positions.numpy().astype(np.float32),
+            float(fps.reshape(())),
+            skel,
+            name=f"{path.parent.name}/{path.stem}",
+            source=str(path),
+            rotations=aa.numpy().astype(np.float32),
+            root_translation=(np.asarray(trans, dtype=np.float64) + J_rest[0]).astype(np.float32),
+            offsets=offsets.astype(np.float32),
+            meta=meta,
+        )
+    ]

@@ -12,6 +12,7 @@ Conventions (the BVH ones, as Blender, MotionBuilder and the Bandai Namco data u
   translation this way, under a root joint_Root that mostly stays at the origin).
 - End Site blocks are not joints.
 """
+
 from __future__ import annotations
 
 import re
@@ -35,8 +36,14 @@ FK_TOLERANCE_M = 1e-4  # rotations are kept only if their FK reproduces the posi
 _CHANNEL = re.compile(r"^([XYZ])(position|rotation)$", re.I)
 
 
-def read_bvh(path, unit: str | float = "auto", up_axis: str = "auto", groups: dict | None = None,
-             keep_joints: list[str] | None = None, drop_joints: list[str] | None = None) -> list[Clip]:
+def read_bvh(
+    path,
+    unit: str | float = "auto",
+    up_axis: str = "auto",
+    groups: dict | None = None,
+    keep_joints: list[str] | None = None,
+    drop_joints: list[str] | None = None,
+) -> list[Clip]:
     """One BVH file -> [Clip] (a list, like every reader) in metres, z up.
 
     unit: "m" | "cm" | "mm" | "inch" | metres per file unit | "auto" (from the body's limbs,
@@ -74,15 +81,14 @@ def read_bvh(path, unit: str | float = "auto", up_axis: str = "auto", groups: di
         local_t = scale * local_t @ C.T
 
     skeleton = Skeleton(names, parents, {}, path.stem)
-    meta = {"format": "bvh", "unit": unit.name, "unit_source": unit.how,
-            "up_axis": up_axis, "frame_time": frame_time}
+    meta = {"format": "bvh", "unit": unit.name, "unit_source": unit.how, "up_axis": up_axis, "frame_time": frame_time}
     clip = Clip(positions, 1.0 / frame_time, skeleton, path.stem, str(path), meta=meta)
 
     finite = np.isfinite(data).all()
     # FK with one constant offset per joint is exact when no joint below the root moves its
     # translation; the error bound adds each joint's deviation down its chain.
     offs = local_t.mean(axis=0)  # (J, 3)
-    offs[0] = 0.0                # the root's translation is root_translation, not an offset
+    offs[0] = 0.0  # the root's translation is root_translation, not an offset
     dev = np.linalg.norm(local_t - offs, axis=-1).max(axis=0) if finite else np.full(J, np.inf)  # (J,)
     dev[0] = 0.0
     chain_dev = dev.copy()
@@ -95,8 +101,9 @@ def read_bvh(path, unit: str | float = "auto", up_axis: str = "auto", groups: di
     unknown = [n for n in list(keep_joints or []) + list(drop_joints or []) if n not in names]
     if unknown:
         raise MotionFileError(path, f"joints {unknown} not in this file (joints: {', '.join(names)})")
-    keep = [j for j, n in enumerate(names) if (not keep_joints or n in set(keep_joints))
-            and n not in set(drop_joints or [])]
+    keep = [
+        j for j, n in enumerate(names) if (not keep_joints or n in set(keep_joints)) and n not in set(drop_joints or [])
+    ]
     if 0 in keep and _helper_root(parents, local_r) and not (keep_joints and names[0] in keep_joints):
         keep.remove(0)
         meta["dropped_root"] = names[0]
@@ -104,16 +111,16 @@ def read_bvh(path, unit: str | float = "auto", up_axis: str = "auto", groups: di
         if finite:
             # These rotations are exact but the offsets may not be (see above); select_joints works
             # from the positions and the global rotations only, and checks its result.
-            clip = clip.replace(rotations=rotvec(), root_translation=positions[:, 0],
-                                offsets=offs.astype(np.float32))
+            clip = clip.replace(rotations=rotvec(), root_translation=positions[:, 0], offsets=offs.astype(np.float32))
         try:
             clip = clip.select_joints(keep)
         except ValueError as e:  # the kept joints do not form one tree
             raise MotionFileError(path, str(e).replace("\n", " ")) from None
         clip.meta = dict(meta)
         if not clip.has_rotations:
-            clip.meta["no_rotations"] = ("non-finite channel values" if not finite else
-                                         "the kept joints have no constant bone offsets")
+            clip.meta["no_rotations"] = (
+                "non-finite channel values" if not finite else "the kept joints have no constant bone offsets"
+            )
     elif not finite:
         clip.meta["no_rotations"] = "non-finite channel values"
     elif chain_dev.max() > FK_TOLERANCE_M:
@@ -122,18 +129,24 @@ def read_bvh(path, unit: str | float = "auto", up_axis: str = "auto", groups: di
         while a >= 0:
             above.insert(0, names[a])
             a = parents[a]
-        clip.meta["no_rotations"] = (f"joint {names[j]!r} has a time-varying translation (up to {dev[j]:.3g} m); "
-                                     f"drop_joints={above} makes it the root")
+        clip.meta["no_rotations"] = (
+            f"joint {names[j]!r} has a time-varying translation (up to {dev[j]:.3g} m); "
+            f"drop_joints={above} makes it the root"
+        )
     else:
-        clip = clip.replace(rotations=rotvec(), root_translation=positions[:, 0].astype(np.float32),
-                            offsets=offs.astype(np.float32))
+        clip = clip.replace(
+            rotations=rotvec(), root_translation=positions[:, 0].astype(np.float32), offsets=offs.astype(np.float32)
+        )
 
     if not finite:  # a non-finite channel leaves its joint and those below it missing in that frame
         clip.meta["absurd_tokens"] = int(clip.missing_mask().sum())
     sk = clip.skeleton
     try:
-        sk = sk.with_groups(groups) if groups is not None else Skeleton(
-            sk.joint_names, sk.parents, guess_groups(sk.joint_names, sk.parents), sk.name)
+        sk = (
+            sk.with_groups(groups)
+            if groups is not None
+            else Skeleton(sk.joint_names, sk.parents, guess_groups(sk.joint_names, sk.parents), sk.name)
+        )
     except (KeyError, ValueError) as e:
         raise MotionFileError(path, f"bad groups: {e}") from None
     return [clip.replace(skeleton=sk)]
@@ -174,8 +187,8 @@ def write_bvh(path, clip: Clip, template: str | Path | None = None) -> None:
     with warnings.catch_warnings():  # gimbal lock still gives angles that rebuild the same matrix
         warnings.simplefilter("ignore", UserWarning)
         euler = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_euler("ZXY", degrees=True).reshape(T, J, 3)
-    root = clip.root_translation.astype(np.float64) @ C / scale   # (T, 3); row-vector form of C^T t
-    offsets = clip.offsets.astype(np.float64) @ C / scale          # (J, 3)
+    root = clip.root_translation.astype(np.float64) @ C / scale  # (T, 3); row-vector form of C^T t
+    offsets = clip.offsets.astype(np.float64) @ C / scale  # (J, 3)
     frames = np.concatenate([root, euler.reshape(T, -1)], axis=1)  # (T, 3 + 3J)
 
     children = [[c for c in range(J) if parents[c] == j] for j in range(J)]
@@ -184,18 +197,31 @@ def write_bvh(path, clip: Clip, template: str | Path | None = None) -> None:
     def emit(j: int, depth: int) -> None:
         ind = "  " * depth
         if j == 0:
-            lines.extend([f"ROOT {names[0]}", "{", "  OFFSET 0 0 0",
-                          "  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation"])
+            lines.extend(
+                [
+                    f"ROOT {names[0]}",
+                    "{",
+                    "  OFFSET 0 0 0",
+                    "  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation",
+                ]
+            )
         else:
             o = offsets[j]
-            lines.extend([f"{ind}JOINT {names[j]}", f"{ind}{{", f"{ind}  OFFSET {o[0]:.6f} {o[1]:.6f} {o[2]:.6f}",
-                          f"{ind}  CHANNELS 3 Zrotation Xrotation Yrotation"])
+            lines.extend(
+                [
+                    f"{ind}JOINT {names[j]}",
+                    f"{ind}{{",
+                    f"{ind}  OFFSET {o[0]:.6f} {o[1]:.6f} {o[2]:.6f}",
+                    f"{ind}  CHANNELS 3 Zrotation Xrotation Yrotation",
+                ]
+            )
         for c in children[j]:
             emit(c, depth + 1)
         if not children[j]:
             e = end_sites.get(names[j], (0.0, 0.0, 0.0))
-            lines.extend([f"{ind}  End Site", f"{ind}  {{", f"{ind}    OFFSET {e[0]:.6f} {e[1]:.6f} {e[2]:.6f}",
-                          f"{ind}  }}"])
+            lines.extend(
+                [f"{ind}  End Site", f"{ind}  {{", f"{ind}    OFFSET {e[0]:.6f} {e[1]:.6f} {e[2]:.6f}", f"{ind}  }}"]
+            )
         lines.append(f"{ind}}}")
 
     emit(0, 0)
@@ -225,8 +251,11 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
     names, parents, offsets, channels, data, frame_time = _parse(template)
     T, J = data.shape[0], len(names)
     if clip.num_frames != T or abs(clip.fps * frame_time - 1.0) > 1e-4:
-        raise MotionFileError(path, f"the clip has {clip.num_frames} frames at {clip.fps:g} fps, {template.name} "
-                                    f"{T} at {1.0 / frame_time:g} fps: write_bvh_like keeps the template's frames")
+        raise MotionFileError(
+            path,
+            f"the clip has {clip.num_frames} frames at {clip.fps:g} fps, {template.name} "
+            f"{T} at {1.0 / frame_time:g} fps: write_bvh_like keeps the template's frames",
+        )
     up_axis = clip.meta.get("up_axis", "z")
     if up_axis not in AXES:
         raise MotionFileError(path, f"cannot write up axis {up_axis!r}")
@@ -241,14 +270,14 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
     Tc, Jc = clip.rotations.shape[:2]
     R = Rotation.from_rotvec(clip.rotations.reshape(-1, 3).astype(np.float64)).as_matrix().reshape(Tc, Jc, 3, 3)
     R = C.T @ R @ C
-    clip_t = np.broadcast_to(clip.offsets.astype(np.float64) @ C / scale, (T, Jc, 3)).copy()   # (T, Jc, 3)
+    clip_t = np.broadcast_to(clip.offsets.astype(np.float64) @ C / scale, (T, Jc, 3)).copy()  # (T, Jc, 3)
     clip_t[:, 0] = clip.root_translation.astype(np.float64) @ C / scale
     clip_pos, clip_glob = _forward_kinematics(R, clip_t, clip.skeleton.parents, with_rotations=True)
 
     # Global transforms of every template joint, parents first: the clip's where it has the
     # joint, the template's own local transform under its (new) parent otherwise.
     local_r, local_t = _local_transforms(offsets, channels, data)
-    G, P = np.empty_like(local_r), np.empty_like(local_t)   # (T, J, 3, 3), (T, J, 3)
+    G, P = np.empty_like(local_r), np.empty_like(local_t)  # (T, J, 3, 3), (T, J, 3)
     for j in range(J):
         p = parents[j]
         if j in of_clip:
@@ -263,12 +292,13 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
     for j in of_clip:
         p = parents[j]
         Gp_T = np.swapaxes(G[:, p], -1, -2) if p >= 0 else np.eye(3)
-        local = Gp_T @ G[:, j]                                                      # (T, 3, 3)
+        local = Gp_T @ G[:, j]  # (T, 3, 3)
         trans = (Gp_T @ (P[:, j] - (P[:, p] if p >= 0 else 0.0))[..., None])[..., 0]  # (T, 3)
         rot = [(col, axis) for col, (axis, kind) in channels[j] if kind == "rotation"]
         if len(rot) != 3:
-            raise MotionFileError(path, f"joint {names[j]!r} of {template.name} has {len(rot)} rotation channels; "
-                                        "a rotation needs 3")
+            raise MotionFileError(
+                path, f"joint {names[j]!r} of {template.name} has {len(rot)} rotation channels; a rotation needs 3"
+            )
         with warnings.catch_warnings():  # gimbal lock still gives angles that rebuild the same matrix
             warnings.simplefilter("ignore", UserWarning)
             euler = Rotation.from_matrix(local).as_euler("".join(a for _, a in rot).upper(), degrees=True)
@@ -284,8 +314,11 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
     err = np.linalg.norm(check - clip_pos[:, list(of_clip.values())], axis=-1).max(axis=0) * scale  # (Jc,) metres
     if not np.all(err < FK_TOLERANCE_M):
         worst = list(of_clip)[int(np.nanargmax(np.nan_to_num(err, nan=np.inf)))]
-        raise MotionFileError(path, f"cannot write the motion in {template.name}'s hierarchy: joint {names[worst]!r} "
-                                    f"would be {np.nanmax(err):.3g} m off (its translation has no channels?)")
+        raise MotionFileError(
+            path,
+            f"cannot write the motion in {template.name}'s hierarchy: joint {names[worst]!r} "
+            f"would be {np.nanmax(err):.3g} m off (its translation has no channels?)",
+        )
     hierarchy = _sections(template)[0]
     body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in out.tolist())
     text = f"HIERARCHY{hierarchy}MOTION\nFrames: {T}\nFrame Time: {frame_time:.8g}\n{body}\n"
@@ -293,6 +326,7 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
 
 
 # --- parsing ---
+
 
 def _frame_rate(frame_time: str) -> float:
     """fps from the text of a 'Frame Time:' line. Files print the frame time to a few digits
@@ -324,7 +358,7 @@ def _sections(path: Path) -> tuple[str, str, int]:
     m = re.search(r"^\s*MOTION\b", text, re.M)
     if m is None or m.start() < h.start():
         raise MotionFileError(path, "no MOTION section after HIERARCHY")
-    return text[h.end():m.start()], text[m.end():], text.count("\n", 0, m.end())
+    return text[h.end() : m.start()], text[m.end() :], text.count("\n", 0, m.end())
 
 
 def _parse_hierarchy(path: Path, text: str):
@@ -332,8 +366,8 @@ def _parse_hierarchy(path: Path, text: str):
     # Braces may share a line with other tokens; give them their own lines.
     lines = [ln.strip() for ln in text.replace("{", "\n{\n").replace("}", "\n}\n").splitlines() if ln.strip()]
     names, parents, offsets, channels, end_sites = [], [], [], [], {}
-    stack: list[int] = []   # open blocks: joint index, or -2 for an End Site
-    pending = None          # joint or End Site declared, its "{" not yet seen
+    stack: list[int] = []  # open blocks: joint index, or -2 for an End Site
+    pending = None  # joint or End Site declared, its "{" not yet seen
     col = 0
     for ln in lines:
         word, _, rest = ln.partition(" ")
@@ -445,8 +479,9 @@ def _parse(path: Path):
         i = bad[0]
         frame = nonempty.index(i)
         if i == nonempty[-1] and counts[i] < ncol:
-            raise MotionFileError(path, f"truncated: last frame row (line {first_line + i}) has {counts[i]} "
-                                        f"of {ncol} values")
+            raise MotionFileError(
+                path, f"truncated: last frame row (line {first_line + i}) has {counts[i]} of {ncol} values"
+            )
         raise MotionFileError(path, f"line {first_line + i} (frame {frame}): expected {ncol} values, got {counts[i]}")
     if len(nonempty) < n_frames:
         raise MotionFileError(path, f"truncated: 'Frames: {n_frames}' but only {len(nonempty)} frame rows")
@@ -460,8 +495,9 @@ def _parse(path: Path):
                 try:
                     float(tok)
                 except ValueError:
-                    raise MotionFileError(path, f"line {first_line + i} (frame {nonempty.index(i)}): "
-                                                f"non-numeric value {tok[:20]!r}") from None
+                    raise MotionFileError(
+                        path, f"line {first_line + i} (frame {nonempty.index(i)}): non-numeric value {tok[:20]!r}"
+                    ) from None
         raise MotionFileError(path, "non-numeric frame values") from None
     return names, parents, offsets, channels, data, frame_time
 
@@ -509,6 +545,7 @@ def _axis_rotation(axis: str, angle: np.ndarray) -> np.ndarray:
 
 
 # --- helper joints ---
+
 
 def _helper_root(parents, local_r: np.ndarray) -> bool:
     """A root with one child and a rotation that never changes is a helper (Bandai Namco's

@@ -10,6 +10,7 @@ holding a tall or a short adult stays in cm); otherwise the estimate is the unit
 The up axis, where the file does not say, is the axis from the pelvis to the head, over the
 median frame: a few absurd frames cannot turn a recording over.
 """
+
 from __future__ import annotations
 
 import math
@@ -24,9 +25,22 @@ from mocapfix.clip import MotionFileError
 from mocapfix.skeleton import guess_groups
 
 NAMED_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}  # metres per unit
-_ALIASES = {"meter": "m", "metre": "m", "meters": "m", "metres": "m", "centimeter": "cm", "centimetre": "cm",
-            "centimeters": "cm", "centimetres": "cm", "millimeter": "mm", "millimetre": "mm",
-            "millimeters": "mm", "millimetres": "mm", "in": "inch", "inches": "inch"}
+_ALIASES = {
+    "meter": "m",
+    "metre": "m",
+    "meters": "m",
+    "metres": "m",
+    "centimeter": "cm",
+    "centimetre": "cm",
+    "centimeters": "cm",
+    "centimetres": "cm",
+    "millimeter": "mm",
+    "millimetre": "mm",
+    "millimeters": "mm",
+    "millimetres": "mm",
+    "in": "inch",
+    "inches": "inch",
+}
 
 # A standard adult, 1.70 m tall, in the joint-centre convention of motion-capture skeletons:
 # thigh + shank (hip to ankle) and upper arm + forearm (shoulder to wrist). Bandai Namco's
@@ -40,15 +54,17 @@ SNAP_FACTOR = 1.25
 HUMAN_STATURE_M = (1.2, 2.2)  # outside: a warning on every command that reads the file
 
 # Joints where a limb's measured chain ends, in order of preference (the first that the group has).
-_LIMB_END = {"leg": (r"ankle", r"foot(?!.*(toe|end|tip))"),
-             "arm": (r"wrist", r"hand(?!.*(thumb|index|middle|ring|pinky|finger))")}
+_LIMB_END = {
+    "leg": (r"ankle", r"foot(?!.*(toe|end|tip))"),
+    "arm": (r"wrist", r"hand(?!.*(thumb|index|middle|ring|pinky|finger))"),
+}
 
 
 @dataclass(frozen=True)
 class Unit:
-    name: str      # "cm", or the number of metres for other units ("0.0564"): parse_unit reads it back
+    name: str  # "cm", or the number of metres for other units ("0.0564"): parse_unit reads it back
     metres: float  # metres per file unit
-    how: str       # where it came from, for inspect: "option", "file", "auto: ..."
+    how: str  # where it came from, for inspect: "option", "file", "auto: ..."
 
 
 def parse_unit(value, path="", where: str = "option") -> Unit | None:
@@ -67,8 +83,11 @@ def parse_unit(value, path="", where: str = "option") -> Unit | None:
     except ValueError:
         metres = math.nan
     if not (math.isfinite(metres) and metres > 0):
-        raise MotionFileError(path, f"unknown unit {value!r} (from {where}): give a name ({', '.join(NAMED_UNITS)}) "
-                                    "or the metres per file unit as a positive number (e.g. 0.0564)")
+        raise MotionFileError(
+            path,
+            f"unknown unit {value!r} (from {where}): give a name ({', '.join(NAMED_UNITS)}) "
+            "or the metres per file unit as a positive number (e.g. 0.0564)",
+        )
     return Unit(f"{metres:g}", metres, where)
 
 
@@ -158,8 +177,9 @@ def resolve_unit(path, option, declared, raw: np.ndarray, joint_names, parents) 
     if abs(math.log(NAMED_UNITS[name] / estimate)) < math.log(SNAP_FACTOR):
         return Unit(name, NAMED_UNITS[name], f"auto: nearest named unit to the body's scale ({how})")
     metres = float(f"{estimate:.4g}")
-    return Unit(f"{metres:g}", metres, f"auto: from the body's {how} (no named unit within "
-                                       f"{100 * (SNAP_FACTOR - 1):.0f} %)")
+    return Unit(
+        f"{metres:g}", metres, f"auto: from the body's {how} (no named unit within {100 * (SNAP_FACTOR - 1):.0f} %)"
+    )
 
 
 def metres_per_unit(meta: dict) -> float:
@@ -174,12 +194,15 @@ def stature_warning(stature: float, meta: dict, source) -> str | None:
     lo, hi = HUMAN_STATURE_M
     if not math.isfinite(stature) or lo <= stature <= hi:
         return None
-    return (f"{source}: the body is {stature:.2f} m tall (from its limbs), outside {lo}-{hi} m, read with unit "
-            f"{meta.get('unit', 'm')} ({meta.get('unit_source', 'reader')}); if that is wrong, give the file's "
-            "unit (--unit or data.unit: a name or metres per file unit)")
+    return (
+        f"{source}: the body is {stature:.2f} m tall (from its limbs), outside {lo}-{hi} m, read with unit "
+        f"{meta.get('unit', 'm')} ({meta.get('unit_source', 'reader')}); if that is wrong, give the file's "
+        "unit (--unit or data.unit: a name or metres per file unit)"
+    )
 
 
 # --- up axis ---
+
 
 def to_z_up(x: np.ndarray, up_axis: str) -> np.ndarray:
     """x: (..., 3) in a right-handed frame with `up_axis` up -> the same points, z up."""

@@ -5,6 +5,7 @@ VideoPose3D's prepare_data_h36m.py divides the D3_Positions by 1000 and keeps th
 frame, whose z axis is up: the positions are metres, z up already, at 50 Hz. We keep the 17
 joints everyone evaluates on (skeleton preset h36m17).
 """
+
 from __future__ import annotations
 
 import re
@@ -36,8 +37,11 @@ def read_h36m(path, unit: str = "auto", groups=None) -> list[Clip]:
     # The dict is pickled: allow_pickle is needed (the file is the dataset's own format).
     with load_npz(path, allow_pickle=True) as data:
         if "positions_3d" not in data.files:
-            raise MotionFileError(path, f"no 'positions_3d' key (keys: {', '.join(data.files) or 'none'}); "
-                                        "expected VideoPose3D's data_3d_h36m.npz")
+            raise MotionFileError(
+                path,
+                f"no 'positions_3d' key (keys: {', '.join(data.files) or 'none'}); "
+                "expected VideoPose3D's data_3d_h36m.npz",
+            )
         obj = npz_array(path, data, "positions_3d")
     try:
         tree = obj.item()
@@ -55,18 +59,35 @@ def read_h36m(path, unit: str = "auto", groups=None) -> list[Clip]:
     for subject in sorted(tree, key=_natural):
         for action in sorted(tree[subject], key=_natural):
             pos = np.asarray(tree[subject][action])
-            if pos.dtype.kind not in "iuf" or pos.ndim != 3 or pos.shape[1:] not in ((32, 3), (17, 3)) \
-                    or pos.shape[0] == 0:
-                raise MotionFileError(path, f"{subject}/{action}: expected (frames, 32, 3) numbers, got "
-                                            f"{pos.dtype} {pos.shape}")
+            if (
+                pos.dtype.kind not in "iuf"
+                or pos.ndim != 3
+                or pos.shape[1:] not in ((32, 3), (17, 3))
+                or pos.shape[0] == 0
+            ):
+                raise MotionFileError(
+                    path, f"{subject}/{action}: expected (frames, 32, 3) numbers, got {pos.dtype} {pos.shape}"
+                )
             if pos.shape[1] == 32:
                 pos = pos[:, H36M_KEEP]
-            clips.append(Clip((pos * unit.metres).astype(np.float32), H36M_FPS, skel, name=f"{subject}/{action}",
-                              source=str(path),
-                              meta={"format": "h36m", "subject": str(subject), "action": str(action),
-                                    "split": next((k for k, v in H36M_SPLIT.items() if str(subject) in v), None),
-                                    "unit": unit.name,
-                                    "unit_source": unit.how, "up_axis": "z"}))
+            clips.append(
+                Clip(
+                    (pos * unit.metres).astype(np.float32),
+                    H36M_FPS,
+                    skel,
+                    name=f"{subject}/{action}",
+                    source=str(path),
+                    meta={
+                        "format": "h36m",
+                        "subject": str(subject),
+                        "action": str(action),
+                        "split": next((k for k, v in H36M_SPLIT.items() if str(subject) in v), None),
+                        "unit": unit.name,
+                        "unit_source": unit.how,
+                        "up_axis": "z",
+                    },
+                )
+            )
     if not clips:
         raise MotionFileError(path, "'positions_3d' holds no sequences")
     return clips

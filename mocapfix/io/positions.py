@@ -31,6 +31,7 @@ Readers return Clips in metres, z up (y-up data is turned by +90 degrees about x
 (x, y, z) -> (x, -z, y)); the writers undo both so that `fix` writes outputs in the input's
 layout (write_clips uses what the reader put into clip.meta).
 """
+
 from __future__ import annotations
 
 import csv
@@ -79,6 +80,7 @@ def _one_line(e: Exception) -> str:
 
 # --- skeleton from what a file gives ---
 
+
 def skeleton_from(path: Path, joint_names, parents, num_joints: int, groups=None) -> Skeleton:
     """Preset when the names match one, else a custom skeleton with guessed limb groups."""
     if joint_names is not None and len(joint_names) != num_joints:
@@ -95,8 +97,7 @@ def skeleton_from(path: Path, joint_names, parents, num_joints: int, groups=None
                     break
             if skel is None:
                 if parents is None:
-                    raise MotionFileError(path, f"joint names match no preset ({', '.join(PRESETS)}); "
-                                                "give parents too")
+                    raise MotionFileError(path, f"joint names match no preset ({', '.join(PRESETS)}); give parents too")
                 skel = Skeleton(names, tuple(parents), name="custom")
                 skel = Skeleton(names, skel.parents, guess_groups(names, skel.parents), "custom")
         elif parents is not None:
@@ -132,8 +133,18 @@ def _check_fps(path, fps) -> float:
     return fps
 
 
-def _clips(path: Path, raw: np.ndarray, fps: float, skeleton: Skeleton, unit_opt, unit_file, up_opt, up_file,
-           fmt: str, layout: list[dict]) -> list[Clip]:
+def _clips(
+    path: Path,
+    raw: np.ndarray,
+    fps: float,
+    skeleton: Skeleton,
+    unit_opt,
+    unit_file,
+    up_opt,
+    up_file,
+    fmt: str,
+    layout: list[dict],
+) -> list[Clip]:
     """raw: (P, T, J, 3) in the file's unit and axes -> P clips in metres, z up."""
     unit = resolve_unit(path, unit_opt, unit_file, raw, skeleton.joint_names, skeleton.parents)
     up_axis = _resolve_up(path, up_opt, up_file, raw, skeleton)
@@ -142,14 +153,22 @@ def _clips(path: Path, raw: np.ndarray, fps: float, skeleton: Skeleton, unit_opt
     P = pos.shape[0]
     clips = []
     for i in range(P):
-        meta = {"format": fmt, "person": i, "people": P, "unit": unit.name,
-                "unit_source": unit.how, "up_axis": up_axis, **layout[i]}
+        meta = {
+            "format": fmt,
+            "person": i,
+            "people": P,
+            "unit": unit.name,
+            "unit_source": unit.how,
+            "up_axis": up_axis,
+            **layout[i],
+        }
         name = path.stem + (f"#p{i}" if P > 1 else "")
         clips.append(Clip(pos[i], fps, skeleton, name=name, source=str(path), meta=meta))
     return clips
 
 
 # --- npz ---
+
 
 def _npz_scalar_str(path, data, key) -> str | None:
     if key not in data.files:
@@ -161,8 +180,9 @@ def _npz_scalar_str(path, data, key) -> str | None:
     return v.decode() if isinstance(v, bytes) else str(v)
 
 
-def read_positions_npz(path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None,
-                       groups=None) -> list[Clip]:
+def read_positions_npz(
+    path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None, groups=None
+) -> list[Clip]:
     path = Path(path)
     with load_npz(path) as data:
         if "positions" not in data.files:
@@ -171,8 +191,9 @@ def read_positions_npz(path, unit: str = "auto", up_axis: str = "auto", fps: flo
         if raw.dtype.kind not in "iuf":
             raise MotionFileError(path, f"positions must be numbers, got dtype {raw.dtype}")
         if raw.ndim not in (3, 4) or raw.shape[-1] != 3 or 0 in raw.shape:
-            raise MotionFileError(path, "positions must be (frames, joints, 3) or (people, frames, joints, 3), "
-                                        f"got {raw.shape}")
+            raise MotionFileError(
+                path, f"positions must be (frames, joints, 3) or (people, frames, joints, 3), got {raw.shape}"
+            )
         squeeze = raw.ndim == 3
         raw = raw[None] if squeeze else raw
         J = raw.shape[2]
@@ -188,14 +209,16 @@ def read_positions_npz(path, unit: str = "auto", up_axis: str = "auto", fps: flo
         if "parents" in data.files:
             parents = npz_array(path, data, "parents")
             if parents.ndim != 1 or parents.dtype.kind not in "iu":
-                raise MotionFileError(path, f"parents must be a list of ints, got {parents.dtype} of shape "
-                                            f"{parents.shape}")
+                raise MotionFileError(
+                    path, f"parents must be a list of ints, got {parents.dtype} of shape {parents.shape}"
+                )
             parents = parents.tolist()
         if "joint_names" in data.files:
             names = npz_array(path, data, "joint_names")
             if names.ndim != 1 or names.dtype.kind not in "US":
-                raise MotionFileError(path, f"joint_names must be a list of strings, got {names.dtype} of shape "
-                                            f"{names.shape}")
+                raise MotionFileError(
+                    path, f"joint_names must be a list of strings, got {names.dtype} of shape {names.shape}"
+                )
             names = [n.decode() if isinstance(n, bytes) else str(n) for n in names.tolist()]
         skel = skeleton_from(path, names, parents, J, groups)
         unit_file, up_file = _npz_scalar_str(path, data, "unit"), _npz_scalar_str(path, data, "up_axis")
@@ -204,6 +227,7 @@ def read_positions_npz(path, unit: str = "auto", up_axis: str = "auto", fps: flo
 
 
 # --- csv ---
+
 
 def _parse_comments(path, lines) -> tuple[dict, int]:
     """Leading '# key=value' lines -> (dict, index of the first other line)."""
@@ -232,11 +256,15 @@ def _joint_columns(path, header: list[str]) -> tuple[dict, list[str], list[int]]
         raise MotionFileError(path, "no joint columns (<joint>_x, <joint>_y, <joint>_z)")
     names, x_cols = [], []
     for k in range(0, len(rest), 3):
-        triple = rest[k:k + 3]
+        triple = rest[k : k + 3]
         cols = [header[c].strip() for c in triple]
         m = re.fullmatch(r"(.+)_[xX]", cols[0])
-        ok = (len(triple) == 3 and m is not None and triple == list(range(triple[0], triple[0] + 3))
-              and [c.lower() for c in cols[1:]] == [m.group(1).lower() + "_y", m.group(1).lower() + "_z"])
+        ok = (
+            len(triple) == 3
+            and m is not None
+            and triple == list(range(triple[0], triple[0] + 3))
+            and [c.lower() for c in cols[1:]] == [m.group(1).lower() + "_y", m.group(1).lower() + "_z"]
+        )
         if not ok:
             raise MotionFileError(path, f"columns {cols} are not <joint>_x,<joint>_y,<joint>_z")
         names.append(m.group(1))
@@ -262,8 +290,10 @@ def _to_float(path, cells: np.ndarray, header: list[str], cols: list[int], first
                 try:
                     float(cells[r, c])
                 except ValueError:
-                    raise MotionFileError(path, f"line {first_line + r}: column {header[cols[c]]!r} has "
-                                                f"{str(cells[r, c])!r}, not a number") from None
+                    raise MotionFileError(
+                        path,
+                        f"line {first_line + r}: column {header[cols[c]]!r} has {str(cells[r, c])!r}, not a number",
+                    ) from None
         raise
 
 
@@ -278,8 +308,7 @@ def _time_resolution(cells: np.ndarray) -> float:
     return 10.0 ** -int(decimals.max())
 
 
-def _fps_from_times(path, times: np.ndarray, frame: np.ndarray, person: np.ndarray, resolution: float = 0.0
-                    ) -> float:
+def _fps_from_times(path, times: np.ndarray, frame: np.ndarray, person: np.ndarray, resolution: float = 0.0) -> float:
     """Frames per second from the steps between a person's consecutive rows (seconds).
 
     The median seconds per frame d0 tells how many frames each step spans, round(dt / d0), so
@@ -295,7 +324,7 @@ def _fps_from_times(path, times: np.ndarray, frame: np.ndarray, person: np.ndarr
         raise MotionFileError(path, "no '# fps=' line and too few times in the time column to tell the fps")
     runs = int(ok[0]) + int((ok[1:] & ~ok[:-1]).sum())  # stretches of good steps: each spans t_end - t_start
     dt, df = dt[ok], df[ok]
-    d0 = float(np.median(dt / df))                       # seconds per frame
+    d0 = float(np.median(dt / df))  # seconds per frame
     span = float(dt.sum())
     fps = float(np.round(dt / d0).sum()) / span
     # Rounded times leave each stretch's span off by up to one resolution step: 1/0.0333333 is
@@ -310,10 +339,10 @@ def _frame_times(tt: np.ndarray, fps: float) -> np.ndarray | None:
     normally agree), else linear in the frame index between the nearest frames with a time,
     1 / fps per frame past either end. None when no row has a time."""
     known = np.isfinite(tt)
-    n = known.sum(axis=0)                                                        # (T,)
+    n = known.sum(axis=0)  # (T,)
     if not n.any():
         return None
-    shared = np.where(known, tt, 0.0).sum(axis=0) / np.maximum(n, 1)            # (T,)
+    shared = np.where(known, tt, 0.0).sum(axis=0) / np.maximum(n, 1)  # (T,)
     k = np.nonzero(n)[0]
     f = np.arange(tt.shape[1])
     fill = np.interp(f, k, shared[k])
@@ -322,8 +351,9 @@ def _frame_times(tt: np.ndarray, fps: float) -> np.ndarray | None:
     return np.where(known, tt, fill)
 
 
-def read_positions_csv(path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None,
-                       groups=None) -> list[Clip]:
+def read_positions_csv(
+    path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None, groups=None
+) -> list[Clip]:
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -384,9 +414,13 @@ def read_positions_csv(path, unit: str = "auto", up_axis: str = "auto", fps: flo
         for p in range(len(uniq)):
             frame[person == p] = np.arange((person == p).sum())
     if fps is None:
-        fps = comments["fps"] if "fps" in comments else \
-            _fps_from_times(path, times, frame, person, _time_resolution(cells[:, special["time"]])) \
-            if times is not None else None
+        fps = (
+            comments["fps"]
+            if "fps" in comments
+            else _fps_from_times(path, times, frame, person, _time_resolution(cells[:, special["time"]]))
+            if times is not None
+            else None
+        )
     if fps is None:
         raise MotionFileError(path, "no fps: add a '# fps=30' line or a time column in seconds")
     fps = _check_fps(path, fps)
@@ -399,8 +433,9 @@ def read_positions_csv(path, unit: str = "auto", up_axis: str = "auto", fps: flo
     dup = np.nonzero(np.bincount(key, minlength=P * T) > 1)[0]
     if dup.size:
         line = data_rows[int(np.nonzero(key == dup[0])[0][1])][0]
-        raise MotionFileError(path, f"line {line}: person {uniq[dup[0] // T]} frame {dup[0] % T + first_frame} "
-                                    "appears twice")
+        raise MotionFileError(
+            path, f"line {line}: person {uniq[dup[0] // T]} frame {dup[0] % T + first_frame} appears twice"
+        )
     raw = np.full((P * T, J, 3), np.nan)
     raw[key] = xyz
     raw = raw.reshape(P, T, J, 3)
@@ -415,20 +450,40 @@ def read_positions_csv(path, unit: str = "auto", up_axis: str = "auto", fps: flo
         try:
             parents = [int(v) for v in comments["parents"].split(",")]
         except ValueError:
-            raise MotionFileError(path, f"'# parents=' must be comma-separated ints, got {comments['parents']!r}") \
-                from None
+            raise MotionFileError(
+                path, f"'# parents=' must be comma-separated ints, got {comments['parents']!r}"
+            ) from None
     skel = skeleton_from(path, names, parents, J, groups)
-    layout = [{"person_id": uniq[i], "person_column": "person" in special, "time_column": times is not None,
-               "frame_column": "frame" in special, "first_frame": first_frame} for i in range(P)]
+    layout = [
+        {
+            "person_id": uniq[i],
+            "person_column": "person" in special,
+            "time_column": times is not None,
+            "frame_column": "frame" in special,
+            "first_frame": first_frame,
+        }
+        for i in range(P)
+    ]
     if frame_times is not None:
         for i in range(P):
             layout[i]["times"] = frame_times[i].tolist()  # (T,) seconds, plain floats like the rest of meta
-    return _clips(path, raw, fps, skel, unit, comments.get("unit"), up_axis, comments.get("up_axis", comments.get("up")),
-                  "positions-csv", layout)
+    return _clips(
+        path,
+        raw,
+        fps,
+        skel,
+        unit,
+        comments.get("unit"),
+        up_axis,
+        comments.get("up_axis", comments.get("up")),
+        "positions-csv",
+        layout,
+    )
 
 
-def read_positions(path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None,
-                   groups=None) -> list[Clip]:
+def read_positions(
+    path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None, groups=None
+) -> list[Clip]:
     """A .npz or .csv positions file -> one Clip per person (metres, z up).
 
     unit / up_axis: "auto" takes the file's value (unit guessed from bone lengths when the file
@@ -444,6 +499,7 @@ def read_positions(path, unit: str = "auto", up_axis: str = "auto", fps: float |
 
 
 # --- writers ---
+
 
 def _format_numbers(out: np.ndarray, scale: float) -> list[str]:
     """out: (N,) float64 in the file's unit and axes -> the text of each: the fewest significant
@@ -476,22 +532,37 @@ def _format_time(t: float) -> str:
     return r[:-2] if r.endswith(".0") else r
 
 
-def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton, unit: str | float = "m",
-                    up_axis: str = "z", *, squeeze: bool | None = None, person_ids: list | None = None,
-                    person_column: bool | None = None, frame_column: bool = True, time_column: bool = True,
-                    first_frame: int = 0, times: np.ndarray | None = None) -> Path:
+def write_positions(
+    path,
+    positions: np.ndarray,
+    fps: float,
+    skeleton: Skeleton,
+    unit: str | float = "m",
+    up_axis: str = "z",
+    *,
+    squeeze: bool | None = None,
+    person_ids: list | None = None,
+    person_column: bool | None = None,
+    frame_column: bool = True,
+    time_column: bool = True,
+    first_frame: int = 0,
+    times: np.ndarray | None = None,
+) -> Path:
     """Write positions (T, J, 3) or (P, T, J, 3), metres z up, NaN = missing, as .npz or .csv (by
-    the path's extension) in `unit` (a name or metres per unit) and `up_axis`. The layout options mirror what the readers put
-    into clip.meta: squeeze (npz: (T, J, 3) for one person; default when P == 1), person_ids and
-    person_column (csv; the column is written when P > 1 by default), frame/time columns,
-    first_frame and times (csv: (T,) or (P, T) seconds of each row; default (first_frame + t) / fps)."""
+    the path's extension) in `unit` (a name or metres per unit) and `up_axis`. The layout options
+    mirror what the readers put into clip.meta: squeeze (npz: (T, J, 3) for one person; default
+    when P == 1), person_ids and person_column (csv; the column is written when P > 1 by
+    default), frame/time columns, first_frame and times (csv: (T,) or (P, T) seconds of each row;
+    default (first_frame + t) / fps)."""
     path = Path(path)
     pos = np.asarray(positions, dtype=np.float64)
     if pos.ndim == 3:
         pos = pos[None]
     if pos.ndim != 4 or pos.shape[-1] != 3 or pos.shape[2] != skeleton.num_joints:
-        raise ValueError(f"positions must be (T, {skeleton.num_joints}, 3) or (P, T, {skeleton.num_joints}, 3), "
-                         f"got {np.shape(positions)}")
+        raise ValueError(
+            f"positions must be (T, {skeleton.num_joints}, 3) or (P, T, {skeleton.num_joints}, 3), "
+            f"got {np.shape(positions)}"
+        )
     if up_axis not in UP_AXES:
         raise ValueError(f"up_axis must be one of {list(UP_AXES)}")
     try:
@@ -504,10 +575,14 @@ def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton,
     suffix = path.suffix.lower()
     if suffix == ".npz":
         squeeze = P == 1 if squeeze is None else squeeze and P == 1
-        arrays = {"positions": (out[0] if squeeze else out).astype(np.float32), "fps": np.float64(fps),
-                  "parents": np.array(skeleton.parents, dtype=np.int64),
-                  "joint_names": np.array(skeleton.joint_names, dtype=str),
-                  "unit": np.array(unit), "up_axis": np.array(up_axis)}
+        arrays = {
+            "positions": (out[0] if squeeze else out).astype(np.float32),
+            "fps": np.float64(fps),
+            "parents": np.array(skeleton.parents, dtype=np.int64),
+            "joint_names": np.array(skeleton.joint_names, dtype=str),
+            "unit": np.array(unit),
+            "up_axis": np.array(up_axis),
+        }
         atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
     elif suffix == ".csv":
         bad = [n for n in skeleton.joint_names if re.search(r"[,\"\s]", n) or n.lower() in _SPECIAL_COLUMNS]
@@ -517,10 +592,17 @@ def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton,
         if len(ids) != P:
             raise ValueError(f"{len(ids)} person ids for {P} people")
         person_column = P > 1 if person_column is None else person_column or P > 1
-        header = (["person"] if person_column else []) + (["frame"] if frame_column else []) + \
-                 (["time"] if time_column else []) + [f"{n}_{a}" for n in skeleton.joint_names for a in "xyz"]
-        lines = [f"# fps={fps:.9g} unit={unit} up_axis={up_axis}",
-                 "# parents=" + ",".join(str(p) for p in skeleton.parents), ",".join(header)]
+        header = (
+            (["person"] if person_column else [])
+            + (["frame"] if frame_column else [])
+            + (["time"] if time_column else [])
+            + [f"{n}_{a}" for n in skeleton.joint_names for a in "xyz"]
+        )
+        lines = [
+            f"# fps={fps:.9g} unit={unit} up_axis={up_axis}",
+            "# parents=" + ",".join(str(p) for p in skeleton.parents),
+            ",".join(header),
+        ]
         if times is None:
             time_text = [[f"{(first_frame + t) / fps:.9g}" for t in range(T)]] * P
         else:
@@ -533,10 +615,13 @@ def write_positions(path, positions: np.ndarray, fps: float, skeleton: Skeleton,
         cells = _format_numbers(out.reshape(-1), scale)  # (P * T * C,) row-major
         for p in range(P):
             for t in range(T):
-                lead = ([ids[p]] if person_column else []) + ([str(first_frame + t)] if frame_column else []) + \
-                       ([time_text[p][t]] if time_column else [])
+                lead = (
+                    ([ids[p]] if person_column else [])
+                    + ([str(first_frame + t)] if frame_column else [])
+                    + ([time_text[p][t]] if time_column else [])
+                )
                 r = (p * T + t) * C
-                lines.append(",".join(lead + cells[r:r + C]))
+                lines.append(",".join(lead + cells[r : r + C]))
         payload = ("\n".join(lines) + "\n").encode()
         atomic_write(path, lambda f: f.write(payload))
     else:
@@ -562,10 +647,17 @@ def write_clips(path, clips: list[Clip]) -> Path:
     if from_csv and all(len(c.meta.get("times") or ()) == c.num_frames for c in clips):
         times = np.array([c.meta["times"] for c in clips], dtype=np.float64)  # (P, T) seconds
     return write_positions(
-        path, np.stack([c.positions for c in clips]), c0.fps, c0.skeleton, unit, up,
+        path,
+        np.stack([c.positions for c in clips]),
+        c0.fps,
+        c0.skeleton,
+        unit,
+        up,
         squeeze=m.get("squeeze"),
         person_ids=[c.meta.get("person_id", i) for i, c in enumerate(clips)],
         person_column=m.get("person_column") if from_csv else None,
         frame_column=m.get("frame_column", True) if from_csv else True,
         time_column=m.get("time_column", True) if from_csv else True,
-        first_frame=int(m.get("first_frame", 0)), times=times)
+        first_frame=int(m.get("first_frame", 0)),
+        times=times,
+    )

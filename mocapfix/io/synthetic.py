@@ -14,6 +14,7 @@ bob of walking, the flight of running). The other activities are keyframed or pe
 Frame: metres, z up; the character faces +x at heading 0 and its left side is +y.
 Rest pose (all rotations zero): standing straight, arms hanging down, soles on z = 0.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -28,27 +29,59 @@ from mocapfix.skeleton import preset
 ACTIVITIES = ("walk", "run", "turn", "jump", "arm_swing", "wave", "idle")
 _ACTIVITY_P = (0.18, 0.12, 0.16, 0.12, 0.14, 0.12, 0.16)
 
-(PELVIS, L_HIP, R_HIP, SPINE1, L_KNEE, R_KNEE, SPINE2, L_ANKLE, R_ANKLE, SPINE3, L_FOOT, R_FOOT, NECK,
- L_COLLAR, R_COLLAR, HEAD, L_SHOULDER, R_SHOULDER, L_ELBOW, R_ELBOW, L_WRIST, R_WRIST) = range(22)
+(
+    PELVIS,
+    L_HIP,
+    R_HIP,
+    SPINE1,
+    L_KNEE,
+    R_KNEE,
+    SPINE2,
+    L_ANKLE,
+    R_ANKLE,
+    SPINE3,
+    L_FOOT,
+    R_FOOT,
+    NECK,
+    L_COLLAR,
+    R_COLLAR,
+    HEAD,
+    L_SHOULDER,
+    R_SHOULDER,
+    L_ELBOW,
+    R_ELBOW,
+    L_WRIST,
+    R_WRIST,
+) = range(22)
 
 # (sign, hip, knee, ankle, collar, shoulder, elbow); sign mirrors lateral angles and offsets.
-_SIDES = ((+1, L_HIP, L_KNEE, L_ANKLE, L_COLLAR, L_SHOULDER, L_ELBOW),
-          (-1, R_HIP, R_KNEE, R_ANKLE, R_COLLAR, R_SHOULDER, R_ELBOW))
+_SIDES = (
+    (+1, L_HIP, L_KNEE, L_ANKLE, L_COLLAR, L_SHOULDER, L_ELBOW),
+    (-1, R_HIP, R_KNEE, R_ANKLE, R_COLLAR, R_SHOULDER, R_ELBOW),
+)
 _UPPER_BODY = (SPINE1, SPINE2, SPINE3, NECK, HEAD, L_COLLAR, R_COLLAR, L_SHOULDER, R_SHOULDER, L_ELBOW, R_ELBOW)
 
 # Rest offsets of an average adult (scale 1: 1.7 m tall, pelvis at 0.95 m), each in the parent's
 # frame. Right-side joints mirror the left ones (y negated).
 _REST = {
     "pelvis": (0.0, 0.0, 0.0),
-    "left_hip": (-0.005, 0.085, -0.085), "spine1": (-0.015, 0.0, 0.11), "left_knee": (0.005, 0.01, -0.385),
-    "spine2": (0.01, 0.0, 0.135), "left_ankle": (-0.02, 0.0, -0.40), "spine3": (0.0, 0.0, 0.055),
-    "left_foot": (0.125, 0.015, -0.06), "neck": (-0.015, 0.0, 0.215), "left_collar": (-0.01, 0.075, 0.14),
-    "head": (0.04, 0.0, 0.09), "left_shoulder": (-0.01, 0.11, 0.015), "left_elbow": (-0.01, 0.005, -0.265),
+    "left_hip": (-0.005, 0.085, -0.085),
+    "spine1": (-0.015, 0.0, 0.11),
+    "left_knee": (0.005, 0.01, -0.385),
+    "spine2": (0.01, 0.0, 0.135),
+    "left_ankle": (-0.02, 0.0, -0.40),
+    "spine3": (0.0, 0.0, 0.055),
+    "left_foot": (0.125, 0.015, -0.06),
+    "neck": (-0.015, 0.0, 0.215),
+    "left_collar": (-0.01, 0.075, 0.14),
+    "head": (0.04, 0.0, 0.09),
+    "left_shoulder": (-0.01, 0.11, 0.015),
+    "left_elbow": (-0.01, 0.005, -0.265),
     "left_wrist": (0.01, 0.0, -0.25),
 }
-_TOE_DROP = 0.02    # sole below the foot (toe) joint, metres at scale 1
-_HEEL_BACK = 0.05   # heel behind the ankle joint
-_TAU = 0.01         # metres: soft-minimum temperature, smooths switches of the supporting foot
+_TOE_DROP = 0.02  # sole below the foot (toe) joint, metres at scale 1
+_HEEL_BACK = 0.05  # heel behind the ankle joint
+_TAU = 0.01  # metres: soft-minimum temperature, smooths switches of the supporting foot
 
 # Countermovement jump, keyframes over one jump cycle u in [0, 1): crouch depth (fraction of the
 # deepest knee bend), ankle plantarflexion, shoulder flexion, elbow flexion (rad).
@@ -81,28 +114,47 @@ def generate_clips(num_clips: int = 64, seconds: float = 10.0, fps: float = 30.0
     t = np.arange(T) / fps  # (T,) seconds
 
     plans = [_plan_clip(np.random.default_rng([seed, i]), t, fps) for i in range(num_clips)]
-    euler = np.stack([p["euler"] for p in plans])        # (N, T, J, 3) x, y, z angles, R = Rz Ry Rx
+    euler = np.stack([p["euler"] for p in plans])  # (N, T, J, 3) x, y, z angles, R = Rz Ry Rx
     rot = Rotation.from_euler("ZYX", euler[..., ::-1].reshape(-1, 3))
     rotvec = rot.as_rotvec().reshape(euler.shape).astype(np.float32)
     offsets = np.stack([p["body"]["offsets"] for p in plans]).astype(np.float32)  # (N, J, 3)
 
     # Height: lift the body so that its lowest sole point (soft minimum over both heels and toes)
     # rests on z = 0, then add the activity's own lift (flight of jumps and runs).
-    local = rot.as_matrix().reshape(*euler.shape, 3)    # (N, T, J, 3, 3)
+    local = rot.as_matrix().reshape(*euler.shape, 3)  # (N, T, J, 3, 3)
     soles = np.stack([p["body"]["soles"] for p in plans])  # (N, 2, 3)
     sole_z = np.concatenate([_sole_heights(local, offsets, soles, side) for side in (0, 1)], -1)  # (N, T, 4)
-    root = np.stack([p["root"] for p in plans])          # (N, T, 3), z = lift
+    root = np.stack([p["root"] for p in plans])  # (N, T, 3), z = lift
     root[..., 2] -= _softmin(sole_z, axis=-1)
     root = root.astype(np.float32)
 
-    positions = fk_axis_angle(torch.from_numpy(rotvec).double(), torch.from_numpy(root).double(),
-                              torch.from_numpy(offsets).double()[:, None], skeleton.parents)
-    positions = positions.numpy().astype(np.float32)     # (N, T, J, 3)
-    return [Clip(positions=positions[i], fps=fps, skeleton=skeleton, name=f"synthetic_{i:04d}",
-                 source=f"synthetic://{seed}/{i}", rotations=rotvec[i], root_translation=root[i], offsets=offsets[i],
-                 meta={"format": "synthetic", "seed": seed, "activity": [s[0] for s in p["segments"]],
-                       "segments": p["segments"], "body_scale": p["body"]["scale"]})
-            for i, p in enumerate(plans)]
+    positions = fk_axis_angle(
+        torch.from_numpy(rotvec).double(),
+        torch.from_numpy(root).double(),
+        torch.from_numpy(offsets).double()[:, None],
+        skeleton.parents,
+    )
+    positions = positions.numpy().astype(np.float32)  # (N, T, J, 3)
+    return [
+        Clip(
+            positions=positions[i],
+            fps=fps,
+            skeleton=skeleton,
+            name=f"synthetic_{i:04d}",
+            source=f"synthetic://{seed}/{i}",
+            rotations=rotvec[i],
+            root_translation=root[i],
+            offsets=offsets[i],
+            meta={
+                "format": "synthetic",
+                "seed": seed,
+                "activity": [s[0] for s in p["segments"]],
+                "segments": p["segments"],
+                "body_scale": p["body"]["scale"],
+            },
+        )
+        for i, p in enumerate(plans)
+    ]
 
 
 def _sole_heights(local: np.ndarray, offsets: np.ndarray, soles: np.ndarray, side: int) -> np.ndarray:
@@ -112,8 +164,8 @@ def _sole_heights(local: np.ndarray, offsets: np.ndarray, soles: np.ndarray, sid
     offsets (N, J, 3), soles (N, 2, 3): heel in the ankle's frame, toe in the foot joint's."""
     _, hip, knee, ankle, *_ = _SIDES[side]
     foot = L_FOOT if side == 0 else R_FOOT
-    glob = local[..., PELVIS, :, :]                      # (N, T, 3, 3)
-    pos = np.zeros(glob.shape[:-1])                      # (N, T, 3)
+    glob = local[..., PELVIS, :, :]  # (N, T, 3, 3)
+    pos = np.zeros(glob.shape[:-1])  # (N, T, 3)
     for j in (hip, knee, ankle, foot):
         pos = pos + (glob @ offsets[:, None, j, :, None])[..., 0]
         glob = glob @ local[..., j, :, :]
@@ -125,11 +177,12 @@ def _sole_heights(local: np.ndarray, offsets: np.ndarray, soles: np.ndarray, sid
 
 # --- one clip ---
 
+
 def _body(rng: np.random.Generator) -> dict:
     """A random body: offsets (J, 3), scale, and the leg/foot geometry the gait IK needs."""
     names = preset("smpl22").joint_names
     scale = rng.uniform(0.85, 1.15)
-    factor = {n: rng.uniform(0.95, 1.05) for n in _REST}   # per bone, the same on both sides
+    factor = {n: rng.uniform(0.95, 1.05) for n in _REST}  # per bone, the same on both sides
     offsets = np.zeros((len(names), 3))
     for j, n in enumerate(names):
         left = n.replace("right_", "left_")
@@ -137,15 +190,20 @@ def _body(rng: np.random.Generator) -> dict:
         if n.startswith("right_"):
             offsets[j, 1] *= -1
     thigh, shank, foot = offsets[L_KNEE], offsets[L_ANKLE], offsets[L_FOOT]
-    b = {"offsets": offsets, "scale": float(scale),
-         # sagittal bone lengths and their rest tilt (forward of straight down)
-         "l1": float(np.hypot(thigh[0], thigh[2])), "a1": float(np.arctan2(thigh[0], -thigh[2])),
-         "l2": float(np.hypot(shank[0], shank[2])), "a2": float(np.arctan2(shank[0], -shank[2])),
-         "hb": _HEEL_BACK * scale,                          # heel behind the ankle
-         "fx": float(foot[0]),                              # toe ahead of the ankle
-         "h": float(-foot[2] + _TOE_DROP * scale),          # ankle above the sole
-         "hip": offsets[L_HIP].copy()}
-    b["leg"] = b["l1"] + b["l2"] + b["h"] - b["hip"][2]     # pelvis height standing straight
+    b = {
+        "offsets": offsets,
+        "scale": float(scale),
+        # sagittal bone lengths and their rest tilt (forward of straight down)
+        "l1": float(np.hypot(thigh[0], thigh[2])),
+        "a1": float(np.arctan2(thigh[0], -thigh[2])),
+        "l2": float(np.hypot(shank[0], shank[2])),
+        "a2": float(np.arctan2(shank[0], -shank[2])),
+        "hb": _HEEL_BACK * scale,  # heel behind the ankle
+        "fx": float(foot[0]),  # toe ahead of the ankle
+        "h": float(-foot[2] + _TOE_DROP * scale),  # ankle above the sole
+        "hip": offsets[L_HIP].copy(),
+    }
+    b["leg"] = b["l1"] + b["l2"] + b["h"] - b["hip"][2]  # pelvis height standing straight
     # Sole points: heel in the ankle's frame, toe in the foot joint's frame.
     b["soles"] = np.array([[-b["hb"], 0.0, -b["h"]], [0.0, 0.0, -_TOE_DROP * scale]])
     return b
@@ -155,8 +213,12 @@ def _plan_clip(rng: np.random.Generator, t: np.ndarray, fps: float) -> dict:
     """Everything of one clip but FK: Euler angles (T, J, 3), root (T, 3) with z = lift, body, segments."""
     T = len(t)
     body = _body(rng)
-    style = {"arm": rng.uniform(0.6, 1.4), "lean": rng.uniform(-0.03, 0.08), "abd": rng.uniform(0.07, 0.18),
-             "elbow": rng.uniform(0.1, 0.35)}
+    style = {
+        "arm": rng.uniform(0.6, 1.4),
+        "lean": rng.uniform(-0.03, 0.08),
+        "abd": rng.uniform(0.07, 0.18),
+        "elbow": rng.uniform(0.1, 0.35),
+    }
 
     # Segments: [activity, start (s), end (s), constants]. The first starts before t = 0 so that
     # clips do not all begin with a fresh segment.
@@ -176,11 +238,11 @@ def _plan_clip(rng: np.random.Generator, t: np.ndarray, fps: float) -> dict:
     for k in range(1, K):
         width = segs[k][3]["blend"]
         s[:, k] = _smootherstep((t - segs[k][1] + width / 2) / width)
-    w = s[:, :K] - s[:, 1:]                                     # (T, K)
+    w = s[:, :K] - s[:, 1:]  # (T, K)
 
     # One gait phase (cycles) for the whole clip, integrated from the blended cadence, so that
     # consecutive walk/run/turn segments stay in step through a cross-fade.
-    cadence = w @ np.array([sg[3]["cadence"] for sg in segs])   # (T,) gait cycles per second
+    cadence = w @ np.array([sg[3]["cadence"] for sg in segs])  # (T,) gait cycles per second
     phase = rng.uniform() + _integrate(cadence, fps)
 
     euler = np.zeros((T, 22, 3))
@@ -202,14 +264,14 @@ def _plan_clip(rng: np.random.Generator, t: np.ndarray, fps: float) -> dict:
         f, ph, amp = rng.uniform(0.1, 0.6, (3, 3)), rng.uniform(0, 2 * np.pi, (3, 3)), rng.uniform(0.005, 0.015, (3, 3))
         euler[:, j, :] += (amp * np.sin(2 * np.pi * f * t[:, None, None] + ph)).sum(-1)
 
-    heading = rng.uniform(0, 2 * np.pi) + _integrate(turn, fps)            # (T,)
+    heading = rng.uniform(0, 2 * np.pi) + _integrate(turn, fps)  # (T,)
     euler[:, PELVIS, 2] += heading
-    fwd = np.stack([np.cos(heading), np.sin(heading)], -1)                  # (T, 2)
+    fwd = np.stack([np.cos(heading), np.sin(heading)], -1)  # (T, 2)
     left = np.stack([-np.sin(heading), np.cos(heading)], -1)
     xy = np.stack([_integrate(speed * fwd[:, 0], fps), _integrate(speed * fwd[:, 1], fps)], -1)
     # Centre the path near the origin: float32 positions stay precise on long clips.
     xy = xy - (xy.min(0) + xy.max(0)) / 2 + rng.uniform(-0.5, 0.5, 2) + lateral[:, None] * left
-    root = np.concatenate([xy, lift[:, None]], -1)                          # (T, 3)
+    root = np.concatenate([xy, lift[:, None]], -1)  # (T, 3)
 
     segments = []
     for act, t0, t1, _ in segs:
@@ -238,17 +300,17 @@ def _segment_params(act: str, rng: np.random.Generator, body: dict, prev_cadence
     if act == "jump":
         p["period"] = rng.uniform(1.2, 1.6)
         p["count"] = int(rng.integers(1, 3))
-        p["pad"] = 0.35                                     # standing still before and after the jumps
+        p["pad"] = 0.35  # standing still before and after the jumps
         p["duration"] = 2 * p["pad"] + p["count"] * p["period"]
         p["knee"] = rng.uniform(0.9, 1.2)
         flight = (_JUMP_FLIGHT[1] - _JUMP_FLIGHT[0]) * p["period"]
-        p["height"] = 9.81 * flight ** 2 / 8 * rng.uniform(0.8, 1.1)   # ballistic apex for that flight time
+        p["height"] = 9.81 * flight**2 / 8 * rng.uniform(0.8, 1.1)  # ballistic apex for that flight time
         p["forward"] = rng.uniform(0.0, 0.4)
     elif act == "arm_swing":
         p["freq"] = rng.uniform(0.5, 1.0)
         p["sagittal"] = rng.uniform(0.3, 1.2)
         p["lateral"] = rng.uniform(0.0, 1.2) * rng.integers(0, 2)
-        p["anti"] = float(rng.integers(0, 2))               # 1: arms in counter-phase
+        p["anti"] = float(rng.integers(0, 2))  # 1: arms in counter-phase
         p["elbow"] = rng.uniform(0.1, 0.6)
         p["phase"] = rng.uniform(0, 2 * np.pi)
         p["bounce"] = rng.uniform(0.0, 0.12)
@@ -276,6 +338,7 @@ def _segment_params(act: str, rng: np.random.Generator, body: dict, prev_cadence
 #   trunk forward lean / head nod down:   y = +angle     abduction of a left limb:  x = +angle (right: -)
 #   turning left (counter-clockwise):     z = +angle
 
+
 def _stand(n: int, style: dict, knee: float = 0.05) -> np.ndarray:
     """Relaxed standing: soft knees with flat feet, arms hanging slightly away from the body."""
     e = np.zeros((n, 22, 3))
@@ -300,11 +363,32 @@ def _gait_shape(p: dict, run: bool) -> dict:
     """Foot-placement constants of a walk or run at speed v (m/s) and cadence f (cycles/s)."""
     v = p["speed"]
     if run:  # forefoot-ish landing, short stance, high heel recovery
-        return {"duty": 0.36 - 0.02 * (v - 2.5), "strike": 0.05, "flat": 0.05, "heel_off": 0.12, "push": -0.7,
-                "ahead": 0.42, "kick_back": 0.06 * v, "kick_up": 0.08 * v, "reach": 0.99, "crouch": 0.93,
-                "bounce": 0.06}
-    return {"duty": 0.64 - 0.04 * v, "strike": 0.3, "flat": 0.1, "heel_off": 0.32, "push": -0.8,
-            "ahead": 0.41, "kick_back": 0.04, "kick_up": 0.08, "reach": 0.995, "crouch": None, "bounce": 0.0}
+        return {
+            "duty": 0.36 - 0.02 * (v - 2.5),
+            "strike": 0.05,
+            "flat": 0.05,
+            "heel_off": 0.12,
+            "push": -0.7,
+            "ahead": 0.42,
+            "kick_back": 0.06 * v,
+            "kick_up": 0.08 * v,
+            "reach": 0.99,
+            "crouch": 0.93,
+            "bounce": 0.06,
+        }
+    return {
+        "duty": 0.64 - 0.04 * v,
+        "strike": 0.3,
+        "flat": 0.1,
+        "heel_off": 0.32,
+        "push": -0.8,
+        "ahead": 0.41,
+        "kick_back": 0.04,
+        "kick_up": 0.08,
+        "reach": 0.995,
+        "crouch": None,
+        "bounce": 0.0,
+    }
 
 
 def _stance_foot(c: np.ndarray, v: float, f: float, g: dict, b: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -315,8 +399,8 @@ def _stance_foot(c: np.ndarray, v: float, f: float, g: dict, b: dict) -> tuple[n
     duty = g["duty"]
     pitch = np.where(c < g["flat"], g["strike"] * (1 - _smoothstep(c / g["flat"])), 0.0)
     roll = np.clip((c - g["heel_off"]) / (duty - g["heel_off"]), 0.0, None)
-    pitch = np.where(c > g["heel_off"], g["push"] * roll ** 2, pitch)
-    heel = g["ahead"] * v * duty / f - b["hb"] - v * c / f     # heel's ground point, forward of the pelvis
+    pitch = np.where(c > g["heel_off"], g["push"] * roll**2, pitch)
+    heel = g["ahead"] * v * duty / f - b["hb"] - v * c / f  # heel's ground point, forward of the pelvis
     cos, sin = np.cos(pitch), np.sin(pitch)
     # Rotate the ankle about the heel (toes up) or the toe (toes down); both agree when flat.
     on_heel = pitch >= 0
@@ -335,7 +419,7 @@ def _foot_path(c: np.ndarray, v: float, f: float, g: dict, b: dict) -> tuple[np.
     eps = 1e-4
     ends = np.array([duty - eps, duty, 0.0, eps])
     ex, ez, ep = _stance_foot(ends, v, f, g, b)
-    span = 1.0 - duty                                          # swing, in cycles
+    span = 1.0 - duty  # swing, in cycles
     s = np.clip((c - duty) / span, 0.0, 1.0)
     bump = np.sin(np.pi * s) ** 2
 
@@ -359,9 +443,9 @@ def _leg_ik(dx: np.ndarray, dz: np.ndarray, b: dict) -> tuple[np.ndarray, np.nda
     r = np.hypot(dx, dz) / (l1 + l2)
     r = r_max - np.logaddexp(0.0, sharp * (r_max - r)) / sharp
     d = np.maximum(r * (l1 + l2), abs(l1 - l2) + 1e-3)
-    bend = np.pi - np.arccos(np.clip((l1 ** 2 + l2 ** 2 - d ** 2) / (2 * l1 * l2), -1.0, 1.0))
-    thigh = np.arctan2(dx, -dz) + np.arccos(np.clip((l1 ** 2 + d ** 2 - l2 ** 2) / (2 * l1 * d), -1.0, 1.0))
-    hip = thigh - b["a1"]                  # joint angle = bone angle less the bone's rest tilt
+    bend = np.pi - np.arccos(np.clip((l1**2 + l2**2 - d**2) / (2 * l1 * l2), -1.0, 1.0))
+    thigh = np.arctan2(dx, -dz) + np.arccos(np.clip((l1**2 + d**2 - l2**2) / (2 * l1 * d), -1.0, 1.0))
+    hip = thigh - b["a1"]  # joint angle = bone angle less the bone's rest tilt
     knee = bend - b["a1"] + b["a2"]
     return hip, knee
 
@@ -394,20 +478,19 @@ def _gait(tl, phase, p, style, b, run: bool) -> dict:
     # swing foot rises fast enough never to bind); running also caps it with a bounce that is
     # lowest at mid-stance.
     reach = g["reach"] * (b["l1"] + b["l2"])
-    caps = [az - hz + np.sqrt(np.maximum(reach ** 2 - (ax - hx) ** 2, 1e-4))
-            for (ax, az, _), (hx, hz) in zip(feet, hips)]
+    caps = [az - hz + np.sqrt(np.maximum(reach**2 - (ax - hx) ** 2, 1e-4)) for (ax, az, _), (hx, hz) in zip(feet, hips)]
     if g["crouch"] is not None:
         low = b["h"] - b["hip"][2] + g["crouch"] * (b["l1"] + b["l2"])
         caps.append(low + g["bounce"] * (0.5 - 0.5 * np.cos(4 * np.pi * (c - g["duty"] / 2))))
-    height = _softmin(np.stack(caps, -1), axis=-1)            # (n,) pelvis above the ground
+    height = _softmin(np.stack(caps, -1), axis=-1)  # (n,) pelvis above the ground
     soles = []
     for (sign, hip, kn, an, _col, sh, el), (ax, az, pitch), (hx, hz) in zip(_SIDES, feet, hips):
         flex, knee = _leg_ik(ax - hx, az - hz - height, b)
         e[:, hip, 1] = -flex
         e[:, kn, 1] = knee
-        e[:, an, 1] = -(pitch - (flex - knee))                 # foot pitch less the shank's
-        e[:, hip, 2] = -yaw                                    # feet keep pointing where the body goes
-        e[:, hip, 0] = -roll - lat / b["leg"]                  # legs vertical under a rolled, shifted pelvis
+        e[:, an, 1] = -(pitch - (flex - knee))  # foot pitch less the shank's
+        e[:, hip, 2] = -yaw  # feet keep pointing where the body goes
+        e[:, hip, 0] = -roll - lat / b["leg"]  # legs vertical under a rolled, shifted pelvis
         e[:, an, 0] = lat / b["leg"]
         cos, sin = np.cos(pitch), np.sin(pitch)
         soles += [az - b["hb"] * sin - b["h"] * cos, az + b["fx"] * sin - b["h"] * cos]  # heel, toe heights
@@ -421,21 +504,23 @@ def _gait(tl, phase, p, style, b, run: bool) -> dict:
     e[:, PELVIS, 0] = roll
     e[:, SPINE1, 0] = -0.6 * (roll - lean_in)
     e[:, SPINE3, 0] = -0.4 * (roll - lean_in)
-    e[:, SPINE3, 2] = -1.3 * yaw                               # chest counter-rotates
+    e[:, SPINE3, 2] = -1.3 * yaw  # chest counter-rotates
     e[:, NECK, 2] = 0.3 * yaw
     lean = style["lean"] + (0.15 if run else 0.04)
     e[:, SPINE1, 1] = lean / 2
-    e[:, SPINE2, 1] = lean / 2 + 0.015 * np.cos(4 * np.pi * c)   # trunk nods at step frequency
+    e[:, SPINE2, 1] = lean / 2 + 0.015 * np.cos(4 * np.pi * c)  # trunk nods at step frequency
     e[:, HEAD, 1] = -lean / 2
-    e[:, HEAD, 2] = 0.25 * np.tanh(p["turn"])                    # look into the turn
+    e[:, HEAD, 2] = 0.25 * np.tanh(p["turn"])  # look into the turn
     # The FK pass puts the lowest sole on the ground; lift it by the designed clearance, and in
     # running by the ballistic float between toe-off and the other foot's landing (both feet
     # rise with the body, so the legs need not reach further).
     lift = _softmin(np.stack(soles, -1), axis=-1)
     if run:
-        float_ = (0.5 - g["duty"]) / f                                    # seconds in the air
-        lift = lift + 9.81 * float_ ** 2 / 8 * np.sin(np.pi * np.clip(((c % 0.5) - g["duty"]) / (0.5 - g["duty"]),
-                                                                      0.0, 1.0)) ** 2
+        float_ = (0.5 - g["duty"]) / f  # seconds in the air
+        lift = (
+            lift
+            + 9.81 * float_**2 / 8 * np.sin(np.pi * np.clip(((c % 0.5) - g["duty"]) / (0.5 - g["duty"]), 0.0, 1.0)) ** 2
+        )
     return {"euler": e, "speed": v, "turn": p["turn"], "lift": lift, "lateral": lat}
 
 
@@ -450,7 +535,7 @@ def _run(tl, phase, p, style, b):
 def _jump(tl, phase, p, style, b):
     n = len(tl)
     u = np.clip((tl - p["pad"]) / p["period"], 0.0, p["count"])
-    frac = u % 1.0                                             # (n,) position in the current jump
+    frac = u % 1.0  # (n,) position in the current jump
     crouch = PchipInterpolator(_JUMP_U, _JUMP_CROUCH)(frac)
     plantar = PchipInterpolator(_JUMP_U, _JUMP_PLANTAR)(frac)
     shoulder = PchipInterpolator(_JUMP_U, _JUMP_SHOULDER)(frac) * style["arm"] ** 0.5
@@ -464,12 +549,12 @@ def _jump(tl, phase, p, style, b):
         e[:, el, 1] = -elbow
     e[:, SPINE1, 1] += 0.2 * crouch + style["lean"]
     e[:, SPINE2, 1] += 0.2 * crouch
-    e[:, NECK, 1] += -0.2 * crouch                              # eyes stay on the horizon
+    e[:, NECK, 1] += -0.2 * crouch  # eyes stay on the horizon
     t0, t1 = _JUMP_FLIGHT
     s = np.clip((frac - t0) / (t1 - t0), 0.0, 1.0)
     lift = p["height"] * np.sin(np.pi * s) ** 2
     # Forward travel happens in the air: the speed that covers p["forward"] over the flight, smoothly.
-    speed = p["forward"] * 30 * s ** 2 * (1 - s) ** 2 / ((t1 - t0) * p["period"])
+    speed = p["forward"] * 30 * s**2 * (1 - s) ** 2 / ((t1 - t0) * p["period"])
     return {"euler": e, "lift": lift, "speed": speed}
 
 
@@ -482,7 +567,7 @@ def _arm_swing(tl, phase, p, style, b):
         raise_ = p["lateral"] * (0.5 - 0.5 * np.cos(a))
         e[:, sh, 1] = -(0.1 + p["sagittal"] * np.sin(a))
         e[:, sh, 0] = sign * (style["abd"] + raise_)
-        e[:, col, 0] = sign * 0.1 * raise_                     # shrug as the arm goes up
+        e[:, col, 0] = sign * 0.1 * raise_  # shrug as the arm goes up
         e[:, el, 1] = -p["elbow"]
     _squat(e, knee=0.05 + p["bounce"] * (0.5 - 0.5 * np.cos(2 * ang)), pelvis_pitch=np.zeros(n))  # knees give
     e[:, SPINE2, 1] += 0.05 * np.sin(ang)
@@ -502,7 +587,7 @@ def _wave(tl, phase, p, style, b):
     e[:, col, 0] = sign * 0.15
     e[:, el, 1] = 0.0
     e[:, el, 0] = sign * (p["elbow"] + osc)
-    e[:, SPINE3, 0] += -sign * 0.04 + 0.01 * osc                # lean away from the raised arm
+    e[:, SPINE3, 0] += -sign * 0.04 + 0.01 * osc  # lean away from the raised arm
     e[:, HEAD, 2] += sign * 0.15
     e[:, _SIDES[1 - k][5], 1] += -0.05 * np.sin(2 * np.pi * 0.3 * tl)
     return {"euler": e}
@@ -512,7 +597,7 @@ def _idle(tl, phase, p, style, b):
     n = len(tl)
     e = _stand(n, style)
     ang = 2 * np.pi * p["freq"] * tl + p["phase"]
-    lat = p["shift"] * np.sin(ang)                             # weight shift from foot to foot
+    lat = p["shift"] * np.sin(ang)  # weight shift from foot to foot
     for _sign, hip, _kn, an, _col, sh, _el in _SIDES:
         e[:, hip, 0] += -lat / b["leg"]
         e[:, an, 0] += lat / b["leg"]
@@ -524,11 +609,19 @@ def _idle(tl, phase, p, style, b):
     return {"euler": e, "lateral": lat}
 
 
-_ACTIVITY_FN = {"walk": _walk, "run": _run, "turn": _walk, "jump": _jump, "arm_swing": _arm_swing, "wave": _wave,
-                "idle": _idle}
+_ACTIVITY_FN = {
+    "walk": _walk,
+    "run": _run,
+    "turn": _walk,
+    "jump": _jump,
+    "arm_swing": _arm_swing,
+    "wave": _wave,
+    "idle": _idle,
+}
 
 
 # --- small helpers ---
+
 
 def _softmin(x: np.ndarray, axis: int) -> np.ndarray:
     """Smooth minimum (at most _TAU * log(count) below the true one)."""

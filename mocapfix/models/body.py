@@ -11,6 +11,7 @@ batched over any leading dims (B, T, ...).
 Both pose through mocapfix.kinematics.forward_kinematics, the project's one FK, so the joints
 of the two models agree wherever the offsets are SMPL's rest-joint differences.
 """
+
 from __future__ import annotations
 
 import pickle
@@ -26,15 +27,57 @@ from mocapfix.clip import MotionFileError
 from mocapfix.kinematics import forward_kinematics
 
 # Virtual mocap markers of HuMoR / Motion-DVAE (eq. 9): vertex indices of the SMPL(-H) mesh.
-PAPER_MARKERS = (4404, 920, 3076, 3169, 823, 4310, 1010, 1085, 4495, 4569, 6615, 3217, 3313, 6713, 6785, 3383,
-                 6607, 3207, 1241, 1508, 4797, 4122, 1618, 1569, 5135, 5040, 5691, 5636, 5404, 2230, 2173, 2108,
-                 134, 3645, 6543, 3123, 3024, 4194, 1306, 182, 3694, 4294, 744)
+PAPER_MARKERS = (
+    4404,
+    920,
+    3076,
+    3169,
+    823,
+    4310,
+    1010,
+    1085,
+    4495,
+    4569,
+    6615,
+    3217,
+    3313,
+    6713,
+    6785,
+    3383,
+    6607,
+    3207,
+    1241,
+    1508,
+    4797,
+    4122,
+    1618,
+    1569,
+    5135,
+    5040,
+    5691,
+    5636,
+    5404,
+    2230,
+    2173,
+    2108,
+    134,
+    3645,
+    6543,
+    3123,
+    3024,
+    4194,
+    1306,
+    182,
+    3694,
+    4294,
+    744,
+)
 SMPL_NUM_VERTICES = 6890
 NUM_BODY_JOINTS = 22
 
 
 class BodyOutput(NamedTuple):
-    joints: torch.Tensor                 # (..., J, 3) metres
+    joints: torch.Tensor  # (..., J, 3) metres
     markers: torch.Tensor | None = None  # (..., M, 3) metres; None without a mesh
 
     def points(self) -> torch.Tensor:
@@ -46,9 +89,14 @@ class BodyModel(Protocol):
     num_joints: int
     num_markers: int
 
-    def __call__(self, root_translation: torch.Tensor, root_orientation: torch.Tensor,
-                 joint_rotations: torch.Tensor, shape: torch.Tensor,
-                 joint_reference: torch.Tensor | None = None) -> BodyOutput:
+    def __call__(
+        self,
+        root_translation: torch.Tensor,
+        root_orientation: torch.Tensor,
+        joint_rotations: torch.Tensor,
+        shape: torch.Tensor,
+        joint_reference: torch.Tensor | None = None,
+    ) -> BodyOutput:
         """root_translation (..., 3) world position of joint 0, root_orientation (..., 3) axis-angle,
         joint_rotations (..., J-1, 3) local axis-angle, shape broadcastable to the leading dims
         (SkeletonFK: offsets (..., J, 3); SMPLBody: betas (..., nb)). joint_reference (J-1, 3, 3):
@@ -81,8 +129,14 @@ class SkeletonFK(nn.Module):
         self.parents = tuple(int(p) for p in parents)
         self.num_joints = len(self.parents)
 
-    def forward(self, root_translation: torch.Tensor, root_orientation: torch.Tensor, joint_rotations: torch.Tensor,
-                shape: torch.Tensor, joint_reference: torch.Tensor | None = None) -> BodyOutput:
+    def forward(
+        self,
+        root_translation: torch.Tensor,
+        root_orientation: torch.Tensor,
+        joint_rotations: torch.Tensor,
+        shape: torch.Tensor,
+        joint_reference: torch.Tensor | None = None,
+    ) -> BodyOutput:
         rotations = torch.cat([root_orientation[..., None, :], joint_rotations], dim=-2)  # (..., J, 3)
         rotmats = with_reference(roma.rotvec_to_rotmat(rotations.float()), joint_reference)
         offsets = shape.float().expand(*rotmats.shape[:-3], self.num_joints, 3)
@@ -110,8 +164,10 @@ class SMPLBody(nn.Module):
         V = model["v_template"].shape[0]
         if markers is None:
             if V != SMPL_NUM_VERTICES:
-                raise ValueError(f"the paper's 43 marker vertices index the {SMPL_NUM_VERTICES}-vertex SMPL mesh; "
-                                 f"this model has {V} vertices: pass markers explicitly")
+                raise ValueError(
+                    f"the paper's 43 marker vertices index the {SMPL_NUM_VERTICES}-vertex SMPL mesh; "
+                    f"this model has {V} vertices: pass markers explicitly"
+                )
             markers = list(PAPER_MARKERS)
         markers = [int(m) for m in markers]
         if any(not 0 <= m < V for m in markers):
@@ -124,10 +180,10 @@ class SMPLBody(nn.Module):
         f = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
         Jreg, vt, sd = model["J_regressor"], model["v_template"], model["shapedirs"][..., :nb]
         # Rest joints are linear in betas: J_rest = J_template + J_shapedirs . betas
-        self.register_buffer("J_template", f(Jreg @ vt), persistent=False)                          # (Jall, 3)
+        self.register_buffer("J_template", f(Jreg @ vt), persistent=False)  # (Jall, 3)
         self.register_buffer("J_shapedirs", f(np.einsum("jv,vcb->jcb", Jreg, sd)), persistent=False)  # (Jall, 3, nb)
-        self.register_buffer("m_template", f(vt[markers]), persistent=False)                          # (M, 3)
-        self.register_buffer("m_shapedirs", f(sd[markers]), persistent=False)                         # (M, 3, nb)
+        self.register_buffer("m_template", f(vt[markers]), persistent=False)  # (M, 3)
+        self.register_buffer("m_shapedirs", f(sd[markers]), persistent=False)  # (M, 3, nb)
         P = model["posedirs"].shape[-1]
         if P != 9 * (Jall - 1):
             raise ValueError(f"posedirs has {P} components, expected 9 x {Jall - 1} joints")
@@ -138,14 +194,21 @@ class SMPLBody(nn.Module):
         Jt, Js = Jreg @ vt, np.einsum("jv,vcb->jcb", Jreg, sd)
         A = (Js[1:NUM_BODY_JOINTS] - Js[par]).reshape(-1, nb)  # (63, nb)
         self.register_buffer("off_template", f(Jt[1:NUM_BODY_JOINTS] - Jt[par]), persistent=False)  # (21, 3)
-        self.register_buffer("off_pinv", f(np.linalg.pinv(A)), persistent=False)                  # (nb, 63)
+        self.register_buffer("off_pinv", f(np.linalg.pinv(A)), persistent=False)  # (nb, 63)
         self._num_all_joints = Jall
 
     @classmethod
-    def from_file(cls, body_model_path: str, gender: str = "neutral", model_type: str = "smplh",
-                  markers: list[int] | None = None, num_betas: int | None = None) -> SMPLBody:
+    def from_file(
+        cls,
+        body_model_path: str,
+        gender: str = "neutral",
+        model_type: str = "smplh",
+        markers: list[int] | None = None,
+        num_betas: int | None = None,
+    ) -> SMPLBody:
         """The user's model file or folder (smplx or AMASS layout, as the AMASS reader takes it)."""
         from mocapfix.io.amass import find_body_model, load_body_model
+
         model_file = find_body_model(body_model_path, model_type, gender)
         model = load_body_model(model_file)
         model.update(_skinning_arrays(model_file, model["v_template"].shape[0], len(model["parents"])))
@@ -155,28 +218,34 @@ class SMPLBody(nn.Module):
         """betas (N, nb) -> rest joints (N, Jall, 3)."""
         return self.J_template + torch.einsum("jcb,nb->njc", self.J_shapedirs, betas)
 
-    def forward(self, root_translation: torch.Tensor, root_orientation: torch.Tensor, joint_rotations: torch.Tensor,
-                shape: torch.Tensor, joint_reference: torch.Tensor | None = None) -> BodyOutput:
+    def forward(
+        self,
+        root_translation: torch.Tensor,
+        root_orientation: torch.Tensor,
+        joint_rotations: torch.Tensor,
+        shape: torch.Tensor,
+        joint_reference: torch.Tensor | None = None,
+    ) -> BodyOutput:
         lead = root_translation.shape[:-1]
         N, Jall = int(np.prod(lead)) if lead else 1, self._num_all_joints
-        betas = shape.float()[..., :self.num_betas].expand(*lead, self.num_betas).reshape(N, self.num_betas)
+        betas = shape.float()[..., : self.num_betas].expand(*lead, self.num_betas).reshape(N, self.num_betas)
         rot = torch.cat([root_orientation[..., None, :], joint_rotations], dim=-2).float().reshape(N, -1, 3)
-        rotmats = with_reference(roma.rotvec_to_rotmat(rot), joint_reference)              # (N, 22, 3, 3)
+        rotmats = with_reference(roma.rotvec_to_rotmat(rot), joint_reference)  # (N, 22, 3, 3)
         eye = torch.eye(3, dtype=rotmats.dtype, device=rotmats.device)
-        rotmats = torch.cat([rotmats, eye.expand(N, Jall - rot.shape[1], 3, 3)], dim=1)    # (N, Jall, 3, 3)
-        J_rest = self.rest_joints(betas)                                                   # (N, Jall, 3)
+        rotmats = torch.cat([rotmats, eye.expand(N, Jall - rot.shape[1], 3, 3)], dim=1)  # (N, Jall, 3, 3)
+        J_rest = self.rest_joints(betas)  # (N, Jall, 3)
         offsets = torch.cat([torch.zeros_like(J_rest[:, :1]), J_rest[:, 1:] - J_rest[:, list(self.parents[1:])]], 1)
         root = root_translation.float().reshape(N, 3)
         joints, glob = forward_kinematics(rotmats, root, offsets, self.parents)  # (N, Jall, 3), (N, Jall, 3, 3)
         # LBS of the marker vertices: shape and pose blend shapes in the rest frame, then the
         # blended rigid transforms: joint j moves a rest point v to G_j v + (p_j - G_j J_rest_j).
         M = self.num_markers
-        v = self.m_template + torch.einsum("mcb,nb->nmc", self.m_shapedirs, betas)         # (N, M, 3)
-        pose_feature = (rotmats[:, 1:] - eye).reshape(N, -1)                               # (N, 9 (Jall-1))
+        v = self.m_template + torch.einsum("mcb,nb->nmc", self.m_shapedirs, betas)  # (N, M, 3)
+        pose_feature = (rotmats[:, 1:] - eye).reshape(N, -1)  # (N, 9 (Jall-1))
         v = v + (pose_feature @ self.m_posedirs).reshape(N, M, 3)
-        trans = joints - (glob @ J_rest[..., None])[..., 0]                                # (N, Jall, 3)
-        R = torch.einsum("mj,njab->nmab", self.m_weights, glob)                            # (N, M, 3, 3)
-        t = torch.einsum("mj,nja->nma", self.m_weights, trans)                             # (N, M, 3)
+        trans = joints - (glob @ J_rest[..., None])[..., 0]  # (N, Jall, 3)
+        R = torch.einsum("mj,njab->nmab", self.m_weights, glob)  # (N, M, 3, 3)
+        t = torch.einsum("mj,nja->nma", self.m_weights, trans)  # (N, M, 3)
         markers = (R @ v[..., None])[..., 0] + t
         return BodyOutput(joints[:, :NUM_BODY_JOINTS].reshape(*lead, NUM_BODY_JOINTS, 3), markers.reshape(*lead, M, 3))
 
@@ -209,9 +278,15 @@ def _skinning_arrays(model_file: Path, V: int, J: int) -> dict:
     return {"posedirs": posedirs, "weights": weights}
 
 
-def build_body_model(kind: str, parents, body_model_path: str | None = None, gender: str = "neutral",
-                     model_type: str = "smplh", markers: list[int] | None = None) -> nn.Module:
-    """"skeleton" -> SkeletonFK(parents); "smpl" -> SMPLBody from the user's model file."""
+def build_body_model(
+    kind: str,
+    parents,
+    body_model_path: str | None = None,
+    gender: str = "neutral",
+    model_type: str = "smplh",
+    markers: list[int] | None = None,
+) -> nn.Module:
+    """ "skeleton" -> SkeletonFK(parents); "smpl" -> SMPLBody from the user's model file."""
     if kind == "skeleton":
         return SkeletonFK(parents)
     if kind == "smpl":

@@ -6,6 +6,7 @@ the tests all build networks through build_model (nanoGPT's model_args habit), s
 says what it holds: nothing guesses a model from the names of its weights, and renaming an
 attribute cannot break `fix`.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, fields
@@ -44,8 +45,14 @@ def build_model(kind: str, config) -> nn.Module:
         return XMAE(**asdict(config))
     if isinstance(config, DVAEConfig):
         velocity = None if config.encoder_velocities else velocity_mask(config.state, config.num_joints)
-        return MotionDVAE(state_dim(config.state, config.num_joints), config.latent_dim, config.lstm_hidden,
-                          config.mlp_hidden, config.norm_groups, velocity)
+        return MotionDVAE(
+            state_dim(config.state, config.num_joints),
+            config.latent_dim,
+            config.lstm_hidden,
+            config.mlp_hidden,
+            config.norm_groups,
+            velocity,
+        )
     raise ValueError(f"not a model config: {type(config).__name__}")
 
 

@@ -12,6 +12,7 @@ Inference model q_phi(z_t | z_<t, x_t:T, x_0):
 Denoising adds q_omega(x_0 | y_0:T) (anti-causal LSTM + MLP) and q_gamma(v_t | z_1:t, y_t, x_0)
 (inverse-gamma per observed coordinate, from the generative LSTM state h_t and y_t).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -25,11 +26,12 @@ import torch.nn as nn
 class DVAEConfig:
     """Everything that decides MotionDVAE's shape: saved in every checkpoint (models/build.py).
     The state's size and velocity entries follow from state and num_joints (dvae_state.py)."""
-    state: str                        # "rotations" (the paper's) or "positions"
+
+    state: str  # "rotations" (the paper's) or "positions"
     num_joints: int
-    latent_dim: int = 48              # paper A.1
-    lstm_hidden: int = 1024           # paper A.1
-    mlp_hidden: int = 1024            # the 2 hidden layers of every MLP (not in the paper)
+    latent_dim: int = 48  # paper A.1
+    lstm_hidden: int = 1024  # paper A.1
+    mlp_hidden: int = 1024  # the 2 hidden layers of every MLP (not in the paper)
     norm_groups: int = 16
     encoder_velocities: bool = False  # False: the encoder reads poses only (MotionDVAE)
 
@@ -39,9 +41,15 @@ class MLP(nn.Module):
 
     def __init__(self, in_dim: int, hidden: int, out_dim: int, groups: int = 16):
         super().__init__()
-        self.net = nn.Sequential(nn.Linear(in_dim, hidden), nn.GroupNorm(groups, hidden), nn.ReLU(),
-                                 nn.Linear(hidden, hidden), nn.GroupNorm(groups, hidden), nn.ReLU(),
-                                 nn.Linear(hidden, out_dim))
+        self.net = nn.Sequential(
+            nn.Linear(in_dim, hidden),
+            nn.GroupNorm(groups, hidden),
+            nn.ReLU(),
+            nn.Linear(hidden, hidden),
+            nn.GroupNorm(groups, hidden),
+            nn.ReLU(),
+            nn.Linear(hidden, out_dim),
+        )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         lead = x.shape[:-1]
@@ -111,7 +119,7 @@ class Encoder(nn.Module):
         sample=False takes z_t = mu_t (the posterior-mean path used for regression)."""
         B, T, _ = x.shape
         h_data = self.e_data(x.flip(1))[0].flip(1)  # (B, T, H): h^data_t summarises x_t..x_T
-        h, c = self.e_ini(x0)                       # (B, H) each
+        h, c = self.e_ini(x0)  # (B, H) each
         # Only h^lat_{t-1} has to wait for z_{t-1}. e_glob's first layer on [h^lat, h^data_t] is
         # W_lat h^lat + (W_data h^data_t + b): the data half, and the sampling noise, for all t
         # at once before the loop. The loop is the DVAE's launch-bound part on a GPU: each op
@@ -131,13 +139,13 @@ class Encoder(nn.Module):
 
 
 class DVAEOutput(NamedTuple):
-    x_hat: torch.Tensor     # (B, T, D) decoder means of x_1..x_T
-    z: torch.Tensor         # (B, T, L)
-    q_mu: torch.Tensor      # (B, T, L)
+    x_hat: torch.Tensor  # (B, T, D) decoder means of x_1..x_T
+    z: torch.Tensor  # (B, T, L)
+    q_mu: torch.Tensor  # (B, T, L)
     q_logvar: torch.Tensor  # (B, T, L)
-    p_mu: torch.Tensor      # (B, T, L)
+    p_mu: torch.Tensor  # (B, T, L)
     p_logvar: torch.Tensor  # (B, T, L)
-    h: torch.Tensor         # (B, T+1, H) generative LSTM states h_0..h_T
+    h: torch.Tensor  # (B, T+1, H) generative LSTM states h_0..h_T
 
 
 class MotionDVAE(nn.Module):
@@ -153,8 +161,15 @@ class MotionDVAE(nn.Module):
     standardised velocities 10-40 data standard deviations off, far outside anything the encoder
     was trained on, and the denoising stage then starts from a useless encoder (issue 4)."""
 
-    def __init__(self, x_dim: int, latent_dim: int = 48, lstm_hidden: int = 1024, mlp_hidden: int = 1024,
-                 groups: int = 16, velocity: torch.Tensor | None = None):
+    def __init__(
+        self,
+        x_dim: int,
+        latent_dim: int = 48,
+        lstm_hidden: int = 1024,
+        mlp_hidden: int = 1024,
+        groups: int = 16,
+        velocity: torch.Tensor | None = None,
+    ):
         """velocity: (x_dim,) bool, True at the state's velocity entries, which the encoder then
         does not read; None: the encoder reads the whole state (the paper's wording)."""
         super().__init__()
@@ -227,8 +242,8 @@ class NoisePredictor(nn.Module):
 
 # --- divergences, summed by the caller ---
 
-def gaussian_kl(q_mu: torch.Tensor, q_logvar: torch.Tensor, p_mu: torch.Tensor, p_logvar: torch.Tensor
-                ) -> torch.Tensor:
+
+def gaussian_kl(q_mu: torch.Tensor, q_logvar: torch.Tensor, p_mu: torch.Tensor, p_logvar: torch.Tensor) -> torch.Tensor:
     """Elementwise KL(N(q_mu, e^q_logvar) || N(p_mu, e^p_logvar))."""
     return 0.5 * (p_logvar - q_logvar + (q_logvar.exp() + (q_mu - p_mu) ** 2) / p_logvar.exp() - 1.0)
 
@@ -239,5 +254,6 @@ def inverse_gamma_kl(alpha: torch.Tensor, beta: torch.Tensor, alpha_p: float, be
     a, b = alpha.double(), beta.double()
     ap = torch.as_tensor(alpha_p, dtype=torch.float64, device=a.device)
     bp = torch.as_tensor(beta_p, dtype=torch.float64, device=a.device)
-    return ((a - ap) * torch.digamma(a) - torch.lgamma(a) + torch.lgamma(ap)
-            + ap * (b.log() - bp.log()) + a * (bp - b) / b)
+    return (
+        (a - ap) * torch.digamma(a) - torch.lgamma(a) + torch.lgamma(ap) + ap * (b.log() - bp.log()) + a * (bp - b) / b
+    )

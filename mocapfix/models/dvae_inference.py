@@ -18,6 +18,7 @@ The first frame of the output (first_frame):
   "decoded"    one step back from the decoder's x_1 along x_1's own velocities (beyond the paper):
                the decoder's motion carried to frame 0 (45 mm there, 13 m/s^2 at the join).
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -34,25 +35,26 @@ GAUSSIAN_LAMBDA = 1e4  # from here on the IG prior is the paper's Gaussian setti
 
 class Observation(NamedTuple):
     """What the denoiser may see of a window: noisy data and the known shape."""
-    positions: torch.Tensor                # (B, T+1, J, 3) noisy joint positions, world
-    rotations: torch.Tensor | None         # (B, T+1, J, 3) noisy local axis-angle (rotations state)
+
+    positions: torch.Tensor  # (B, T+1, J, 3) noisy joint positions, world
+    rotations: torch.Tensor | None  # (B, T+1, J, 3) noisy local axis-angle (rotations state)
     root_translation: torch.Tensor | None  # (B, T+1, 3) observed root translation (the protocol keeps it)
-    offsets: torch.Tensor | None           # (B, J, 3) bone offsets: the shape, observed (q(beta | y) of the paper)
+    offsets: torch.Tensor | None  # (B, J, 3) bone offsets: the shape, observed (q(beta | y) of the paper)
 
 
 class Inference(NamedTuple):
     canon: Canonical
-    y3d: torch.Tensor       # (B, T+1, K, 3) observed points, canonical frame, metres
-    m: torch.Tensor         # (B, T+1, K, 3) predicted points M(x_0), M(x_hat_t)
-    x0_mu: torch.Tensor     # (B, D) standardised
+    y3d: torch.Tensor  # (B, T+1, K, 3) observed points, canonical frame, metres
+    m: torch.Tensor  # (B, T+1, K, 3) predicted points M(x_0), M(x_hat_t)
+    x0_mu: torch.Tensor  # (B, D) standardised
     x0_logvar: torch.Tensor
-    q_mu: torch.Tensor      # (B, T, L)
+    q_mu: torch.Tensor  # (B, T, L)
     q_logvar: torch.Tensor
     p_mu: torch.Tensor
     p_logvar: torch.Tensor
-    a: torch.Tensor         # (B, T+1, 3K) alpha = lambda/2 e^a
-    b: torch.Tensor         # (B, T+1, 3K) beta = lambda/2 e^b
-    x: torch.Tensor         # (B, T+1, D) predicted states x_0, x_hat_1..x_hat_T, raw units, canonical frame
+    a: torch.Tensor  # (B, T+1, 3K) alpha = lambda/2 e^a
+    b: torch.Tensor  # (B, T+1, 3K) beta = lambda/2 e^b
+    x: torch.Tensor  # (B, T+1, D) predicted states x_0, x_hat_1..x_hat_T, raw units, canonical frame
     shape: torch.Tensor | None  # the body model's shape (rotations state), None for positions
 
 
@@ -70,22 +72,29 @@ def uses_noise_model(estimate: str, noise_lambda: float) -> bool:
     return estimate == "fusion"
 
 
-def infer_posterior(net: MotionDVAE, codec: MotionState, x0_pred: InitialStatePredictor, noise_pred: NoisePredictor,
-                    obs: Observation, sample: bool) -> Inference:
+def infer_posterior(
+    net: MotionDVAE,
+    codec: MotionState,
+    x0_pred: InitialStatePredictor,
+    noise_pred: NoisePredictor,
+    obs: Observation,
+    sample: bool,
+) -> Inference:
     """One pass of the inference and generative models over noisy windows. sample=False takes
     the means of q_omega and q_phi (regression mode's posterior-mean path)."""
     y, canon = codec.encode(obs.positions, obs.rotations, obs.root_translation)  # (B, T+1, D) raw state
     shape = codec.shape(obs.offsets)
-    y3d = codec.points(y, shape).points()                                          # (B, T+1, K, 3)
+    y3d = codec.points(y, shape).points()  # (B, T+1, K, 3)
     yn = net.normalize(y)
     x0_mu, x0_logvar = x0_pred(yn)
     x0 = x0_mu + torch.randn_like(x0_mu) * (0.5 * x0_logvar).exp() if sample else x0_mu
     out = net(x0, yn[:, 1:], sample)  # encoder on the noisy states, frozen prior and decoder
-    x_all = net.denormalize(torch.cat([x0[:, None], out.x_hat], dim=1).float())   # (B, T+1, D)
+    x_all = net.denormalize(torch.cat([x0[:, None], out.x_hat], dim=1).float())  # (B, T+1, D)
     m = codec.points(x_all, shape).points()
     a, b = noise_pred(out.h, y3d.flatten(-2))
-    return Inference(canon, y3d, m, x0_mu, x0_logvar, out.q_mu, out.q_logvar, out.p_mu, out.p_logvar, a, b, x_all,
-                     shape)
+    return Inference(
+        canon, y3d, m, x0_mu, x0_logvar, out.q_mu, out.q_logvar, out.p_mu, out.p_logvar, a, b, x_all, shape
+    )
 
 
 def output_states(inf: Inference, codec: MotionState, first_frame: str) -> torch.Tensor:
@@ -103,12 +112,18 @@ def output_points(inf: Inference, codec: MotionState, first_frame: str) -> torch
     x = output_states(inf, codec, first_frame)
     if first_frame == "predicted":
         return inf.m
-    m0 = codec.points(x[:, :1], inf.shape).points()                       # (B, 1, K, 3)
+    m0 = codec.points(x[:, :1], inf.shape).points()  # (B, 1, K, 3)
     return torch.cat([m0.to(inf.m.dtype), inf.m[:, 1:]], dim=1)
 
 
-def point_estimate(inf: Inference, codec: MotionState, noise_lambda: float, fusion: bool,
-                   observed: torch.Tensor | None = None, first_frame: str = "decoded") -> torch.Tensor:
+def point_estimate(
+    inf: Inference,
+    codec: MotionState,
+    noise_lambda: float,
+    fusion: bool,
+    observed: torch.Tensor | None = None,
+    first_frame: str = "decoded",
+) -> torch.Tensor:
     """Denoised joint positions (B, T+1, J, 3), world frame (section 4.3): the decoder output on
     the posterior-mean path, frame 0 as first_frame says, fused with the observation by eq. 18
     when fusion is on (frame 0 too when it is the decoder's).
@@ -125,26 +140,27 @@ def point_estimate(inf: Inference, codec: MotionState, noise_lambda: float, fusi
             v = v.reshape(est.shape).to(est.dtype)
         fused = (v * est + inf.y3d) / (v + 1)
         if observed is not None:
-            keep = torch.zeros(est.shape[:-1], dtype=torch.bool, device=est.device)       # (B, T+1, K)
-            keep[:, :, :codec.num_joints] = observed
+            keep = torch.zeros(est.shape[:-1], dtype=torch.bool, device=est.device)  # (B, T+1, K)
+            keep[:, :, : codec.num_joints] = observed
             fused = torch.where(keep[..., None], fused, est)
         est = fused if first_frame == "decoded" else torch.cat([est[:, :1], fused[:, 1:]], dim=1)
-    joints = est[:, :, :codec.num_joints]
+    joints = est[:, :, : codec.num_joints]
     return from_canonical(joints, inf.canon)
 
 
-def rotation_estimate(inf: Inference, codec: MotionState, first_frame: str = "decoded"
-                      ) -> tuple[torch.Tensor, torch.Tensor]:
+def rotation_estimate(
+    inf: Inference, codec: MotionState, first_frame: str = "decoded"
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Rotations state: the decoded states back in the world frame -> local axis-angle rotations
     (B, T+1, J, 3) (joint 0: root orientation) and root translation (B, T+1, 3). Eq. 18 fuses 3D
     points, not rotations: this is always the decoder's motion (frame 0 as first_frame says)."""
     x = output_states(inf, codec, first_frame)
-    r, phi, _ = split_rotation_state(x, codec.num_joints)                # (B, T+1, 3) each
-    theta = codec.joint_rotations(x)                                     # (B, T+1, J-1, 3)
+    r, phi, _ = split_rotation_state(x, codec.num_joints)  # (B, T+1, 3) each
+    theta = codec.joint_rotations(x)  # (B, T+1, J-1, 3)
     root_translation = from_canonical(r, inf.canon)
     # the canonical frame is the world turned by -yaw about z: turn the root orientation back
     yaw = torch.zeros(len(r), 3, dtype=r.dtype, device=r.device)
     yaw[:, 2] = inf.canon.yaw.to(r.dtype)
-    root = roma.rotvec_to_rotmat(yaw)[:, None] @ roma.rotvec_to_rotmat(phi)    # (B, T+1, 3, 3)
+    root = roma.rotvec_to_rotmat(yaw)[:, None] @ roma.rotvec_to_rotmat(phi)  # (B, T+1, 3, 3)
     rotations = torch.cat([roma.rotmat_to_rotvec(root)[:, :, None], theta], dim=2)
     return rotations, root_translation

@@ -12,6 +12,7 @@ Each window is canonicalised on its first frame (paper A.4): xy translation zero
 kept) and the heading turned to 0, so the prior learns motion independently of where it starts.
 Distances are unchanged by this rigid map, so errors can be measured in the canonical frame.
 """
+
 from __future__ import annotations
 
 import math
@@ -28,8 +29,9 @@ STATES = ("rotations", "positions")
 
 class Canonical(NamedTuple):
     """The rigid map of a window to its canonical frame: p' = Rz(-yaw) (p - origin)."""
+
     origin: torch.Tensor  # (B, 3), z = 0
-    yaw: torch.Tensor     # (B,) radians
+    yaw: torch.Tensor  # (B,) radians
 
 
 def state_dim(kind: str, num_joints: int) -> int:
@@ -42,9 +44,9 @@ def velocity_mask(kind: str, num_joints: int) -> torch.Tensor:
     if kind == "rotations":
         n = 3 * (num_joints - 1)
         mask[3:6] = mask[9:12] = True
-        mask[12 + n:] = True
+        mask[12 + n :] = True
     else:
-        mask[3 * num_joints:] = True
+        mask[3 * num_joints :] = True
     return mask
 
 
@@ -64,11 +66,11 @@ def unwrap_rotvec(rotvec: torch.Tensor) -> torch.Tensor:
     more than pi between frames are 2 pi jumps). All of it is whole-window tensor arithmetic:
     a frame-by-frame loop costs ~20 kernel launches per frame on a GPU, where the Motion-DVAE
     training step is launch-bound (docs/performance.md)."""
-    theta = rotvec.norm(dim=-1, keepdim=True)                                    # (B, T, ..., 1)
-    axis = rotvec / theta.clamp_min(1e-8)                                        # 0 at the identity
-    flipped = (axis[:, 1:] * axis[:, :-1]).sum(-1, keepdim=True) < 0             # (B, T-1, ..., 1)
+    theta = rotvec.norm(dim=-1, keepdim=True)  # (B, T, ..., 1)
+    axis = rotvec / theta.clamp_min(1e-8)  # 0 at the identity
+    flipped = (axis[:, 1:] * axis[:, :-1]).sum(-1, keepdim=True) < 0  # (B, T-1, ..., 1)
     sign = torch.cat([torch.ones_like(theta[:, :1]), 1.0 - 2.0 * flipped.to(theta.dtype)], dim=1).cumprod(dim=1)
-    angle = theta * sign                                                         # about the axis sign * axis
+    angle = theta * sign  # about the axis sign * axis
     jumps = torch.round(angle.diff(dim=1) / (2 * math.pi)).cumsum(dim=1)
     angle = angle - 2 * math.pi * torch.cat([torch.zeros_like(jumps[:, :1]), jumps], dim=1)
     return axis * sign * angle
@@ -115,8 +117,9 @@ def _origin(p0: torch.Tensor) -> torch.Tensor:
     return torch.cat([p0[:, :2], torch.zeros_like(p0[:, 2:])], dim=-1)
 
 
-def rotation_state(rotations: torch.Tensor, root_translation: torch.Tensor, fps: float,
-                   reference: torch.Tensor | None = None) -> tuple[torch.Tensor, Canonical]:
+def rotation_state(
+    rotations: torch.Tensor, root_translation: torch.Tensor, fps: float, reference: torch.Tensor | None = None
+) -> tuple[torch.Tensor, Canonical]:
     """rotations (B, T, J, 3) local axis-angle (joint 0 = root orientation), root_translation (B, T, 3)
     -> x (B, T, 6 (J + 1)) in the window's canonical frame, and that frame.
     reference: (J-1, 3, 3) rotation Theta_j is measured from (R_j = reference_j exp(Theta_j));
@@ -124,22 +127,23 @@ def rotation_state(rotations: torch.Tensor, root_translation: torch.Tensor, fps:
     B, T, J, _ = rotations.shape
     rotations, root_translation = rotations.float(), root_translation.float()
     canon = Canonical(_origin(root_translation[:, 0]), heading_of_rotation(rotations[:, 0, 0]))
-    r = to_canonical(root_translation, canon)                                            # (B, T, 3)
-    root = _rz(-canon.yaw)[:, None] @ roma.rotvec_to_rotmat(rotations[:, :, 0])          # (B, T, 3, 3)
-    phi = unwrap_rotvec(roma.rotmat_to_rotvec(root))                                     # (B, T, 3)
-    joints = rotations[:, :, 1:]                                                         # (B, T, J-1, 3)
+    r = to_canonical(root_translation, canon)  # (B, T, 3)
+    root = _rz(-canon.yaw)[:, None] @ roma.rotvec_to_rotmat(rotations[:, :, 0])  # (B, T, 3, 3)
+    phi = unwrap_rotvec(roma.rotmat_to_rotvec(root))  # (B, T, 3)
+    joints = rotations[:, :, 1:]  # (B, T, J-1, 3)
     if reference is not None:
         joints = roma.rotmat_to_rotvec(reference.transpose(-1, -2) @ roma.rotvec_to_rotmat(joints))
     theta = unwrap_rotvec(joints).reshape(B, T, 3 * (J - 1))
-    x = torch.cat([r, finite_difference(r, fps), phi, finite_difference(phi, fps),
-                   theta, finite_difference(theta, fps)], dim=-1)
+    x = torch.cat(
+        [r, finite_difference(r, fps), phi, finite_difference(phi, fps), theta, finite_difference(theta, fps)], dim=-1
+    )
     return x, canon
 
 
 def split_rotation_state(x: torch.Tensor, num_joints: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """x (..., 6 (J + 1)) -> root translation (..., 3), root orientation (..., 3), joint rotations (..., J-1, 3)."""
     n = 3 * (num_joints - 1)
-    return x[..., 0:3], x[..., 6:9], x[..., 12:12 + n].reshape(*x.shape[:-1], num_joints - 1, 3)
+    return x[..., 0:3], x[..., 6:9], x[..., 12 : 12 + n].reshape(*x.shape[:-1], num_joints - 1, 3)
 
 
 def positions_state(positions: torch.Tensor, groups: dict, fps: float) -> tuple[torch.Tensor, Canonical]:
@@ -153,7 +157,7 @@ def positions_state(positions: torch.Tensor, groups: dict, fps: float) -> tuple[
 
 def split_positions_state(x: torch.Tensor, num_joints: int) -> torch.Tensor:
     """x (..., 6 J) -> positions (..., J, 3)."""
-    return x[..., :3 * num_joints].reshape(*x.shape[:-1], num_joints, 3)
+    return x[..., : 3 * num_joints].reshape(*x.shape[:-1], num_joints, 3)
 
 
 class MotionState(nn.Module):
@@ -195,14 +199,20 @@ class MotionState(nn.Module):
         theta = split_rotation_state(x, self.num_joints)[2]
         return roma.rotmat_to_rotvec(self.joint_reference.to(theta.dtype) @ roma.rotvec_to_rotmat(theta))
 
-    def encode(self, positions: torch.Tensor | None = None, rotations: torch.Tensor | None = None,
-               root_translation: torch.Tensor | None = None) -> tuple[torch.Tensor, Canonical]:
+    def encode(
+        self,
+        positions: torch.Tensor | None = None,
+        rotations: torch.Tensor | None = None,
+        root_translation: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, Canonical]:
         """(B, T, J, 3) positions (positions state) or rotations + root translation (rotations
         state) -> x (B, T, dim), canonical frame."""
         if self.kind == "rotations":
             if rotations is None or root_translation is None:
-                raise ValueError("state 'rotations' needs rotation data: set data.with_rotations: true on a source "
-                                 "with rotations (bvh, amass, synthetic), or use state: positions")
+                raise ValueError(
+                    "state 'rotations' needs rotation data: set data.with_rotations: true on a source "
+                    "with rotations (bvh, amass, synthetic), or use state: positions"
+                )
             return rotation_state(rotations, root_translation, self.fps, self.joint_reference)
         return positions_state(positions, self.groups, self.fps)
 

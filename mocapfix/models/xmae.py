@@ -9,6 +9,7 @@ change with the number of missing tokens, there is no train/test gap in the deco
 decoder="mae" is the original MAE design (ablation, section 4.3): encoded tokens scattered back
 to their positions, mask tokens elsewhere, self-attention only.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -31,15 +32,16 @@ class Attention(nn.Module):
         self.kv = nn.Linear(kv_dim, 2 * dim)
         self.proj = nn.Linear(dim, dim)
 
-    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None,
-                key_padding: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self, x: torch.Tensor, context: torch.Tensor | None = None, key_padding: torch.Tensor | None = None
+    ) -> torch.Tensor:
         # x: (B, Nq, D); context: (B, Nk, Dkv) (x itself for self-attention); key_padding: (B, Nk) True = ignore
         context = x if context is None else context
         B, Nq, D = x.shape
-        q = self.q(x).view(B, Nq, self.num_heads, self.head_dim).transpose(1, 2)           # (B, H, Nq, hd)
+        q = self.q(x).view(B, Nq, self.num_heads, self.head_dim).transpose(1, 2)  # (B, H, Nq, hd)
         k, v = self.kv(context).view(B, -1, 2, self.num_heads, self.head_dim).permute(2, 0, 3, 1, 4)
-        attn_mask = None if key_padding is None else ~key_padding[:, None, None, :]         # (B, 1, 1, Nk)
-        y = F.scaled_dot_product_attention(q, k, v, attn_mask=attn_mask)                   # (B, H, Nq, hd)
+        attn_mask = None if key_padding is None else ~key_padding[:, None, None, :]  # (B, 1, 1, Nk)
+        y = F.scaled_dot_product_attention(q, k, v, attn_mask=attn_mask)  # (B, H, Nq, hd)
         return self.proj(y.transpose(1, 2).reshape(B, Nq, D))
 
 
@@ -97,6 +99,7 @@ def _full_precision(layer: nn.Linear, x: torch.Tensor) -> torch.Tensor:
 @dataclass
 class XMAEConfig:
     """Everything that decides the network's shape: saved in every checkpoint (models/build.py)."""
+
     num_joints: int
     num_frames: int
     enc_dim: int = 256
@@ -117,8 +120,9 @@ class XMAEConfig:
 # steps where wide ones sit on it for thousands, and fill_input starts it at the interpolation.
 PRESETS: dict[str, dict] = {
     "paper": {},
-    "cpu": dict(enc_dim=64, enc_depth=2, enc_mlp_dim=256, dec_dim=64, dec_depth=1, dec_mlp_dim=256, head_dim=32,
-                fill_input=True),
+    "cpu": dict(
+        enc_dim=64, enc_depth=2, enc_mlp_dim=256, dec_dim=64, dec_depth=1, dec_mlp_dim=256, head_dim=32, fill_input=True
+    ),
 }
 
 
@@ -145,8 +149,20 @@ class XMAE(nn.Module):
             raise ValueError("fill_input needs the cross-attention decoder (decoder='cross')")
         self.num_joints, self.num_frames, self.decoder_type = num_joints, num_frames, decoder
         # what a checkpoint stores to rebuild this network (models/build.py)
-        self.config = XMAEConfig(num_joints, num_frames, enc_dim, enc_depth, enc_mlp_dim, dec_dim, dec_depth,
-                                 dec_mlp_dim, head_dim, decoder, position_unit_m, fill_input)
+        self.config = XMAEConfig(
+            num_joints,
+            num_frames,
+            enc_dim,
+            enc_depth,
+            enc_mlp_dim,
+            dec_dim,
+            dec_depth,
+            dec_mlp_dim,
+            head_dim,
+            decoder,
+            position_unit_m,
+            fill_input,
+        )
         # Not in the paper: with fill_input the decoder's queries also carry a classical fill of
         # every token (inference.py: Lerp) and the network predicts the correction to it. A small
         # network then starts from the interpolation instead of having to learn it, and spends its
@@ -186,8 +202,12 @@ class XMAE(nn.Module):
         # Positional encodings start at unit scale (nn.Embedding's default), not MAE's 0.02:
         # queries find their joint's observed tokens only through them, and from 0.02 the
         # cross-attention takes thousands of steps to start routing (docs/xmae-notes.md).
-        for p in (self.enc_pos_joint, self.enc_pos_time, getattr(self, "dec_pos_joint", None),
-                  getattr(self, "dec_pos_time", None)):
+        for p in (
+            self.enc_pos_joint,
+            self.enc_pos_time,
+            getattr(self, "dec_pos_joint", None),
+            getattr(self, "dec_pos_time", None),
+        ):
             if p is not None:
                 nn.init.normal_(p, std=1.0)
         nn.init.normal_(self.mask_token, std=0.02)
@@ -209,44 +229,50 @@ class XMAE(nn.Module):
         # tokens: (B, N, 3) all J*T tokens (values at unobserved ones are never read)
         # kept: (B, K) indices of observed tokens; padding: (B, K) True where kept is padding
         x = torch.gather(tokens, 1, kept[..., None].expand(-1, -1, 3)) / self.position_unit_m  # (B, K, 3)
-        pos = self._positions(self.enc_pos_joint, self.enc_pos_time)                       # (N, D)
-        x = _full_precision(self.embed, x) + pos[kept]                                      # (B, K, D)
+        pos = self._positions(self.enc_pos_joint, self.enc_pos_time)  # (N, D)
+        x = _full_precision(self.embed, x) + pos[kept]  # (B, K, D)
         for blk in self.encoder:
             x = blk(x, key_padding=padding)
-        return self.enc_to_dec(self.enc_norm(x))                                            # (B, K, Dd)
+        return self.enc_to_dec(self.enc_norm(x))  # (B, K, Dd)
 
-    def decode(self, memory: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None,
-               fill: torch.Tensor | None = None) -> torch.Tensor:
+    def decode(
+        self, memory: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None, fill: torch.Tensor | None = None
+    ) -> torch.Tensor:
         B = memory.shape[0]
         if self.decoder_type == "cross":
-            pos = self._positions(self.enc_pos_joint, self.enc_pos_time)                   # (N, D)
-            queries = self.enc_to_dec(self.mask_token + pos)[None]                          # (1, N, Dd)
+            pos = self._positions(self.enc_pos_joint, self.enc_pos_time)  # (N, D)
+            queries = self.enc_to_dec(self.mask_token + pos)[None]  # (1, N, Dd)
             # The queries are the same for every sample, and so is the first block's
             # self-attention over them (the samples first differ in its cross-attention): run it
             # once, not B times: attention over all J*T queries is the decoder's largest layer, and
             # this one is 13 % of a training step's arithmetic (docs/performance.md).
             first = self.decoder[0]
-            x = first.attend_queries(queries).expand(B, -1, -1)                             # (B, N, Dd)
+            x = first.attend_queries(queries).expand(B, -1, -1)  # (B, N, Dd)
             if fill is not None:  # each query learns its token's fill after the shared part
                 x = x + _full_precision(self.fill_embed, fill / self.position_unit_m).to(x.dtype)
-            x = first.attend_memory(x, memory, padding)                                     # (B, N, Dd)
+            x = first.attend_memory(x, memory, padding)  # (B, N, Dd)
             for blk in self.decoder[1:]:
                 x = blk(x, memory, memory_padding=padding)
         else:  # MAE: encoded tokens replace the mask tokens at their own positions
-            pos = self._positions(self.dec_pos_joint, self.dec_pos_time)                   # (N, Dd)
-            queries = (self.mask_token + pos).expand(B, -1, -1)                             # (B, N, Dd)
+            pos = self._positions(self.dec_pos_joint, self.dec_pos_time)  # (N, Dd)
+            queries = (self.mask_token + pos).expand(B, -1, -1)  # (B, N, Dd)
             index = kept
             if padding is not None:  # padded slots land on a spare position N, dropped after
                 index = kept.masked_fill(padding, queries.shape[1])
-            x = torch.cat([queries, queries[:, :1]], dim=1)                                 # (B, N+1, Dd)
+            x = torch.cat([queries, queries[:, :1]], dim=1)  # (B, N+1, Dd)
             x = x.scatter(1, index[..., None].expand(-1, -1, memory.shape[-1]), memory + pos[kept])[:, :-1]
             for blk in self.decoder:
                 x = blk(x)
-        out = _full_precision(self.head, self.dec_norm(x)) * self.position_unit_m          # (B, N, 3) metres
+        out = _full_precision(self.head, self.dec_norm(x)) * self.position_unit_m  # (B, N, 3) metres
         return out if fill is None else fill + out
 
-    def forward(self, tokens: torch.Tensor, kept: torch.Tensor, padding: torch.Tensor | None = None,
-                fill: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self,
+        tokens: torch.Tensor,
+        kept: torch.Tensor,
+        padding: torch.Tensor | None = None,
+        fill: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """tokens: (B, N, 3), N = T*J (t-major, joint fastest); kept: (B, K) observed token indices;
         padding: (B, K) True where a sample has fewer than K observed tokens (None: all real; pass
         None when you know it, the attention then runs without a mask, on the fastest kernels);
@@ -258,6 +284,6 @@ class XMAE(nn.Module):
             # A sample with no observed token would attend to nothing (NaN): let it attend to one
             # zero-valued slot instead; its output is then the model's unconditional guess.
             # (Elementwise, not padding[padding.all(1), 0] = False: boolean indexing waits for the device.)
-            first = torch.arange(padding.shape[1], device=padding.device) == 0             # (K,)
+            first = torch.arange(padding.shape[1], device=padding.device) == 0  # (K,)
             padding = padding & ~(padding.all(1, keepdim=True) & first)
         return self.decode(self.encode(tokens, kept, padding), kept, padding, fill)

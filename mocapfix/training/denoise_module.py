@@ -23,6 +23,7 @@ joint acceleration against the clean windows, with seconds per frame.
 Lightning runs `test` under torch.inference_mode, where no gradient can be taken: the denoise
 configs set trainer.inference_mode: false; the optimisation loop also leaves inference mode itself.
 """
+
 from __future__ import annotations
 
 import contextvars
@@ -125,12 +126,14 @@ class DVAEDenoiseModule(L.LightningModule):
         # LightningCLI hands this module's hyperparameters to save_hyperparameters through a context
         # variable; the prior is built in a fresh context so that it saves its own.
         if prior_hparams is not None:  # from a denoise checkpoint: its state_dict brings the weights
-            prior = contextvars.Context().run(MotionDVAEModule,
-                                              **{k: v for k, v in prior_hparams.items() if not k.startswith("_")})
+            prior = contextvars.Context().run(
+                MotionDVAEModule, **{k: v for k, v in prior_hparams.items() if not k.startswith("_")}
+            )
         elif prior_ckpt:
             if not Path(prior_ckpt).is_file():
-                raise ValueError(f"{prior_ckpt}: no such prior checkpoint "
-                                 "(train the prior first: configs/motion_dvae*.yaml)")
+                raise ValueError(
+                    f"{prior_ckpt}: no such prior checkpoint (train the prior first: configs/motion_dvae*.yaml)"
+                )
             prior = contextvars.Context().run(MotionDVAEModule.load_from_checkpoint, prior_ckpt, map_location="cpu")
             # plain values only (no Lightning bookkeeping keys): the checkpoint stays weights_only-loadable
             self.hparams.prior_hparams = {k: v for k, v in prior.hparams.items() if not k.startswith("_")}
@@ -167,17 +170,24 @@ class DVAEDenoiseModule(L.LightningModule):
         if dm is None:
             return
         if self.hparams.noise == "rotation" and not (dm.hparams.with_rotations and dm.has_rotations):
-            raise ValueError("model.noise rotation needs rotation data: set data.with_rotations: true "
-                             f"(bvh, amass, synthetic sources; {dm.hparams.source} data here), or model.noise: position")
+            raise ValueError(
+                "model.noise rotation needs rotation data: set data.with_rotations: true "
+                f"(bvh, amass, synthetic sources; {dm.hparams.source} data here), or model.noise: position"
+            )
         if self.hparams.noise == "position" and ph["state"] == "rotations":
-            raise ValueError("noise on positions gives no noisy rotations to a rotation-state prior: "
-                             "use a positions-state prior or noise: rotation")
+            raise ValueError(
+                "noise on positions gives no noisy rotations to a rotation-state prior: "
+                "use a positions-state prior or noise: rotation"
+            )
         require_complete_windows(dm, stage)
-        if (dm.skeleton.parents, dm.window_frames) != (tuple(ph["skeleton"]["parents"]), ph["window_frames"]) \
-                or abs(float(dm.hparams.fps) - ph["window_fps"]) > 1e-6:
-            raise ValueError(f"the prior was trained on {len(ph['skeleton']['parents'])} joints, {ph['window_frames']} "
-                             f"frames at {ph['window_fps']} fps; the data gives {dm.skeleton.num_joints} joints, "
-                             f"{dm.window_frames} frames at {dm.hparams.fps} fps")
+        if (dm.skeleton.parents, dm.window_frames) != (tuple(ph["skeleton"]["parents"]), ph["window_frames"]) or abs(
+            float(dm.hparams.fps) - ph["window_fps"]
+        ) > 1e-6:
+            raise ValueError(
+                f"the prior was trained on {len(ph['skeleton']['parents'])} joints, {ph['window_frames']} "
+                f"frames at {ph['window_fps']} fps; the data gives {dm.skeleton.num_joints} joints, "
+                f"{dm.window_frames} frames at {dm.hparams.fps} fps"
+            )
 
     def configure_optimizers(self):
         return torch.optim.Adamax(self.trainable_parameters(), lr=self.hparams.lr, betas=tuple(self.hparams.betas))
@@ -198,7 +208,8 @@ class DVAEDenoiseModule(L.LightningModule):
                 raise ValueError(
                     f"this denoising checkpoint's optimiser holds {n_saved} parameters, this module trains "
                     f"{n_trained} (written before the noise predictor was frozen for noise_lambda >= 1e4): "
-                    f"it loads for test and fix, but cannot resume training")
+                    f"it loads for test and fix, but cannot resume training"
+                )
 
     # --- noise and observation ---
 
@@ -207,8 +218,14 @@ class DVAEDenoiseModule(L.LightningModule):
         out = dict(batch)
         if self.hparams.noise == "rotation":
             # offsets (B, 1, J, 3): FK broadcasts them over the window's frames
-            rot, pos = rotation_noise(batch["rotations"], batch["root_translation"], batch["offsets"][:, None],
-                                      self.codec.parents, sigma, generator)
+            rot, pos = rotation_noise(
+                batch["rotations"],
+                batch["root_translation"],
+                batch["offsets"][:, None],
+                self.codec.parents,
+                sigma,
+                generator,
+            )
             out.update(noisy_rotations=rot, noisy_positions=pos)
         else:
             out["noisy_positions"] = gaussian_noise(batch["positions"], sigma, generator).positions
@@ -217,8 +234,9 @@ class DVAEDenoiseModule(L.LightningModule):
     @staticmethod
     def observation(batch: dict) -> Observation:
         """The loss's only door to the batch: noisy keys, root translation and offsets."""
-        return Observation(batch["noisy_positions"], batch.get("noisy_rotations"), batch.get("root_translation"),
-                           batch.get("offsets"))
+        return Observation(
+            batch["noisy_positions"], batch.get("noisy_rotations"), batch.get("root_translation"), batch.get("offsets")
+        )
 
     # --- inference and the ELBO ---
 
@@ -227,9 +245,12 @@ class DVAEDenoiseModule(L.LightningModule):
 
     def elbo_terms(self, inf: Inference) -> dict[str, torch.Tensor]:
         hp = self.hparams
-        kl_z = gaussian_kl(inf.q_mu.float(), inf.q_logvar.float(), inf.p_mu.float(), inf.p_logvar.float()
-                           ).sum((1, 2)).mean()
-        sq = (((inf.y3d - inf.m) / hp.obs_scale_m) ** 2).flatten(-2).double()          # (B, T+1, 3K)
+        kl_z = (
+            gaussian_kl(inf.q_mu.float(), inf.q_logvar.float(), inf.p_mu.float(), inf.p_logvar.float())
+            .sum((1, 2))
+            .mean()
+        )
+        sq = (((inf.y3d - inf.m) / hp.obs_scale_m) ** 2).flatten(-2).double()  # (B, T+1, 3K)
         if gaussian_limit(hp.noise_lambda):
             # lambda -> infinity, taken exactly: q(v) = p(v) = a spike at v = 1, so kl_v = 0 and the
             # data term is half the squared error. Evaluating the IG terms at lambda = 1e6 instead
@@ -255,8 +276,13 @@ class DVAEDenoiseModule(L.LightningModule):
 
     def estimate(self, obs: Observation) -> torch.Tensor:
         """Denoised joint positions (B, T+1, J, 3), world frame (section 4.3; models/dvae_inference.py)."""
-        return point_estimate(self.infer(obs, sample=False), self.codec, self.hparams.noise_lambda,
-                              self.uses_noise_model(), first_frame=self.hparams.first_frame)
+        return point_estimate(
+            self.infer(obs, sample=False),
+            self.codec,
+            self.hparams.noise_lambda,
+            self.uses_noise_model(),
+            first_frame=self.hparams.first_frame,
+        )
 
     # --- training ---
 
@@ -315,8 +341,16 @@ class DVAEDenoiseModule(L.LightningModule):
         sample = getattr(self, "_figure_sample", None)
         if sample is not None:
             truth, noisy, est = sample
-            log_validation_figure(self, "val/denoise_example", truth, noisy, None, est, self.window_fps,
-                                  f"denoising, sigma {self.hparams.val_sigma}, step {self.global_step}")
+            log_validation_figure(
+                self,
+                "val/denoise_example",
+                truth,
+                noisy,
+                None,
+                est,
+                self.window_fps,
+                f"denoising, sigma {self.hparams.val_sigma}, step {self.global_step}",
+            )
 
     # --- test: noisy / regression / optimisation for each sigma ---
 
@@ -351,9 +385,14 @@ class DVAEDenoiseModule(L.LightningModule):
         sigmas = [float(s) for s in self.hparams.test_sigmas]
         self._sigmas = sigmas
         fps = self.window_fps
-        self._test = nn.ModuleDict({
-            f"{i}|{m}|{k}": JointAcceleration(fps) if k == "acc" else MPJPE(root_relative=k == "rel")
-            for i in range(len(sigmas)) for m in METHODS for k in ("abs", "rel", "acc")}).to(self.device)
+        self._test = nn.ModuleDict(
+            {
+                f"{i}|{m}|{k}": JointAcceleration(fps) if k == "acc" else MPJPE(root_relative=k == "rel")
+                for i in range(len(sigmas))
+                for m in METHODS
+                for k in ("abs", "rel", "acc")
+            }
+        ).to(self.device)
         self._test_gt_acc = JointAcceleration(fps).to(self.device)
         self._seconds = {(i, m): 0.0 for i in range(len(sigmas)) for m in METHODS}
         self._frames = {i: 0 for i in range(len(sigmas))}
@@ -390,21 +429,39 @@ class DVAEDenoiseModule(L.LightningModule):
         rows = []
         gt_acc = round(float(self._test_gt_acc.compute()), 2)
         for i, sigma in enumerate(self._sigmas):
-            rows.append({"task": "noise", "part": "full", key: sigma, "method": "ground_truth", "mpjpe_mm": 0.0,
-                         "mpjpe_rel_mm": 0.0, "accel_ms2": gt_acc, "seconds_per_frame": None})
+            rows.append(
+                {
+                    "task": "noise",
+                    "part": "full",
+                    key: sigma,
+                    "method": "ground_truth",
+                    "mpjpe_mm": 0.0,
+                    "mpjpe_rel_mm": 0.0,
+                    "accel_ms2": gt_acc,
+                    "seconds_per_frame": None,
+                }
+            )
             for m in METHODS:
                 spf = self._seconds[(i, m)] / max(1, self._frames[i]) if m != "noisy" else None
-                rows.append({"task": "noise", "part": "full", key: sigma, "method": m,
-                             "mpjpe_mm": round(float(self._test[f"{i}|{m}|abs"].compute()), 2),
-                             "mpjpe_rel_mm": round(float(self._test[f"{i}|{m}|rel"].compute()), 2),
-                             "accel_ms2": round(float(self._test[f"{i}|{m}|acc"].compute()), 2),
-                             "seconds_per_frame": None if spf is None else float(f"{spf:.3g}")})
+                rows.append(
+                    {
+                        "task": "noise",
+                        "part": "full",
+                        key: sigma,
+                        "method": m,
+                        "mpjpe_mm": round(float(self._test[f"{i}|{m}|abs"].compute()), 2),
+                        "mpjpe_rel_mm": round(float(self._test[f"{i}|{m}|rel"].compute()), 2),
+                        "accel_ms2": round(float(self._test[f"{i}|{m}|acc"].compute()), 2),
+                        "seconds_per_frame": None if spf is None else float(f"{spf:.3g}"),
+                    }
+                )
                 self.log(f"test/{key}{sigma}/{m}_mpjpe_mm", rows[-1]["mpjpe_mm"])
         self.eval_rows = rows
         if self.trainer.is_global_zero:
             print("\n" + format_denoise_table(rows, key))
-            log_dir = Path(self.logger.log_dir if self.logger and self.logger.log_dir
-                           else self.trainer.default_root_dir)
+            log_dir = Path(
+                self.logger.log_dir if self.logger and self.logger.log_dir else self.trainer.default_root_dir
+            )
             self.eval_json_path = write_eval_json(log_dir / "eval.json", rows)
 
     # --- predict: noisy windows in, denoised joint positions out ---
@@ -412,8 +469,9 @@ class DVAEDenoiseModule(L.LightningModule):
     def predict_step(self, batch, batch_idx):
         """A batch of (noisy) windows as the data module gives them -> denoised positions
         (B, T, J, 3), world frame (regression mode); NaN for windows with missing values."""
-        obs = Observation(batch["positions"], batch.get("rotations"), batch.get("root_translation"),
-                          batch.get("offsets"))
+        obs = Observation(
+            batch["positions"], batch.get("rotations"), batch.get("root_translation"), batch.get("offsets")
+        )
         keep = complete_windows(batch)
         out = torch.full_like(batch["positions"], float("nan"))
         if keep.any():
@@ -425,12 +483,16 @@ def format_denoise_table(rows: list[dict], key: str) -> str:
     """The paper's Table 1 layout: one line per method, MPJPE / joint acceleration per noise level."""
     sigmas = sorted({r[key] for r in rows})
     unit = "rad" if key == "sigma_rad" else "m"
-    lines = [f"Motion-DVAE denoising, Gaussian noise sigma ({unit}): " + " ".join(f"{s:g}" for s in sigmas),
-             f"{'method':20s} {'MPJPE mm':>26s} {'rel. mm':>26s} {'accel m/s^2':>26s} {'s/frame':>12s}"]
+    lines = [
+        f"Motion-DVAE denoising, Gaussian noise sigma ({unit}): " + " ".join(f"{s:g}" for s in sigmas),
+        f"{'method':20s} {'MPJPE mm':>26s} {'rel. mm':>26s} {'accel m/s^2':>26s} {'s/frame':>12s}",
+    ]
     for m in ("ground_truth", *METHODS):
         sub = {r[key]: r for r in rows if r["method"] == m}
         cols = [" ".join(f"{sub[s][c]:8.1f}" for s in sigmas) for c in ("mpjpe_mm", "mpjpe_rel_mm", "accel_ms2")]
         spf = [sub[s]["seconds_per_frame"] for s in sigmas if sub[s]["seconds_per_frame"] is not None]
-        lines.append(f"{m:20s} {cols[0]:>26s} {cols[1]:>26s} {cols[2]:>26s} "
-                     f"{(f'{sum(spf) / len(spf):.2e}' if spf else '-'):>12s}")
+        lines.append(
+            f"{m:20s} {cols[0]:>26s} {cols[1]:>26s} {cols[2]:>26s} "
+            f"{(f'{sum(spf) / len(spf):.2e}' if spf else '-'):>12s}"
+        )
     return "\n".join(lines)

@@ -10,6 +10,7 @@ recipe the paper follows): raw velocities in rad/s would otherwise outweigh ever
 The networks are built in setup() from the data module's skeleton and window, stored as plain
 hyperparameters so a checkpoint alone rebuilds them (the denoising stage loads it that way).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -58,10 +59,12 @@ def require_complete_windows(dm, stage: str) -> None:
     the checkpoint to monitor, NaN test tables): say so before the loop starts."""
     for split in {"fit": ("train", "val"), "validate": ("val",), "test": ("test",)}.get(stage, ()):
         if len(dm.datasets[split]) and not dm.count_complete_windows(split):
-            raise ValueError(f"data: none of the {split} split's {len(dm.datasets[split])} windows is complete "
-                             "(every one misses a joint somewhere); Motion-DVAE learns from and is scored on "
-                             "complete windows: drop the joints that are always missing (data.drop_joints) or "
-                             "choose other files for this split")
+            raise ValueError(
+                f"data: none of the {split} split's {len(dm.datasets[split])} windows is complete "
+                "(every one misses a joint somewhere); Motion-DVAE learns from and is scored on "
+                "complete windows: drop the joints that are always missing (data.drop_joints) or "
+                "choose other files for this split"
+            )
 
 
 def select(batch: dict, keep: torch.Tensor) -> dict:
@@ -73,7 +76,7 @@ def spread_complete_batches(dataset, max_windows: int = 4096, batch_size: int = 
     n = len(dataset)
     idx = torch.linspace(0, n - 1, min(n, max_windows)).round().long().unique().tolist()
     for i in range(0, len(idx), batch_size):
-        batch = dataset.__getitems__(idx[i:i + batch_size])
+        batch = dataset.__getitems__(idx[i : i + batch_size])
         batch = select(batch, complete_windows(batch))
         if len(batch["positions"]):
             yield batch
@@ -82,8 +85,10 @@ def spread_complete_batches(dataset, max_windows: int = 4096, batch_size: int = 
 @torch.no_grad()
 def state_statistics(codec: MotionState, dataset, max_windows: int = 4096) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-dimension mean and std (D,) of the state over up to max_windows evenly spread windows."""
-    xs = [codec.encode(b["positions"], b.get("rotations"), b.get("root_translation"))[0].flatten(0, 1)
-          for b in spread_complete_batches(dataset, max_windows)]
+    xs = [
+        codec.encode(b["positions"], b.get("rotations"), b.get("root_translation"))[0].flatten(0, 1)
+        for b in spread_complete_batches(dataset, max_windows)
+    ]
     if not xs:
         raise ValueError("no complete training window to standardise the state with")
     x = torch.cat(xs)
@@ -172,8 +177,10 @@ class MotionDVAEModule(L.LightningModule):
         if rotation_reference not in ("mean", "identity"):
             raise ValueError(f"rotation_reference must be 'mean' or 'identity', got {rotation_reference!r}")
         if norm_groups < 1 or mlp_hidden % norm_groups:
-            raise ValueError(f"mlp_hidden ({mlp_hidden}) must be a multiple of norm_groups ({norm_groups}): "
-                             "the MLPs' GroupNorm splits their hidden units into that many groups")
+            raise ValueError(
+                f"mlp_hidden ({mlp_hidden}) must be a multiple of norm_groups ({norm_groups}): "
+                "the MLPs' GroupNorm splits their hidden units into that many groups"
+            )
         super().__init__()
         self.save_hyperparameters()
         self.net: MotionDVAE | None = None
@@ -190,11 +197,21 @@ class MotionDVAEModule(L.LightningModule):
     def _build(self) -> None:
         hp = self.hparams
         skel = self.skeleton
-        self.body = build_body_model(hp.body_model, skel.parents, hp.body_model_path, hp.gender, hp.model_type,
-                                     hp.markers) if hp.state == "rotations" else None
+        self.body = (
+            build_body_model(hp.body_model, skel.parents, hp.body_model_path, hp.gender, hp.model_type, hp.markers)
+            if hp.state == "rotations"
+            else None
+        )
         self.codec = MotionState(hp.state, skel.parents, skel.groups, hp.window_fps, self.body)
-        self.model_config = DVAEConfig(hp.state, skel.num_joints, hp.latent_dim, hp.lstm_hidden, hp.mlp_hidden,
-                                       hp.norm_groups, hp.get("encoder_velocities", False))
+        self.model_config = DVAEConfig(
+            hp.state,
+            skel.num_joints,
+            hp.latent_dim,
+            hp.lstm_hidden,
+            hp.mlp_hidden,
+            hp.norm_groups,
+            hp.get("encoder_velocities", False),
+        )
         self.net = build_model("motion-dvae-prior", self.model_config)
         if hp.get("compile_model"):
             compile_in_place(self.net, self.body)
@@ -208,12 +225,15 @@ class MotionDVAEModule(L.LightningModule):
         dm = self.trainer.datamodule
         if dm is None:
             if self.net is None:
-                raise RuntimeError("MotionDVAEModule needs a data module (or a checkpoint) to know the skeleton "
-                                   "and window")
+                raise RuntimeError(
+                    "MotionDVAEModule needs a data module (or a checkpoint) to know the skeleton and window"
+                )
             return
         if self.hparams.state == "rotations" and not (dm.hparams.with_rotations and dm.has_rotations):
-            raise ValueError("model.state rotations needs rotation data: set data.with_rotations: true "
-                             f"(bvh, amass, synthetic sources; {dm.hparams.source} data here), or model.state: positions")
+            raise ValueError(
+                "model.state rotations needs rotation data: set data.with_rotations: true "
+                f"(bvh, amass, synthetic sources; {dm.hparams.source} data here), or model.state: positions"
+            )
         require_complete_windows(dm, stage)
         skeleton, fps, frames = dm.skeleton.to_dict(), float(dm.hparams.fps), dm.window_frames
         if self.net is None:
@@ -225,11 +245,14 @@ class MotionDVAEModule(L.LightningModule):
                 mean, std = state_statistics(self.codec, dm.datasets["train"])
                 self.net.x_mean.copy_(mean)
                 self.net.x_std.copy_(std)
-        elif (skeleton["parents"], frames) != (self.hparams.skeleton["parents"], self.hparams.window_frames) \
-                or abs(fps - self.hparams.window_fps) > 1e-6:
-            raise ValueError(f"this model was built for {len(self.hparams.skeleton['parents'])} joints, "
-                             f"{self.hparams.window_frames} frames at {self.hparams.window_fps} fps; the data gives "
-                             f"{len(skeleton['parents'])} joints, {frames} frames at {fps} fps")
+        elif (skeleton["parents"], frames) != (self.hparams.skeleton["parents"], self.hparams.window_frames) or abs(
+            fps - self.hparams.window_fps
+        ) > 1e-6:
+            raise ValueError(
+                f"this model was built for {len(self.hparams.skeleton['parents'])} joints, "
+                f"{self.hparams.window_frames} frames at {self.hparams.window_fps} fps; the data gives "
+                f"{len(skeleton['parents'])} joints, {frames} frames at {fps} fps"
+            )
 
     def configure_optimizers(self):
         hp = self.hparams
@@ -254,11 +277,16 @@ class MotionDVAEModule(L.LightningModule):
         xn = self.net.normalize(x.float())
         out = self.net(xn[:, 0], xn[:, 1:], sample)
         rec = ((out.x_hat.float() - xn[:, 1:]) ** 2).sum((1, 2)).mean()
-        kl = gaussian_kl(out.q_mu.float(), out.q_logvar.float(), out.p_mu.float(), out.p_logvar.float()
-                         ).sum((1, 2)).mean()
+        kl = (
+            gaussian_kl(out.q_mu.float(), out.q_logvar.float(), out.p_mu.float(), out.p_logvar.float())
+            .sum((1, 2))
+            .mean()
+        )
         x_hat = self.net.denormalize(out.x_hat.float())
         # decoded and true states through the body model in one call: half the kernels of two
-        pts = self.codec.points(torch.cat([x_hat, x[:, 1:].float()]), None if shape is None else torch.cat([shape, shape]))
+        pts = self.codec.points(
+            torch.cat([x_hat, x[:, 1:].float()]), None if shape is None else torch.cat([shape, shape])
+        )
         pred_pts, true_pts = pts.points().chunk(2)
         reg = ((pred_pts - true_pts) ** 2).sum((1, 2, 3)).mean()
         return ELBOTerms(rec, kl, reg), x_hat, out
@@ -321,16 +349,25 @@ class MotionDVAEModule(L.LightningModule):
         # denoising stage's MPJPE), in eval.json as XMAE's and the denoiser's tables are.
         if not self.test_mpjpe.update_called:
             return
-        rows = [{"task": "reconstruction", "part": "full", "method": "dvae_prior",
-                 "mpjpe_mm": round(float(self.test_mpjpe.compute()), 2)}]
+        rows = [
+            {
+                "task": "reconstruction",
+                "part": "full",
+                "method": "dvae_prior",
+                "mpjpe_mm": round(float(self.test_mpjpe.compute()), 2),
+            }
+        ]
         if self.trainer.is_global_zero:
-            log_dir = Path(self.logger.log_dir if self.logger and self.logger.log_dir
-                           else self.trainer.default_root_dir)
+            log_dir = Path(
+                self.logger.log_dir if self.logger and self.logger.log_dir else self.trainer.default_root_dir
+            )
             self.eval_json_path = write_eval_json(log_dir / "eval.json", rows)
 
     def predict_step(self, batch, batch_idx):
-        raise ValueError("a Motion-DVAE prior checkpoint models clean motion and does not denoise: predict "
-                         "(or fix) with its denoising stage's checkpoint (configs/motion_dvae_denoise*.yaml)")
+        raise ValueError(
+            "a Motion-DVAE prior checkpoint models clean motion and does not denoise: predict "
+            "(or fix) with its denoising stage's checkpoint (configs/motion_dvae_denoise*.yaml)"
+        )
 
     def on_validation_epoch_end(self):
         if self.trainer.sanity_checking:
@@ -341,5 +378,13 @@ class MotionDVAEModule(L.LightningModule):
         sample = getattr(self, "_figure_sample", None)
         if sample is not None:
             truth, recon = sample
-            log_validation_figure(self, "val/reconstruction_example", truth, truth, None, recon,
-                                  self.hparams.window_fps, f"Motion-DVAE reconstruction, step {self.global_step}")
+            log_validation_figure(
+                self,
+                "val/reconstruction_example",
+                truth,
+                truth,
+                None,
+                recon,
+                self.hparams.window_fps,
+                f"Motion-DVAE reconstruction, step {self.global_step}",
+            )

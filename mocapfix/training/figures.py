@@ -1,12 +1,21 @@
 """The one way a LightningModule puts a window figure into TensorBoard during validation."""
+
 from __future__ import annotations
 
 import lightning as L
 import torch
 
 
-def log_validation_figure(module: L.LightningModule, tag: str, truth: torch.Tensor, given: torch.Tensor,
-                          observed: torch.Tensor | None, output: torch.Tensor, fps: float, title: str) -> None:
+def log_validation_figure(
+    module: L.LightningModule,
+    tag: str,
+    truth: torch.Tensor,
+    given: torch.Tensor,
+    observed: torch.Tensor | None,
+    output: torch.Tensor,
+    fps: float,
+    title: str,
+) -> None:
     """truth, given, output: (T, J, 3); observed: (T, J) bool or None (all given).
     Logs every `figure_every_n_val`-th call (a module hyperparameter), when the logger can draw figures."""
     n_val = getattr(module, "_n_val", 0)
@@ -20,6 +29,7 @@ def log_validation_figure(module: L.LightningModule, tag: str, truth: torch.Tens
         return t.detach().float().cpu().numpy()
 
     seen = to_numpy(observed) > 0 if observed is not None else ~torch.isnan(given[..., 0]).cpu().numpy()
-    fig = window_figure(to_numpy(truth), to_numpy(given), seen, to_numpy(output), module.skeleton.limbs, fps,
-                        title=title)
+    fig = window_figure(
+        to_numpy(truth), to_numpy(given), seen, to_numpy(output), module.skeleton.limbs, fps, title=title
+    )
     experiment.add_figure(tag, fig, module.global_step)

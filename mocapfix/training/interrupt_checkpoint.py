@@ -1,4 +1,5 @@
 """A checkpoint at the step reached when training is stopped from outside."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -18,6 +19,9 @@ class CheckpointOnInterrupt(L.Callback):
         self.path = Path(path)
 
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
-        if isinstance(exception, (KeyboardInterrupt, SIGTERMException)) and trainer.state.fn == TrainerFn.FITTING \
-                and trainer.global_step > 0:
+        if (
+            isinstance(exception, (KeyboardInterrupt, SIGTERMException))
+            and trainer.state.fn == TrainerFn.FITTING
+            and trainer.global_step > 0
+        ):
             trainer.save_checkpoint(self.path)

@@ -1,4 +1,5 @@
 """The metric the best checkpoint is chosen by (`--monitor`) must be one the model logs."""
+
 from __future__ import annotations
 
 import lightning as L
@@ -16,5 +17,6 @@ class MonitorCheck(L.Callback):
         # only validation metrics exist by now (a training metric, train/loss, is not checked)
         logged = sorted(k for k in trainer.callback_metrics if k.startswith("val/"))
         if logged and self.monitor.startswith("val/") and self.monitor not in trainer.callback_metrics:
-            raise ValueError(f"--monitor {self.monitor}: the model logs no such metric at validation; "
-                             f"it logs {', '.join(logged)}")
+            raise ValueError(
+                f"--monitor {self.monitor}: the model logs no such metric at validation; it logs {', '.join(logged)}"
+            )

@@ -1,4 +1,5 @@
 """`python -m mocapfix predict`: the model's output on the data module's predict windows, to a file."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -25,10 +26,17 @@ class WritePredictions(BasePredictionWriter):
             return
         if isinstance(predictions[0], list):  # one list per predict dataloader
             predictions = [p for per_loader in predictions for p in per_loader]
-        positions = torch.cat([p.float().cpu() for p in predictions]).numpy()       # (N, T, J, 3)
+        positions = torch.cat([p.float().cpu() for p in predictions]).numpy()  # (N, T, J, 3)
         skeleton = trainer.datamodule.skeleton
         log_dir = trainer.logger.log_dir if trainer.logger and trainer.logger.log_dir else trainer.default_root_dir
         self.path = Path(log_dir) / "predictions.npz"
-        atomic_write(self.path, lambda f: np.savez_compressed(
-            f, positions=positions, fps=np.float64(trainer.datamodule.hparams.fps),
-            joint_names=np.array(skeleton.joint_names), parents=np.array(skeleton.parents)))
+        atomic_write(
+            self.path,
+            lambda f: np.savez_compressed(
+                f,
+                positions=positions,
+                fps=np.float64(trainer.datamodule.hparams.fps),
+                joint_names=np.array(skeleton.joint_names),
+                parents=np.array(skeleton.parents),
+            ),
+        )

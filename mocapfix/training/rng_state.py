@@ -4,6 +4,7 @@ The training corruption (masks, displacement, noise) and the training loader's s
 torch's global generators, which seed_everything resets at every start. Without the saved states a
 resumed run replays the masks and batch order of the run's first steps.
 """
+
 from __future__ import annotations
 
 import lightning as L

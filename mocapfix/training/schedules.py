@@ -1,4 +1,5 @@
 """Learning-rate schedules, stepped per optimiser step."""
+
 from __future__ import annotations
 
 import math

@@ -4,6 +4,7 @@ The nn.Module (models/xmae.py) knows nothing of this: losses, corruption, schedu
 live here. The network is built in setup() from the data module's skeleton and window, and those
 are stored as plain hyperparameters so a checkpoint alone rebuilds it (fix, load_from_checkpoint).
 """
+
 from __future__ import annotations
 
 import logging
@@ -105,34 +106,53 @@ class XMAEModule(L.LightningModule):
         super().__init__()
         if preset not in PRESETS:
             raise ValueError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
-        given = dict(enc_dim=enc_dim, enc_depth=enc_depth, enc_mlp_dim=enc_mlp_dim, dec_dim=dec_dim,
-                     dec_depth=dec_depth, dec_mlp_dim=dec_mlp_dim, head_dim=head_dim, decoder=decoder,
-                     position_unit_m=position_unit_m, fill_input=fill_input)
+        given = dict(
+            enc_dim=enc_dim,
+            enc_depth=enc_depth,
+            enc_mlp_dim=enc_mlp_dim,
+            dec_dim=dec_dim,
+            dec_depth=dec_depth,
+            dec_mlp_dim=dec_mlp_dim,
+            head_dim=head_dim,
+            decoder=decoder,
+            position_unit_m=position_unit_m,
+            fill_input=fill_input,
+        )
         # the network's sizes: the preset's, then what the config sets (num_joints and num_frames
         # come from the data, at setup)
         self.sizes = {**PRESETS[preset], **{k: v for k, v in given.items() if v is not None}}
         defaults = XMAEConfig(0, 0)
-        enc_dim, dec_dim, head_dim = (self.sizes.get(k, getattr(defaults, k)) for k in ("enc_dim", "dec_dim", "head_dim"))
+        enc_dim, dec_dim, head_dim = (
+            self.sizes.get(k, getattr(defaults, k)) for k in ("enc_dim", "dec_dim", "head_dim")
+        )
         if compile_mode not in COMPILE_MODES:
             raise ValueError(f"compile_mode must be one of {COMPILE_MODES}, got {compile_mode!r}")
         if head_dim < 1 or enc_dim % head_dim or dec_dim % head_dim:
-            raise ValueError(f"enc_dim ({enc_dim}) and dec_dim ({dec_dim}) must be multiples of head_dim ({head_dim}): "
-                             "attention splits each width into heads of head_dim channels")
+            raise ValueError(
+                f"enc_dim ({enc_dim}) and dec_dim ({dec_dim}) must be multiples of head_dim ({head_dim}): "
+                "attention splits each width into heads of head_dim channels"
+            )
         for name, ratio in (("mask_ratio", mask_ratio), ("displace_ratio", displace_ratio)):
             if not 0.0 <= ratio <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1] (a fraction of all tokens), got {ratio}")
         if mask_ratio + displace_ratio > 1.0:
-            raise ValueError(f"mask_ratio + displace_ratio must be at most 1 (fractions of the same tokens), "
-                             f"got {mask_ratio} + {displace_ratio}")
+            raise ValueError(
+                f"mask_ratio + displace_ratio must be at most 1 (fractions of the same tokens), "
+                f"got {mask_ratio} + {displace_ratio}"
+            )
         if max_displacement_m < 0:
             raise ValueError(f"max_displacement_m must be >= 0 (a distance in metres), got {max_displacement_m}")
         clean = 1.0 - mask_ratio - displace_ratio  # the share of tokens left observed and clean
         if not 0.0 <= clean_loss_ratio <= clean + 1e-9:
-            raise ValueError(f"clean_loss_ratio {clean_loss_ratio} must be in [0, 1 - mask_ratio - displace_ratio "
-                             f"= {clean:.3g}]: the share of all tokens that are clean and scored anyway")
+            raise ValueError(
+                f"clean_loss_ratio {clean_loss_ratio} must be in [0, 1 - mask_ratio - displace_ratio "
+                f"= {clean:.3g}]: the share of all tokens that are clean and scored anyway"
+            )
         if mask_ratio + displace_ratio + clean_loss_ratio <= 0.0:
-            raise ValueError("mask_ratio, displace_ratio and clean_loss_ratio are all 0: no token would be scored "
-                             "(the loss is over masked, displaced and clean_loss_ratio tokens)")
+            raise ValueError(
+                "mask_ratio, displace_ratio and clean_loss_ratio are all 0: no token would be scored "
+                "(the loss is over masked, displaced and clean_loss_ratio tokens)"
+            )
         self.save_hyperparameters()
         self.net: XMAE | None = None
         self.fill_policy: FillPolicy | None = None  # from the last validation, or the checkpoint
@@ -165,11 +185,14 @@ class XMAEModule(L.LightningModule):
         if self.net is None:
             self.hparams.update(skeleton=skeleton, window_fps=fps, window_frames=frames)
             self._build()
-        elif (skeleton["parents"], frames) != (self.hparams.skeleton["parents"], self.hparams.window_frames) \
-                or abs(fps - self.hparams.window_fps) > 1e-6:
-            raise ValueError(f"this model was built for {len(self.hparams.skeleton['parents'])} joints, "
-                             f"{self.hparams.window_frames} frames at {self.hparams.window_fps} fps; the data gives "
-                             f"{len(skeleton['parents'])} joints, {frames} frames at {fps} fps")
+        elif (skeleton["parents"], frames) != (self.hparams.skeleton["parents"], self.hparams.window_frames) or abs(
+            fps - self.hparams.window_fps
+        ) > 1e-6:
+            raise ValueError(
+                f"this model was built for {len(self.hparams.skeleton['parents'])} joints, "
+                f"{self.hparams.window_frames} frames at {self.hparams.window_fps} fps; the data gives "
+                f"{len(skeleton['parents'])} joints, {frames} frames at {fps} fps"
+            )
 
     def configure_optimizers(self):
         hp = self.hparams
@@ -177,8 +200,9 @@ class XMAEModule(L.LightningModule):
         # (a checkpoint saved with it resumes on the CPU too: torch has a fused CPU Adam)
         opt = torch.optim.Adam(self.parameters(), lr=hp.lr, betas=tuple(hp.betas), fused=self.device.type == "cuda")
         total = hp.total_steps or int(self.trainer.estimated_stepping_batches)
-        sched = torch.optim.lr_scheduler.LambdaLR(opt, partial(warmup_cosine, warmup_steps=hp.warmup_steps,
-                                                               total_steps=total))
+        sched = torch.optim.lr_scheduler.LambdaLR(
+            opt, partial(warmup_cosine, warmup_steps=hp.warmup_steps, total_steps=total)
+        )
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
     # --- training ---
@@ -189,8 +213,15 @@ class XMAEModule(L.LightningModule):
         hp = self.hparams
         B, T, J, _ = positions.shape
         x, target, c, offset, kept, padding = xmae_training_input(
-            positions, hp.mask_ratio, hp.displace_ratio, hp.max_displacement_m, hp.fixed_kept_count,
-            hp.rotate_augment and self.training, generator, hp.gap_ratio if self.training else 0.0)
+            positions,
+            hp.mask_ratio,
+            hp.displace_ratio,
+            hp.max_displacement_m,
+            hp.fixed_kept_count,
+            hp.rotate_augment and self.training,
+            generator,
+            hp.gap_ratio if self.training else 0.0,
+        )
         fill = xmae_fill(x.reshape(B, T, J, 3), c.observed) if self.net.fill_input else None
         pred = self.net(x, kept, padding, fill).reshape(B, T, J, 3)
         has_truth = ~torch.isnan(target).any(-1)
@@ -199,7 +230,7 @@ class XMAEModule(L.LightningModule):
             clean = c.observed & ~c.displaced
             p = hp.clean_loss_ratio / (1 - hp.mask_ratio - hp.displace_ratio)
             in_loss |= clean & (uniform_like(clean.shape, generator, clean) < p)  # the val generator too
-        err = (pred.float() - torch.nan_to_num(target).float()).abs().sum(-1)               # (B, T, J)
+        err = (pred.float() - torch.nan_to_num(target).float()).abs().sum(-1)  # (B, T, J)
         loss = (err * in_loss).sum() / (3 * in_loss.sum().clamp_min(1))
         return loss, pred, target, c, in_loss, offset
 
@@ -253,24 +284,27 @@ class XMAEModule(L.LightningModule):
                 continue
             c = t.corrupt(positions, self.hparams.window_fps, self.skeleton, generator)
             scored = t.evaluated(c, positions)
-            self._calibration.add_fills(t.part.split("_")[-1], t.gap_s, self._fills(c.positions, c.observed),
-                                        positions, scored)
+            self._calibration.add_fills(
+                t.part.split("_")[-1], t.gap_s, self._fills(c.positions, c.observed), positions, scored
+            )
 
     def _fills(self, positions: torch.Tensor, observed: torch.Tensor) -> dict[str, torch.Tensor]:
         """Every candidate fill of the missing tokens: XMAE's and the classical ones."""
-        return {"xmae": xmae_reconstruct(self.net, positions, observed),
-                **{name: fill(positions, observed, self.skeleton.parents) for name, fill in CLASSICAL.items()}}
+        return {
+            "xmae": xmae_reconstruct(self.net, positions, observed),
+            **{name: fill(positions, observed, self.skeleton.parents) for name, fill in CLASSICAL.items()},
+        }
 
-    def _policy_output(self, positions: torch.Tensor, observed: torch.Tensor,
-                       fills: dict[str, torch.Tensor]) -> torch.Tensor:
+    def _policy_output(
+        self, positions: torch.Tensor, observed: torch.Tensor, fills: dict[str, torch.Tensor]
+    ) -> torch.Tensor:
         """What `fix --mode both` outputs for a window: suspect observed tokens taken out, then
         every hole filled by the method the policy names. fills: _fills(positions, observed)."""
         suspect = suspect_tokens(self.fill_policy, fills["xmae"], positions, observed)
         keep = observed & ~suspect
         if suspect.any():  # other holes: fill again
             fills = self._fills(positions, keep)
-        return apply_fill_policy(self.fill_policy, positions, keep, fills, self.hparams.window_fps,
-                                 self.skeleton)[0]
+        return apply_fill_policy(self.fill_policy, positions, keep, fills, self.hparams.window_fps, self.skeleton)[0]
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.net is not None:
@@ -295,8 +329,16 @@ class XMAEModule(L.LightningModule):
         sample = getattr(self, "_figure_sample", None)
         if sample is not None:
             truth, given, observed, output = sample
-            log_validation_figure(self, "val/infill_example", truth, given, observed, output, hp.window_fps,
-                                  f"full-skeleton {hp.val_gap_s} s gap, step {self.global_step}")
+            log_validation_figure(
+                self,
+                "val/infill_example",
+                truth,
+                given,
+                observed,
+                output,
+                hp.window_fps,
+                f"full-skeleton {hp.val_gap_s} s gap, step {self.global_step}",
+            )
 
     # --- test: the paper's tables ---
 
@@ -304,9 +346,14 @@ class XMAEModule(L.LightningModule):
         # "policy": what fix outputs (the fill policy of this checkpoint's validation)
         self._methods = ("xmae", *CLASSICAL) + (("policy",) if self.fill_policy is not None else ())
         self._tasks = paper_tasks(self.skeleton, self.hparams.eval_gaps_s, self.hparams.eval_noise_sigmas_m)
-        self._test_metrics = nn.ModuleDict({
-            f"{t.key}|{m}|{rel}".replace(".", "_"): MPJPE(root_relative=rel == "rel")
-            for t in self._tasks for m in self._methods for rel in ("abs", "rel")}).to(self.device)
+        self._test_metrics = nn.ModuleDict(
+            {
+                f"{t.key}|{m}|{rel}".replace(".", "_"): MPJPE(root_relative=rel == "rel")
+                for t in self._tasks
+                for m in self._methods
+                for rel in ("abs", "rel")
+            }
+        ).to(self.device)
         self.eval_rows: list[dict] = []
 
     def test_step(self, batch, batch_idx):
@@ -318,21 +365,26 @@ class XMAEModule(L.LightningModule):
             # the classical fills fill the missing tokens and leave the observed ones as given
             preds = self._fills(c.positions, c.observed)
             if self.fill_policy is not None and t.task == "infill":  # fix --mode infill
-                preds["policy"] = apply_fill_policy(self.fill_policy, c.positions, c.observed, preds,
-                                                    self.hparams.window_fps, self.skeleton)[0]
-            elif self.fill_policy is not None:                       # fix --mode both
+                preds["policy"] = apply_fill_policy(
+                    self.fill_policy, c.positions, c.observed, preds, self.hparams.window_fps, self.skeleton
+                )[0]
+            elif self.fill_policy is not None:  # fix --mode both
                 preds["policy"] = self._policy_output(c.positions, c.observed, preds)
             for m, pred in preds.items():
                 for rel in ("abs", "rel"):
-                    self._test_metrics[f"{t.key}|{m}|{rel}".replace(".", "_")].update(pred.float(), positions.float(), scored)
+                    self._test_metrics[f"{t.key}|{m}|{rel}".replace(".", "_")].update(
+                        pred.float(), positions.float(), scored
+                    )
 
     def on_test_epoch_end(self):
         results = {}
         for t in self._tasks:
             for m in self._methods:
                 k = f"{t.key}|{m}|".replace(".", "_")
-                results[(t.key, m)] = (float(self._test_metrics[k + "abs"].compute()),
-                                       float(self._test_metrics[k + "rel"].compute()))
+                results[(t.key, m)] = (
+                    float(self._test_metrics[k + "abs"].compute()),
+                    float(self._test_metrics[k + "rel"].compute()),
+                )
         self.eval_rows = table_rows(results, self._tasks)
         for r in self.eval_rows:
             param = f"gap{r['gap_s']}s" if "gap_s" in r else f"sigma{r['sigma_m']}m"
@@ -341,7 +393,9 @@ class XMAEModule(L.LightningModule):
             print("\n" + format_table(self.eval_rows))
             if self.fill_policy is not None:
                 print("fill policy (val split):\n  " + "\n  ".join(self.fill_policy.describe()))
-            log_dir = Path(self.logger.log_dir if self.logger and self.logger.log_dir else self.trainer.default_root_dir)
+            log_dir = Path(
+                self.logger.log_dir if self.logger and self.logger.log_dir else self.trainer.default_root_dir
+            )
             self.eval_json_path = write_eval_json(log_dir / "eval.json", self.eval_rows)
 
     # --- predict ---
