@@ -100,8 +100,7 @@ def run_trainer(row: str, args, device: torch.device) -> dict:
     if row == "constant":
         dm.setup("fit")
         batch = {k: v.to(device) for k, v in dm.datasets["train"].__getitems__(list(range(args.batch))).items()}
-        model.hparams.update(skeleton=dm.skeleton.to_dict(), window_fps=float(args.fps), window_frames=dm.window_frames)
-        model._build()
+        model.bind_data(dm.spec(), "fit")
         trainer.fit(model, train_dataloaders=RepeatBatch(batch, steps))
     else:
         trainer.fit(model, datamodule=dm)

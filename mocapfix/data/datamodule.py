@@ -17,6 +17,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from mocapfix.clip import Clip, MotionFileError, check_human_scale
+from mocapfix.data.spec import DataSpec
 from mocapfix.data.windows import cache_key, load_clips, resample, save_clips, split_of, window_starts
 from mocapfix.skeleton import Skeleton
 
@@ -24,14 +25,6 @@ log = logging.getLogger(__name__)
 
 SOURCES = ("synthetic", "bvh", "positions", "h36m", "amass", "archive")
 SPLITS = ("train", "val", "test")
-
-
-def complete_windows(batch: dict) -> torch.Tensor:
-    """(B,) bool: windows with no missing value (NaN) in their positions or rotations."""
-    ok = torch.isfinite(batch["positions"]).flatten(1).all(1)
-    if "rotations" in batch:
-        ok &= torch.isfinite(batch["rotations"]).flatten(1).all(1)
-    return ok
 
 
 class WindowDataset(Dataset):
@@ -396,13 +389,17 @@ class MotionDataModule(L.LightningDataModule):
         """Whether the windows come with rotations (with_rotations, and rotation data)."""
         return all(ds.with_rotations for ds in self.datasets.values() if len(ds))
 
-    def count_complete_windows(self, split: str) -> int:
-        """How many of the split's windows miss nothing (models without a notion of a missing
-        joint, Motion-DVAE, learn from and are scored on those only)."""
-        ds = self.datasets[split]
-        return sum(
-            int(complete_windows(ds.__getitems__(list(range(i, min(i + 4096, len(ds)))))).sum())
-            for i in range(0, len(ds), 4096)
+    def spec(self) -> DataSpec:
+        """What a model needs to know of this data (after setup): skeleton, window, rotations."""
+        if self.skeleton is None:
+            raise RuntimeError("MotionDataModule.spec() before setup(): nothing is loaded yet")
+        return DataSpec(
+            self.skeleton,
+            float(self.hparams.fps),
+            self.window_frames,
+            self.hparams.source,
+            bool(self.hparams.with_rotations and self.has_rotations),
+            dict(self.datasets),
         )
 
     def _drop_mostly_missing(self, ds: WindowDataset) -> None:

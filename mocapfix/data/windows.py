@@ -20,6 +20,14 @@ from mocapfix.kinematics import fk_axis_angle
 from mocapfix.skeleton import Skeleton
 
 
+def complete_windows(batch: dict) -> torch.Tensor:
+    """(B,) bool: windows with no missing value (NaN) in their positions or rotations."""
+    ok = torch.isfinite(batch["positions"]).flatten(1).all(1)
+    if "rotations" in batch:
+        ok &= torch.isfinite(batch["rotations"]).flatten(1).all(1)
+    return ok
+
+
 def resample(clip: Clip, fps: float) -> Clip:
     """The clip at `fps`, frame times 0, 1/fps, ... within its duration.
 

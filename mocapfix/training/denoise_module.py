@@ -36,9 +36,10 @@ import torch
 import torch.nn as nn
 
 from mocapfix.data.corruption import gaussian_noise, rotation_noise
-from mocapfix.data.datamodule import complete_windows
+from mocapfix.data.spec import DataSpec
+from mocapfix.data.windows import complete_windows
+from mocapfix.evaluation.harness import TestTable, format_denoise_table, publish
 from mocapfix.evaluation.metrics import MPJPE, JointAcceleration
-from mocapfix.evaluation.tasks import write_eval_json
 from mocapfix.models.build import checkpoint_entry
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
 
@@ -54,6 +55,7 @@ from mocapfix.models.dvae_inference import (
 )
 from mocapfix.models.dvae_state import velocity_mask
 from mocapfix.skeleton import Skeleton
+from mocapfix.training.bind_data import BindData
 from mocapfix.training.dvae_module import (
     MotionDVAEModule,
     anneal_steps_of,
@@ -107,7 +109,7 @@ class DVAEDenoiseModule(L.LightningModule):
             lr, betas: Adamax. The encoder starts trained (the prior's): the prior's from-scratch
                 rate 1e-3 wrecks it within ~50 steps at widths of 512 and more (Bandai, width 512:
                 val MPJPE 85 -> 255 mm, then a slow climb back; 1e-4: 85 -> 72 mm in 200 steps;
-                docs/STATUS.md), so this stage refines at 1e-4.
+                the session diary (CHANGELOG.md)), so this stage refines at 1e-4.
             kl_weight, kl_anneal_*: KL(q_phi || p_theta) annealing, as the prior's.
             opt_iterations, opt_lr: optimisation mode (50 as the paper). A fresh Adamax on a trained
                 network jumps in its first steps: keep opt_lr small (None: lr).
@@ -164,29 +166,29 @@ class DVAEDenoiseModule(L.LightningModule):
     def trainable_parameters(self) -> list[nn.Parameter]:
         return [p for p in self.parameters() if p.requires_grad]
 
-    def setup(self, stage: str) -> None:
-        dm = self.trainer.datamodule
+    def configure_callbacks(self):
+        return [BindData()]
+
+    def bind_data(self, data: DataSpec, stage: str) -> None:
+        """The prior's skeleton and window must be the data's (BindData calls it before setup)."""
         ph = self.hparams.prior_hparams
-        if dm is None:
-            return
-        if self.hparams.noise == "rotation" and not (dm.hparams.with_rotations and dm.has_rotations):
+        if self.hparams.noise == "rotation" and not data.rotations:
             raise ValueError(
                 "model.noise rotation needs rotation data: set data.with_rotations: true "
-                f"(bvh, amass, synthetic sources; {dm.hparams.source} data here), or model.noise: position"
+                f"(bvh, amass, synthetic sources; {data.source} data here), or model.noise: position"
             )
         if self.hparams.noise == "position" and ph["state"] == "rotations":
             raise ValueError(
                 "noise on positions gives no noisy rotations to a rotation-state prior: "
                 "use a positions-state prior or noise: rotation"
             )
-        require_complete_windows(dm, stage)
-        if (dm.skeleton.parents, dm.window_frames) != (tuple(ph["skeleton"]["parents"]), ph["window_frames"]) or abs(
-            float(dm.hparams.fps) - ph["window_fps"]
-        ) > 1e-6:
+        require_complete_windows(data, stage)
+        prior_window = (tuple(ph["skeleton"]["parents"]), ph["window_frames"], ph["window_fps"])
+        if (data.skeleton.parents, data.window_frames) != prior_window[:2] or abs(data.fps - prior_window[2]) > 1e-6:
             raise ValueError(
                 f"the prior was trained on {len(ph['skeleton']['parents'])} joints, {ph['window_frames']} "
-                f"frames at {ph['window_fps']} fps; the data gives {dm.skeleton.num_joints} joints, "
-                f"{dm.window_frames} frames at {dm.hparams.fps} fps"
+                f"frames at {ph['window_fps']} fps; the data gives {data.skeleton.num_joints} joints, "
+                f"{data.window_frames} frames at {data.fps} fps"
             )
 
     def configure_optimizers(self):
@@ -256,7 +258,7 @@ class DVAEDenoiseModule(L.LightningModule):
             # data term is half the squared error. Evaluating the IG terms at lambda = 1e6 instead
             # gives the noise predictor gradients of order lambda, which reach the encoder through
             # the LSTM states it shares: in optimisation mode on a trained model kl_v climbed from
-            # 86 to 24,508 in 10 steps and MPJPE stayed near twice its start (docs/STATUS.md, session 5).
+            # 86 to 24,508 in 10 steps and MPJPE stayed near twice its start (session 5).
             data = 0.5 * sq.sum((1, 2)).mean()
             return {"data": data.float(), "kl_z": kl_z, "kl_v": torch.zeros_like(kl_z)}
         c = hp.noise_lambda / 2.0
@@ -385,15 +387,13 @@ class DVAEDenoiseModule(L.LightningModule):
         sigmas = [float(s) for s in self.hparams.test_sigmas]
         self._sigmas = sigmas
         fps = self.window_fps
-        self._test = nn.ModuleDict(
-            {
-                f"{i}|{m}|{k}": JointAcceleration(fps) if k == "acc" else MPJPE(root_relative=k == "rel")
-                for i in range(len(sigmas))
-                for m in METHODS
-                for k in ("abs", "rel", "acc")
-            }
-        ).to(self.device)
-        self._test_gt_acc = JointAcceleration(fps).to(self.device)
+        cells = {
+            (i, m, k): JointAcceleration(fps) if k == "acc" else MPJPE(root_relative=k == "rel")
+            for i in range(len(sigmas))
+            for m in METHODS
+            for k in ("abs", "rel", "acc")
+        }
+        self._table = TestTable({**cells, "truth_acc": JointAcceleration(fps)}).to(self.device)
         self._seconds = {(i, m): 0.0 for i in range(len(sigmas)) for m in METHODS}
         self._frames = {i: 0 for i in range(len(sigmas))}
 
@@ -403,7 +403,7 @@ class DVAEDenoiseModule(L.LightningModule):
             return
         batch = select(batch, keep)
         truth = batch["positions"].float()
-        self._test_gt_acc.update(truth)
+        self._table.update("truth_acc", truth)
         for i, sigma in enumerate(self._sigmas):
             obs = self.observation(self.add_noise(batch, sigma, self._generator(batch_idx, i + 1)))
             self._frames[i] += truth.shape[0] * truth.shape[1]
@@ -420,14 +420,16 @@ class DVAEDenoiseModule(L.LightningModule):
             preds = {"noisy": obs.positions, "dvae_regression": regression, "dvae_optimisation": optimisation}
             for m, pred in preds.items():
                 pred = pred.float()
-                self._test[f"{i}|{m}|abs"].update(pred, truth)
-                self._test[f"{i}|{m}|rel"].update(pred, truth)
-                self._test[f"{i}|{m}|acc"].update(pred)
+                self._table.update((i, m, "abs"), pred, truth)
+                self._table.update((i, m, "rel"), pred, truth)
+                self._table.update((i, m, "acc"), pred)
 
     def on_test_epoch_end(self):
         key = "sigma_rad" if self.hparams.noise == "rotation" else "sigma_m"
-        rows = []
-        gt_acc = round(float(self._test_gt_acc.compute()), 2)
+        cells = self._table.compute()
+        if "truth_acc" not in cells:  # no complete test window
+            return
+        rows, scalars = [], {}
         for i, sigma in enumerate(self._sigmas):
             rows.append(
                 {
@@ -437,7 +439,7 @@ class DVAEDenoiseModule(L.LightningModule):
                     "method": "ground_truth",
                     "mpjpe_mm": 0.0,
                     "mpjpe_rel_mm": 0.0,
-                    "accel_ms2": gt_acc,
+                    "accel_ms2": round(cells["truth_acc"], 2),
                     "seconds_per_frame": None,
                 }
             )
@@ -449,20 +451,16 @@ class DVAEDenoiseModule(L.LightningModule):
                         "part": "full",
                         key: sigma,
                         "method": m,
-                        "mpjpe_mm": round(float(self._test[f"{i}|{m}|abs"].compute()), 2),
-                        "mpjpe_rel_mm": round(float(self._test[f"{i}|{m}|rel"].compute()), 2),
-                        "accel_ms2": round(float(self._test[f"{i}|{m}|acc"].compute()), 2),
+                        "mpjpe_mm": round(cells[(i, m, "abs")], 2),
+                        "mpjpe_rel_mm": round(cells[(i, m, "rel")], 2),
+                        "accel_ms2": round(cells[(i, m, "acc")], 2),
                         "seconds_per_frame": None if spf is None else float(f"{spf:.3g}"),
                     }
                 )
-                self.log(f"test/{key}{sigma}/{m}_mpjpe_mm", rows[-1]["mpjpe_mm"])
+                scalars[f"test/{key}{sigma}/{m}_mpjpe_mm"] = rows[-1]["mpjpe_mm"]
         self.eval_rows = rows
-        if self.trainer.is_global_zero:
-            print("\n" + format_denoise_table(rows, key))
-            log_dir = Path(
-                self.logger.log_dir if self.logger and self.logger.log_dir else self.trainer.default_root_dir
-            )
-            self.eval_json_path = write_eval_json(log_dir / "eval.json", rows)
+        text = format_denoise_table(rows, key, ("ground_truth", *METHODS))
+        self.eval_json_path = publish(self, rows, scalars, text)
 
     # --- predict: noisy windows in, denoised joint positions out ---
 
@@ -477,22 +475,3 @@ class DVAEDenoiseModule(L.LightningModule):
         if keep.any():
             out[keep] = self.estimate(Observation(*(t[keep] if t is not None else None for t in obs))).to(out.dtype)
         return out
-
-
-def format_denoise_table(rows: list[dict], key: str) -> str:
-    """The paper's Table 1 layout: one line per method, MPJPE / joint acceleration per noise level."""
-    sigmas = sorted({r[key] for r in rows})
-    unit = "rad" if key == "sigma_rad" else "m"
-    lines = [
-        f"Motion-DVAE denoising, Gaussian noise sigma ({unit}): " + " ".join(f"{s:g}" for s in sigmas),
-        f"{'method':20s} {'MPJPE mm':>26s} {'rel. mm':>26s} {'accel m/s^2':>26s} {'s/frame':>12s}",
-    ]
-    for m in ("ground_truth", *METHODS):
-        sub = {r[key]: r for r in rows if r["method"] == m}
-        cols = [" ".join(f"{sub[s][c]:8.1f}" for s in sigmas) for c in ("mpjpe_mm", "mpjpe_rel_mm", "accel_ms2")]
-        spf = [sub[s]["seconds_per_frame"] for s in sigmas if sub[s]["seconds_per_frame"] is not None]
-        lines.append(
-            f"{m:20s} {cols[0]:>26s} {cols[1]:>26s} {cols[2]:>26s} "
-            f"{(f'{sum(spf) / len(spf):.2e}' if spf else '-'):>12s}"
-        )
-    return "\n".join(lines)

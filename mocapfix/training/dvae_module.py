@@ -13,20 +13,21 @@ hyperparameters so a checkpoint alone rebuilds them (the denoising stage loads i
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import NamedTuple
 
 import lightning as L
 import torch
 
-from mocapfix.data.datamodule import complete_windows
+from mocapfix.data.spec import DataSpec
+from mocapfix.data.windows import complete_windows
+from mocapfix.evaluation.harness import publish
 from mocapfix.evaluation.metrics import MPJPE
-from mocapfix.evaluation.tasks import write_eval_json
 from mocapfix.models.body import build_body_model
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.dvae import DVAEConfig, MotionDVAE, gaussian_kl
 from mocapfix.models.dvae_state import MotionState, mean_joint_rotations
 from mocapfix.skeleton import Skeleton
+from mocapfix.training.bind_data import BindData
 from mocapfix.training.figures import log_validation_figure
 
 STD_FLOOR = 0.05  # dimensions the data never moves (a joint axis the synthetic body never turns) stay finite
@@ -53,14 +54,14 @@ def compile_in_place(net: torch.nn.Module, body: torch.nn.Module | None) -> None
         body.compile()
 
 
-def require_complete_windows(dm, stage: str) -> None:
+def require_complete_windows(data: DataSpec, stage: str) -> None:
     """The DVAE has no notion of a missing joint: it learns from and is scored on complete windows
     only. A split with windows but none complete would train or score nothing (no val/loss for
     the checkpoint to monitor, NaN test tables): say so before the loop starts."""
     for split in {"fit": ("train", "val"), "validate": ("val",), "test": ("test",)}.get(stage, ()):
-        if len(dm.datasets[split]) and not dm.count_complete_windows(split):
+        if len(data.windows[split]) and not data.complete_windows(split):
             raise ValueError(
-                f"data: none of the {split} split's {len(dm.datasets[split])} windows is complete "
+                f"data: none of the {split} split's {len(data.windows[split])} windows is complete "
                 "(every one misses a joint somewhere); Motion-DVAE learns from and is scored on "
                 "complete windows: drop the joints that are always missing (data.drop_joints) or "
                 "choose other files for this split"
@@ -161,7 +162,7 @@ class MotionDVAEModule(L.LightningModule):
                 see MotionState).
             optimizer: "adamax" (the paper's: HuMoR's settings, lr 1e-4) or "adam". On Bandai at
                 paper width, Adam at lr 1e-4 takes the prior much further in a few hundred steps
-                (docs/STATUS.md, session 4), which is what a time-limited run needs.
+                (the session diary (CHANGELOG.md), session 4), which is what a time-limited run needs.
             lr, betas: the optimiser's (1e-4: HuMoR's, which the paper follows; 1e-3 is unstable
                 at width 1024). lr_milestones: optimiser steps where lr is multiplied by lr_decay.
             kl_anneal_epochs / kl_anneal_steps: linear KL annealing length (steps win when given).
@@ -221,28 +222,27 @@ class MotionDVAEModule(L.LightningModule):
         if self.net is not None:
             checkpoint["model"] = checkpoint_entry("motion-dvae-prior", self.model_config)
 
-    def setup(self, stage: str) -> None:
-        dm = self.trainer.datamodule
-        if dm is None:
-            if self.net is None:
-                raise RuntimeError(
-                    "MotionDVAEModule needs a data module (or a checkpoint) to know the skeleton and window"
-                )
-            return
-        if self.hparams.state == "rotations" and not (dm.hparams.with_rotations and dm.has_rotations):
+    def configure_callbacks(self):
+        return [BindData()]
+
+    def bind_data(self, data: DataSpec, stage: str) -> None:
+        """The networks for the data's skeleton and window, and at fit the state's reference pose
+        and statistics from the training windows (BindData calls it before setup); networks from
+        a checkpoint must fit the data."""
+        if self.hparams.state == "rotations" and not data.rotations:
             raise ValueError(
                 "model.state rotations needs rotation data: set data.with_rotations: true "
-                f"(bvh, amass, synthetic sources; {dm.hparams.source} data here), or model.state: positions"
+                f"(bvh, amass, synthetic sources; {data.source} data here), or model.state: positions"
             )
-        require_complete_windows(dm, stage)
-        skeleton, fps, frames = dm.skeleton.to_dict(), float(dm.hparams.fps), dm.window_frames
+        require_complete_windows(data, stage)
+        skeleton, fps, frames = data.skeleton.to_dict(), data.fps, data.window_frames
         if self.net is None:
             self.hparams.update(skeleton=skeleton, window_fps=fps, window_frames=frames)
             self._build()
             if stage == "fit" and self.hparams.state == "rotations" and self.hparams.rotation_reference == "mean":
-                self.codec.joint_reference.copy_(mean_rotations(dm.datasets["train"]))
+                self.codec.joint_reference.copy_(mean_rotations(data.windows["train"]))
             if stage == "fit" and self.hparams.normalize:  # a resumed run then loads the same values back
-                mean, std = state_statistics(self.codec, dm.datasets["train"])
+                mean, std = state_statistics(self.codec, data.windows["train"])
                 self.net.x_mean.copy_(mean)
                 self.net.x_std.copy_(std)
         elif (skeleton["parents"], frames) != (self.hparams.skeleton["parents"], self.hparams.window_frames) or abs(
@@ -253,6 +253,10 @@ class MotionDVAEModule(L.LightningModule):
                 f"{self.hparams.window_frames} frames at {self.hparams.window_fps} fps; the data gives "
                 f"{len(skeleton['parents'])} joints, {frames} frames at {fps} fps"
             )
+
+    def setup(self, stage: str) -> None:
+        if self.net is None:
+            raise RuntimeError("MotionDVAEModule needs a data module (or a checkpoint) to know the skeleton and window")
 
     def configure_optimizers(self):
         hp = self.hparams
@@ -349,19 +353,9 @@ class MotionDVAEModule(L.LightningModule):
         # denoising stage's MPJPE), in eval.json as XMAE's and the denoiser's tables are.
         if not self.test_mpjpe.update_called:
             return
-        rows = [
-            {
-                "task": "reconstruction",
-                "part": "full",
-                "method": "dvae_prior",
-                "mpjpe_mm": round(float(self.test_mpjpe.compute()), 2),
-            }
-        ]
-        if self.trainer.is_global_zero:
-            log_dir = Path(
-                self.logger.log_dir if self.logger and self.logger.log_dir else self.trainer.default_root_dir
-            )
-            self.eval_json_path = write_eval_json(log_dir / "eval.json", rows)
+        mpjpe = round(float(self.test_mpjpe.compute()), 2)
+        rows = [{"task": "reconstruction", "part": "full", "method": "dvae_prior", "mpjpe_mm": mpjpe}]
+        self.eval_json_path = publish(self, rows, {"test/reconstruction_mpjpe_mm": mpjpe})
 
     def predict_step(self, batch, batch_idx):
         raise ValueError(

@@ -9,21 +9,23 @@ from __future__ import annotations
 
 import logging
 from functools import partial
-from pathlib import Path
 
 import lightning as L
 import torch
 import torch.nn as nn
 
 from mocapfix.data.corruption import uniform_like, xmae_training_input
+from mocapfix.data.spec import DataSpec
 from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill
+from mocapfix.evaluation.harness import TestTable, publish
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.policy import Calibration, FillPolicy, apply_fill_policy, suspect_tokens
-from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows, write_eval_json
+from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows
 from mocapfix.inference import xmae_fill, xmae_reconstruct
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.xmae import PRESETS, XMAE, XMAEConfig
 from mocapfix.skeleton import Skeleton
+from mocapfix.training.bind_data import BindData
 from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.schedules import warmup_cosine
 
@@ -175,13 +177,13 @@ class XMAEModule(L.LightningModule):
         self.val_mpjpe = MPJPE()
         self.val_gap = nn.ModuleDict({"xmae": MPJPE(), "lerp": MPJPE()})
 
-    def setup(self, stage: str) -> None:
-        dm = self.trainer.datamodule
-        if dm is None:
-            if self.net is None:
-                raise RuntimeError("XMAEModule needs a data module (or a checkpoint) to know the skeleton and window")
-            return
-        skeleton, fps, frames = dm.skeleton.to_dict(), float(dm.hparams.fps), dm.window_frames
+    def configure_callbacks(self):
+        return [BindData()]
+
+    def bind_data(self, data: DataSpec, stage: str) -> None:
+        """The network for the data's skeleton and window (BindData calls it before setup); a
+        network from a checkpoint must fit the data."""
+        skeleton, fps, frames = data.skeleton.to_dict(), data.fps, data.window_frames
         if self.net is None:
             self.hparams.update(skeleton=skeleton, window_fps=fps, window_frames=frames)
             self._build()
@@ -193,6 +195,10 @@ class XMAEModule(L.LightningModule):
                 f"{self.hparams.window_frames} frames at {self.hparams.window_fps} fps; the data gives "
                 f"{len(skeleton['parents'])} joints, {frames} frames at {fps} fps"
             )
+
+    def setup(self, stage: str) -> None:
+        if self.net is None:
+            raise RuntimeError("XMAEModule needs a data module (or a checkpoint) to know the skeleton and window")
 
     def configure_optimizers(self):
         hp = self.hparams
@@ -346,15 +352,14 @@ class XMAEModule(L.LightningModule):
         # "policy": what fix outputs (the fill policy of this checkpoint's validation)
         self._methods = ("xmae", *CLASSICAL) + (("policy",) if self.fill_policy is not None else ())
         self._tasks = paper_tasks(self.skeleton, self.hparams.eval_gaps_s, self.hparams.eval_noise_sigmas_m)
-        self._test_metrics = nn.ModuleDict(
+        self._table = TestTable(
             {
-                f"{t.key}|{m}|{rel}".replace(".", "_"): MPJPE(root_relative=rel == "rel")
+                (t.key, m, rel): MPJPE(root_relative=rel == "rel")
                 for t in self._tasks
                 for m in self._methods
                 for rel in ("abs", "rel")
             }
         ).to(self.device)
-        self.eval_rows: list[dict] = []
 
     def test_step(self, batch, batch_idx):
         positions = batch["positions"]
@@ -372,31 +377,20 @@ class XMAEModule(L.LightningModule):
                 preds["policy"] = self._policy_output(c.positions, c.observed, preds)
             for m, pred in preds.items():
                 for rel in ("abs", "rel"):
-                    self._test_metrics[f"{t.key}|{m}|{rel}".replace(".", "_")].update(
-                        pred.float(), positions.float(), scored
-                    )
+                    self._table.update((t.key, m, rel), pred.float(), positions.float(), scored)
 
     def on_test_epoch_end(self):
-        results = {}
-        for t in self._tasks:
-            for m in self._methods:
-                k = f"{t.key}|{m}|".replace(".", "_")
-                results[(t.key, m)] = (
-                    float(self._test_metrics[k + "abs"].compute()),
-                    float(self._test_metrics[k + "rel"].compute()),
-                )
+        cells = self._table.compute()
+        results = {(key, m): (cells[(key, m, "abs")], cells[(key, m, "rel")]) for key, m, rel in cells if rel == "abs"}
         self.eval_rows = table_rows(results, self._tasks)
+        scalars = {}
         for r in self.eval_rows:
             param = f"gap{r['gap_s']}s" if "gap_s" in r else f"sigma{r['sigma_m']}m"
-            self.log(f"test/{r['task']}/{r['part']}/{param}/{r['method']}_mpjpe_mm", r["mpjpe_mm"])
-        if self.trainer.is_global_zero:
-            print("\n" + format_table(self.eval_rows))
-            if self.fill_policy is not None:
-                print("fill policy (val split):\n  " + "\n  ".join(self.fill_policy.describe()))
-            log_dir = Path(
-                self.logger.log_dir if self.logger and self.logger.log_dir else self.trainer.default_root_dir
-            )
-            self.eval_json_path = write_eval_json(log_dir / "eval.json", self.eval_rows)
+            scalars[f"test/{r['task']}/{r['part']}/{param}/{r['method']}_mpjpe_mm"] = r["mpjpe_mm"]
+        text = format_table(self.eval_rows)
+        if self.fill_policy is not None:
+            text += "\nfill policy (val split):\n  " + "\n  ".join(self.fill_policy.describe())
+        self.eval_json_path = publish(self, self.eval_rows, scalars, text)
 
     # --- predict ---
 
