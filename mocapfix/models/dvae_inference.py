@@ -14,7 +14,7 @@ The first frame of the output (first_frame):
                the model and the ELBO's only direct term on it is y_0's likelihood, so it stays as
                far off as the noisy input (Bandai, sigma 0.1 rad: 56 mm at frame 0 against 42 at
                frame 1), and its join to the decoded frames is an acceleration spike (65 m/s^2
-               where the window's middle has 5; docs/STATUS.md, sessions 6-7).
+               where the window's middle has 5; the session diary (CHANGELOG.md), sessions 6-7).
   "decoded"    one step back from the decoder's x_1 along x_1's own velocities (beyond the paper):
                the decoder's motion carried to frame 0 (45 mm there, 13 m/s^2 at the join).
 """
