@@ -80,6 +80,32 @@ def expand_configs(args: list[str]) -> list[str]:
     return out
 
 
+LOGGERS = ("tensorboard", "csv", "mlflow")
+
+
+def make_logger(kind: str, experiment: str):
+    """The run's logger: TensorBoard (scalars, hyperparameters, figures) or CSV (scalars and
+    hyperparameters only: no figures) in logs/<experiment>/version_N, or MLflow (its own store,
+    ./mlruns by default; the experiment by name)."""
+    if kind == "tensorboard":
+        from lightning.pytorch.loggers import TensorBoardLogger
+
+        return TensorBoardLogger(save_dir="logs", name=experiment)
+    if kind == "csv":
+        from lightning.pytorch.loggers import CSVLogger
+
+        return CSVLogger(save_dir="logs", name=experiment)
+    if kind == "mlflow":
+        import importlib.util
+
+        if importlib.util.find_spec("mlflow") is None:
+            raise ValueError("--logger mlflow needs the mlflow package (pip install mlflow)")
+        from lightning.pytorch.loggers import MLFlowLogger
+
+        return MLFlowLogger(experiment_name=experiment)
+    raise ValueError(f"--logger must be one of {', '.join(LOGGERS)}, got {kind!r}")
+
+
 def _lightning_cli(args: list[str]):
     import torch
     from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, ProgressBar, TQDMProgressBar
@@ -108,6 +134,13 @@ def _lightning_cli(args: list[str]):
             )
             parser.add_argument(
                 "--monitor", type=str, default="val/mpjpe_mm", help="metric for the best checkpoint (lower is better)"
+            )
+            parser.add_argument(
+                "--logger",
+                type=str,
+                default="tensorboard",
+                help="experiment tracking: tensorboard, csv or mlflow (logs/<experiment>/ or ./mlruns); "
+                "trainer.logger, when a config sets it, wins",
             )
             parser.add_argument(
                 "--defaults",
@@ -148,7 +181,7 @@ def _lightning_cli(args: list[str]):
             extra = []
             # Default tracking and checkpoints, unless the config brings its own.
             if trainer_cfg.get("logger") in (None, True):
-                kwargs["logger"] = TensorBoardLogger(save_dir="logs", name=name)
+                kwargs["logger"] = make_logger(cfg.logger, name)
             if trainer_cfg.get("enable_checkpointing", True) is not False:
                 dirpath = Path("checkpoints") / name
                 # last.ckpt is always the newest state of this experiment, the file the docs and
@@ -199,9 +232,12 @@ def _lightning_cli(args: list[str]):
         def after_fit(self):
             t = self.trainer
             ckpt = next((cb for cb in t.checkpoint_callbacks if cb.monitor), None)
-            if t.is_global_zero and t.logger is not None and t.logger.log_dir:
-                view = Path(t.logger.log_dir).parent
-                print(f"TensorBoard logs: {t.logger.log_dir}   (view: tensorboard --logdir {view})")
+            where = t.logger.log_dir if t.logger is not None else None
+            if t.is_global_zero and where:
+                if isinstance(t.logger, TensorBoardLogger):
+                    print(f"TensorBoard logs: {where}   (view: tensorboard --logdir {Path(where).parent})")
+                else:
+                    print(f"{type(t.logger).__name__} logs: {where}")
                 if ckpt is not None:
                     print(f"checkpoints: best {ckpt.best_model_path or '-'}, last {ckpt.last_model_path or '-'}")
 

@@ -91,3 +91,34 @@ def test_an_unknown_config_is_one_line_naming_the_packaged_ones(tmp_path, capsys
 
 def test_help_lists_the_packaged_configs(capsys):
     assert main(["--help"]) == 0 and "packaged configs: " in capsys.readouterr().out
+
+
+def test_a_csv_logger_takes_the_experiment_name_and_no_figures(tmp_path, capsys):
+    from cli_utils import QUIET, SMALL_DATA, TINY
+
+    args = [
+        "fit",
+        "--config",
+        "xmae",
+        *TINY,
+        *SMALL_DATA,
+        *QUIET,
+        "--experiment",
+        "plain",
+        "--logger",
+        "csv",
+        "--trainer.max_steps",
+        "2",
+        "--trainer.val_check_interval",
+        "2",
+        "--model.init_args.calibration_windows",
+        "4",
+    ]
+    assert run_cli(args, tmp_path) == 0
+    out = capsys.readouterr().out
+    run = tmp_path / "logs" / "plain" / "version_0"
+    assert "CSVLogger logs: logs/plain/version_0" in out and "TensorBoard" not in out
+    assert (run / "metrics.csv").is_file() and "val/mpjpe_mm" in (run / "metrics.csv").read_text()
+    assert not list(run.glob("events.out.tfevents*"))
+    assert run_cli(["fit", "--config", "xmae", "--logger", "wandb", *QUIET], tmp_path) == 2
+    assert "--logger must be one of tensorboard, csv, mlflow" in capsys.readouterr().err
