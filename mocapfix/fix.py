@@ -33,6 +33,7 @@ from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, policy_names, suspect_tokens
 from mocapfix.fixers import Fixer, RotationFixer
 from mocapfix.io import read_motion
+from mocapfix.io.joint_names import match_joints
 from mocapfix.kinematics import fk_axis_angle
 from mocapfix.skeleton import Skeleton
 
@@ -42,29 +43,22 @@ MODES = ("infill", "denoise", "both")
 # --- joints and frame times ---
 
 
-def map_joints(skeleton: Skeleton, model: Skeleton, source="") -> np.ndarray:
-    """(J_model,) index of each model joint in `skeleton`, by name (exact, else ignoring case).
-    A model joint the input lacks is an error naming them all; input joints the model does not
-    know are simply not in the map (they pass through)."""
-    exact = {n: i for i, n in enumerate(skeleton.joint_names)}
-    folded: dict[str, list[int]] = {}
-    for i, n in enumerate(skeleton.joint_names):
-        folded.setdefault(n.lower(), []).append(i)
-    index, missing = [], []
-    for n in model.joint_names:
-        if n in exact:
-            index.append(exact[n])
-        elif len(folded.get(n.lower(), [])) == 1:
-            index.append(folded[n.lower()][0])
-        else:
-            missing.append(n)
+def map_joints(skeleton: Skeleton, model: Skeleton, source="", joint_map: dict[str, str] | None = None) -> np.ndarray:
+    """(J_model,) index of each model joint in `skeleton`: by `joint_map` (input name -> model
+    name), the same name (any case, namespace prefixes aside), else the same body part under
+    another convention's name (io/joint_names.py: Mixamo, CMU, SMPL, Human3.6M, ...). A model
+    joint the input lacks is an error naming them all; input joints the model does not know are
+    not in the map (they pass through)."""
+    found = match_joints(skeleton, model, joint_map)
+    missing = [n for n in model.joint_names if n not in found]
     if missing:
         raise MotionFileError(
             source,
             f"skeleton does not match the model's ({model.name}, {model.num_joints} "
-            f"joints): missing {', '.join(missing)}",
+            f"joints): missing {', '.join(missing)} (`mocapfix inspect FILE --ckpt CKPT` shows the "
+            "mapping; --joint-map FILE names joints, one `input name: model name` per line)",
         )
-    return np.array(index, dtype=np.int64)
+    return np.array([found[n] for n in model.joint_names], dtype=np.int64)
 
 
 def resample_frames(x: np.ndarray, src_fps: float, dst_fps: float, num: int) -> np.ndarray:
@@ -174,6 +168,7 @@ def fix_clips(
     overlap: float = 0.5,
     batch_size: int = 64,
     progress: Callable[[int, int], None] | None = None,
+    joint_map: dict[str, str] | None = None,
 ) -> tuple[list[Clip], FixReport]:
     """Fix the clips of one file; each keeps its skeleton, frames and fps (positions only: no
     rotations; a rotation model's clips go to fix_rotation_clips and keep their rotations).
@@ -193,16 +188,16 @@ def fix_clips(
         raise ValueError("fix_clips needs at least one clip")
     check_human_scale(clips, clips[0].source or clips[0].name)
     if getattr(fixer, "state", "positions") == "rotations":
-        return fix_rotation_clips(clips, fixer, mode, overlap, batch_size, progress)
+        return fix_rotation_clips(clips, fixer, mode, overlap, batch_size, progress, joint_map)
     policy: FillPolicy | None = getattr(fixer, "policy", None)
     if policy is None or mode == "infill":
-        return _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy)
+        return _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy, joint_map)
 
     # Pass 1: the model's estimate of every token; the observed tokens it disagrees with are suspect.
-    estimates, first = _fix_positions(clips, fixer, "both", overlap, batch_size, progress, None)
+    estimates, first = _fix_positions(clips, fixer, "both", overlap, batch_size, progress, None, joint_map)
     masked, suspects = [], 0
     for c, e in zip(clips, estimates):
-        idx = map_joints(c.skeleton, fixer.skeleton, c.source)
+        idx = map_joints(c.skeleton, fixer.skeleton, c.source, joint_map)
         x = torch.from_numpy(c.positions[:, idx])
         obs = ~torch.isnan(x).any(-1)
         bad = suspect_tokens(policy, torch.from_numpy(e.positions[:, idx]), x, obs).numpy()  # (T, Jm)
@@ -211,7 +206,7 @@ def fix_clips(
         positions[:, idx] = np.where(bad[..., None], np.nan, positions[:, idx])
         masked.append(c.replace(positions=positions))
     # Pass 2: the holes and the suspect tokens filled by the policy; the rest stays bit-identical.
-    out, report = _fix_positions(masked, fixer, "infill", overlap, batch_size, progress, policy)
+    out, report = _fix_positions(masked, fixer, "infill", overlap, batch_size, progress, policy, joint_map)
     report.filled, report.replaced = report.filled - suspects, suspects
     if mode == "denoise":  # holes of the input stay holes
         out = [
@@ -238,6 +233,7 @@ def _fix_positions(
     batch_size: int,
     progress: Callable[[int, int], None] | None,
     policy: FillPolicy | None,
+    joint_map: dict[str, str] | None = None,
 ) -> tuple[list[Clip], FixReport]:
     """fix_clips for a positions model, one pass: the model's estimate merged by mode (infill with
     the fill policy where there is one)."""
@@ -258,7 +254,7 @@ def _fix_positions(
     # Each clip at the model's joints and fps. Frames past the input's end are unobserved.
     index, x_in, x_m = [], [], []
     for i, c in enumerate(clips):
-        idx = map_joints(c.skeleton, model, source)
+        idx = map_joints(c.skeleton, model, source, joint_map)
         x = c.positions[:, idx]  # (T, Jm, 3)
         if not np.isfinite(x).all(-1).any():
             raise MotionFileError(source, f"{who(i)}no data for any of the model's joints in any frame")
@@ -452,7 +448,14 @@ def _joints_missing_for_a_window(x_m: list[np.ndarray], W: int, overlap: float) 
 # --- rotation models: rotations in, rotations out ---
 
 
-def rotation_clips(path, clips: list[Clip], model: Skeleton, source: str = "auto", **read_options) -> list[Clip]:
+def rotation_clips(
+    path,
+    clips: list[Clip],
+    model: Skeleton,
+    source: str = "auto",
+    joint_map: dict[str, str] | None = None,
+    **read_options,
+) -> list[Clip]:
     """The clips of a file as a rotation model needs them. A BVH file is read again with only
     the model's joints (read_bvh keep_joints), as the model was trained (without a helper root
     such as Bandai Namco's joint_Root): with a joint whose translation moves below the root, the
@@ -460,7 +463,7 @@ def rotation_clips(path, clips: list[Clip], model: Skeleton, source: str = "auto
     first = clips[0]
     if first.meta.get("format") != "bvh":
         return clips
-    index = map_joints(first.skeleton, model, path)
+    index = map_joints(first.skeleton, model, path, joint_map)
     if first.has_rotations and len(index) == first.skeleton.num_joints:
         return clips
     keep = [first.skeleton.joint_names[i] for i in index]
@@ -495,6 +498,7 @@ def fix_rotation_clips(
     overlap: float = 0.5,
     batch_size: int = 64,
     progress: Callable[[int, int], None] | None = None,
+    joint_map: dict[str, str] | None = None,
 ) -> tuple[list[Clip], FixReport]:
     """Fix clips with rotations through a rotation model (a RotationFixer); each keeps its
     skeleton, frames and fps, and comes back with rotations, root translation and the positions
@@ -518,7 +522,7 @@ def fix_rotation_clips(
 
     index = []
     for i, c in enumerate(clips):
-        idx = map_joints(c.skeleton, model, source)
+        idx = map_joints(c.skeleton, model, source, joint_map)
         if not c.has_rotations:
             why = c.meta.get("no_rotations")
             raise MotionFileError(

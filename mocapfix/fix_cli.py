@@ -28,6 +28,7 @@ from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
 from mocapfix.io.files import atomic_write
+from mocapfix.io.joint_names import read_joint_map
 from mocapfix.io.positions import load_npz, npz_array, write_clips, write_positions
 
 FIXED = ".fixed"  # default output: <stem>.fixed<ext> beside the input
@@ -193,9 +194,11 @@ def fix_files(
     stdout=None,
     stderr=None,
     precision: str = "fp32",
+    joint_map: dict[str, str] | None = None,
     **read_options,
 ) -> int:
-    """Fix every file; -> exit code (0 all written, 1 some failed). read_options go to read_motion."""
+    """Fix every file; -> exit code (0 all written, 1 some failed). read_options go to read_motion;
+    joint_map (input name -> model name) names joints io/joint_names.py does not find."""
     out_stream, err = stdout or sys.stdout, stderr or sys.stderr
     try:
         fixer = load_fixer(ckpt, device, precision)
@@ -231,8 +234,11 @@ def fix_files(
             show = progress == "always" or (
                 progress == "auto" and (getattr(err, "isatty", lambda: False)() or seconds >= LONG_INPUT_S)
             )
-            work = rotation_clips(path, clips, fixer.skeleton, source, **read_options) if rotations else clips
-            fixed, report = fix_clips(work, fixer, mode, overlap, batch_size, Progress(str(path), show, err))
+            work = (
+                rotation_clips(path, clips, fixer.skeleton, source, joint_map, **read_options) if rotations else clips
+            )
+            progress_bar = Progress(str(path), show, err)
+            fixed, report = fix_clips(work, fixer, mode, overlap, batch_size, progress_bar, joint_map)
             write_output(target, fixed, clips, path)
             written[resolved] = path
         except Exception as e:  # one bad file must not stop the others
@@ -325,6 +331,11 @@ def main(argv: list[str] | None = None) -> int:
         choices=("auto", "always", "never"),
         help="auto: on a terminal, or for inputs over 10 minutes",
     )
+    ap.add_argument(
+        "--joint-map",
+        default=None,
+        help="YAML, `input name: model name` per line, for joints the automatic matching misses",
+    )
     add_read_arguments(ap)
     args = ap.parse_args(argv)
     if args.out and (len(args.paths) > 1 or Path(args.paths[0]).is_dir()):
@@ -337,6 +348,11 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--overlap must be in [0, 1)")
     if args.device == "cuda" and not torch.cuda.is_available():
         ap.error("--device cuda, but no CUDA device is available")
+    try:
+        joint_map = read_joint_map(args.joint_map) if args.joint_map else None
+    except MotionFileError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
     # SIGTERM (a scheduler's time limit, `kill`) ends the run the way Ctrl-C does: as an exception,
     # so the output being written loses its temporary file (atomic_write) instead of the process
     # dying with it on disk.
@@ -358,6 +374,7 @@ def main(argv: list[str] | None = None) -> int:
             args.progress,
             args.json,
             precision=args.precision,
+            joint_map=joint_map,
             unit=args.unit,
             up_axis=args.up_axis,
             fps=args.fps,

@@ -16,6 +16,8 @@ import numpy as np
 
 from mocapfix.clip import Clip, body_limbs, limb_lengths
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
+from mocapfix.io.joint_names import describe_mapping, read_joint_map
+from mocapfix.skeleton import Skeleton
 
 _HIP_NAMES = ("hips", "hip", "pelvis")
 
@@ -132,8 +134,18 @@ def _table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def inspect_files(paths, as_json: bool = False, source: str = "auto", out=None, err=None, **read_options) -> int:
+def inspect_files(
+    paths,
+    as_json: bool = False,
+    source: str = "auto",
+    out=None,
+    err=None,
+    model: Skeleton | None = None,
+    joint_map: dict[str, str] | None = None,
+    **read_options,
+) -> int:
     """Print what each motion file holds (folders: their motion files). -> exit code: 1 if any file failed.
+    With a model's skeleton, also how the file's joints map onto it (io/joint_names.py).
 
     read_options go to mocapfix.io.read_motion (unit, up_axis, fps, groups, body_model_path, ...)."""
     out = out or sys.stdout
@@ -156,6 +168,8 @@ def inspect_files(paths, as_json: bool = False, source: str = "auto", out=None, 
                 if not clips:
                     raise ValueError(f"{f}: no motion in the file")
                 row = {"file": str(f), **motion_stats(clips)}
+                if model is not None:
+                    row["mapping"] = describe_mapping(clips[0].skeleton, model, joint_map)
             except Exception as e:
                 print(f"error: {_one_line(f, e)}", file=err)
                 failed = True
@@ -166,6 +180,10 @@ def inspect_files(paths, as_json: bool = False, source: str = "auto", out=None, 
                 rows.append(row)
     if rows:
         print(_table(rows), file=out)
+    for row in rows:
+        if "mapping" in row:
+            print(f"\n{row['file']} onto the model's {model.num_joints} joints ({model.name}):", file=out)
+            print("  " + "\n  ".join(row["mapping"]), file=out)
     return 1 if failed else 0
 
 
@@ -181,11 +199,26 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="mocapfix inspect", description=__doc__.split("\n")[0])
     ap.add_argument("paths", nargs="+", metavar="FILE", help="motion files or folders")
     ap.add_argument("--json", action="store_true", help="one JSON object per file per line")
+    ap.add_argument("--ckpt", default=None, help="also show how each file's joints map onto this model's")
+    ap.add_argument("--joint-map", default=None, help="YAML, `input name: model name` per line (with --ckpt)")
     add_read_arguments(ap)
     args = ap.parse_args(argv)
+    model = joint_map = None
+    try:
+        if args.ckpt:
+            from mocapfix.fixers import load_fixer
+
+            model = load_fixer(args.ckpt).skeleton
+        if args.joint_map:
+            joint_map = read_joint_map(args.joint_map)
+    except Exception as e:
+        print(f"error: {_one_line(args.joint_map if model else args.ckpt, e)}", file=sys.stderr)
+        return 1
     return inspect_files(
         args.paths,
         args.json,
+        model=model,
+        joint_map=joint_map,
         source=args.source,
         unit=args.unit,
         up_axis=args.up_axis,

@@ -1,0 +1,210 @@
+"""Joint names across humanoid conventions.
+
+A model trained on one skeleton's names (Bandai Namco's `UpperArm_L`) meets recordings named
+another way: Mixamo (`mixamorig:LeftArm`), CMU / ASF-style BVH (`LeftArm`, `LHipJoint`), SMPL
+(`left_shoulder`), Human3.6M (`LShoulder`), optical-capture labels (`L_Elbow`, `RightKnee`).
+Each name gets a label, (side, body part), and two skeletons are matched label to label:
+case, separators and namespace prefixes do not matter.
+
+What a word means can depend on the rest of the skeleton, so labels are given per skeleton:
+- "shoulder" is the clavicle where the same side also has an upper-arm joint ("arm",
+  "upperarm": Bandai, CMU, Mixamo), else the upper arm itself (SMPL, Human3.6M);
+- "foot" is the toe joint where the same side also has an "ankle" (SMPL), else the ankle;
+- "hip" with a side is the thigh's top (SMPL, Human3.6M) unless the side has an up-leg joint
+  ("upleg", "thigh": CMU, Mixamo), where it is CMU's short helper bone (`LHipJoint`);
+- the spine joints between the pelvis and the neck (Spine, Spine1, Chest, Thorax, ...) have no
+  shared vocabulary: they are labelled by their rank along that chain, from the pelvis up.
+"""
+
+from __future__ import annotations
+
+import re
+
+from mocapfix.skeleton import Skeleton
+
+# side-less word (lowercase, separators removed) -> part. Order matters only for readability.
+_PART_WORDS: dict[str, str] = {
+    # legs
+    "upleg": "thigh",
+    "upperleg": "thigh",
+    "thigh": "thigh",
+    "femur": "thigh",
+    "leg": "knee",
+    "lowerleg": "knee",
+    "lowleg": "knee",
+    "knee": "knee",
+    "shin": "knee",
+    "calf": "knee",
+    "tibia": "knee",
+    "ankle": "ankle",
+    "toebase": "toe",
+    "toe": "toe",
+    "toes": "toe",
+    "ball": "toe",
+    # arms
+    "collar": "clavicle",
+    "clavicle": "clavicle",
+    "upperarm": "upper_arm",
+    "uparm": "upper_arm",
+    "arm": "upper_arm",
+    "humerus": "upper_arm",
+    "forearm": "elbow",
+    "lowerarm": "elbow",
+    "lowarm": "elbow",
+    "elbow": "elbow",
+    "radius": "elbow",
+    "hand": "wrist",
+    "wrist": "wrist",
+    # trunk and head
+    "hips": "pelvis",
+    "pelvis": "pelvis",
+    "root": "pelvis",
+    "neck": "neck",
+    "head": "head",
+}
+# "Left...", "L_...", "..._L", "...Left" in any case; "L" + a capital only as written ("LHip",
+# not "LowerArm")
+_SIDE_MARK = {
+    "left": re.compile(r"^left|^l(?=[_\-.\s])|[_\-.\s]l$|left$", re.I),
+    "right": re.compile(r"^right|^r(?=[_\-.\s])|[_\-.\s]r$|right$", re.I),
+}
+_CASE_SENSITIVE = {"left": re.compile(r"^L(?=[A-Z])"), "right": re.compile(r"^R(?=[A-Z])")}
+
+
+def _strip_namespace(name: str) -> str:
+    """`mixamorig:LeftArm` -> `LeftArm`, `Armature|Hips` -> `Hips`."""
+    return re.split(r"[:|]", name.strip())[-1]
+
+
+def side_and_word(name: str) -> tuple[str | None, str]:
+    """(side or None, the rest lowercased without separators): `UpperArm_L` -> ("left",
+    "upperarm"), `mixamorig:LeftForeArm` -> ("left", "forearm"), `Neck/Nose` -> (None, "necknose")."""
+    n = _strip_namespace(name)
+    for side in ("left", "right"):
+        m = _CASE_SENSITIVE[side].search(n) or _SIDE_MARK[side].search(n)
+        if m is not None:
+            rest = n[: m.start()] + n[m.end() :]
+            return side, re.sub(r"[_\-.\s/]", "", rest).lower()
+    return None, re.sub(r"[_\-.\s/]", "", n).lower()
+
+
+def joint_labels(skeleton: Skeleton) -> list[str | None]:
+    """One label per joint ("left_upper_arm", "pelvis", "spine_2of3", ...), None where the name
+    says nothing known (fingers, end sites, helpers)."""
+    names = skeleton.joint_names
+    split = [side_and_word(n) for n in names]
+    words_by_side: dict[str | None, set[str]] = {}
+    for side, word in split:
+        words_by_side.setdefault(side, set()).add(word)
+    labels: list[str | None] = []
+    for side, word in split:
+        part = _PART_WORDS.get(word)  # exact words only: "Neck1" above "Neck" is not the neck
+        same_side = words_by_side.get(side, set())
+        if word == "shoulder":
+            part = "clavicle" if same_side & {"arm", "upperarm", "uparm"} else "upper_arm"
+        elif word == "foot":
+            part = "toe" if "ankle" in same_side else "ankle"
+        elif word in ("hip", "hipjoint"):
+            if side is None:
+                part = "pelvis"
+            else:
+                part = "hip_helper" if same_side & {"upleg", "upperleg", "thigh"} else "thigh"
+        if side is None and part in ("thigh", "knee", "ankle", "toe", "clavicle", "upper_arm", "elbow", "wrist"):
+            part = None  # a limb joint without a side cannot be placed
+        if side is not None and part in ("pelvis", "neck", "head"):
+            part = None
+        labels.append(None if part is None else part if side is None else f"{side}_{part}")
+    # the spine: unlabelled side-less joints on the path from the pelvis to the neck, by rank
+    if "pelvis" in labels and "neck" in labels:
+        j = labels.index("neck")
+        chain = []
+        while j >= 0 and labels[j] != "pelvis":
+            j = skeleton.parents[j]
+            if j >= 0 and labels[j] is None and split[j][0] is None:
+                chain.append(j)
+        chain.reverse()  # pelvis up
+        for rank, j in enumerate(chain):
+            labels[j] = f"spine_{rank + 1}of{len(chain)}"
+    return labels
+
+
+def match_joints(skeleton: Skeleton, model: Skeleton, joint_map: dict[str, str] | None = None) -> dict[str, int]:
+    """model joint name -> index of the joint of `skeleton` that plays its part, for the model
+    joints that can be found: by the user's joint_map (input name -> model name) first, then the
+    same name, the same name in any case, then the same label (joint_labels). Spine joints match
+    by rank only where both skeletons have as many between pelvis and neck."""
+    found: dict[str, int] = {}
+    taken: set[int] = set()
+    index = {n: i for i, n in enumerate(skeleton.joint_names)}
+    for given, target in (joint_map or {}).items():
+        if given in index and target in model.joint_names:
+            found[target] = index[given]
+            taken.add(index[given])
+    folded: dict[str, list[int]] = {}
+    for i, n in enumerate(skeleton.joint_names):
+        folded.setdefault(_strip_namespace(n).lower(), []).append(i)
+    for n in model.joint_names:
+        if n in found:
+            continue
+        key = _strip_namespace(n).lower()
+        if n in index and index[n] not in taken:
+            found[n] = index[n]
+        elif len(folded.get(key, [])) == 1 and folded[key][0] not in taken:
+            found[n] = folded[key][0]
+        if n in found:
+            taken.add(found[n])
+    mine, theirs = joint_labels(skeleton), joint_labels(model)
+    by_label: dict[str, list[int]] = {}
+    for i, label in enumerate(mine):
+        if label is not None and i not in taken:
+            by_label.setdefault(label, []).append(i)
+    for n, label in zip(model.joint_names, theirs):
+        if n not in found and label is not None and len(by_label.get(label, [])) == 1:
+            found[n] = by_label[label][0]
+    return found
+
+
+def read_joint_map(path) -> dict[str, str]:
+    """A --joint-map file: YAML, `input name: model name` per line -> dict. Anything else is a
+    MotionFileError naming the file."""
+    from pathlib import Path
+
+    import yaml
+
+    from mocapfix.clip import MotionFileError
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as e:
+        raise MotionFileError(path, f"cannot read the joint map ({e.strerror or e})") from None
+    except yaml.YAMLError as e:
+        raise MotionFileError(path, f"not a YAML joint map ({' '.join(str(e).split())[:160]})") from None
+    if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
+        raise MotionFileError(path, "a joint map is `input name: model name` per line")
+    return dict(data)
+
+
+def describe_mapping(skeleton: Skeleton, model: Skeleton, joint_map: dict[str, str] | None = None) -> list[str]:
+    """Lines for `inspect --ckpt`: each model joint and the input joint that plays it (and how
+    it was found), the model joints not found, and the input joints the model does not use."""
+    found = match_joints(skeleton, model, joint_map)
+    lines = []
+    for n in model.joint_names:
+        if n not in found:
+            lines.append(f"{n:<16} <- (not found)")
+            continue
+        given = skeleton.joint_names[found[n]]
+        how = (
+            "joint map"
+            if (joint_map or {}).get(given) == n
+            else "name"
+            if _strip_namespace(given).lower() == _strip_namespace(n).lower()
+            else "body part"
+        )
+        lines.append(f"{n:<16} <- {given} ({how})")
+    used = set(found.values())
+    extra = [skeleton.joint_names[i] for i in range(skeleton.num_joints) if i not in used]
+    if extra:
+        lines.append(f"not used by the model (kept as they are): {', '.join(extra)}")
+    return lines
