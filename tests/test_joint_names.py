@@ -153,3 +153,13 @@ def test_fix_on_renamed_joints_matches_the_native_run(tmp_path, bandai_clip, cap
     assert "UpperArm_L       <- mixamorig:LeftArm (body part)" in out
     assert "LowerArm_L       <- LeftBendy (joint map)" in out
     assert "not used by the model (kept as they are): " + ", ".join(FINGERS) in out
+
+
+def test_an_smpl_recording_maps_onto_a_bandai_model_with_the_nearest_spine_joints(bandai_clip):
+    found = match_joints(preset("smpl22"), bandai_clip.skeleton)
+    smpl = preset("smpl22").joint_names
+    named = {model: smpl[i] for model, i in found.items()}
+    assert len(found) == bandai_clip.skeleton.num_joints  # every model joint found
+    assert named["Spine"] == "spine1" and named["Chest"] == "spine3"  # 2 spine joints from 3, by height
+    assert named["Shoulder_L"] == "left_collar" and named["UpperArm_L"] == "left_shoulder"
+    assert named["Foot_R"] == "right_ankle" and named["Toes_R"] == "right_foot"

@@ -13,7 +13,10 @@ What a word means can depend on the rest of the skeleton, so labels are given pe
 - "hip" with a side is the thigh's top (SMPL, Human3.6M) unless the side has an up-leg joint
   ("upleg", "thigh": CMU, Mixamo), where it is CMU's short helper bone (`LHipJoint`);
 - the spine joints between the pelvis and the neck (Spine, Spine1, Chest, Thorax, ...) have no
-  shared vocabulary: they are labelled by their rank along that chain, from the pelvis up.
+  shared vocabulary: they are labelled by their rank along that chain, from the pelvis up, and
+  matched by rank; where the two spines differ in length, each model spine joint takes the
+  input's joint nearest in relative height (SMPL's spine3 plays Bandai Namco's Chest: a few cm
+  off, inside the tolerance of a fill).
 """
 
 from __future__ import annotations
@@ -60,6 +63,7 @@ _PART_WORDS: dict[str, str] = {
     "pelvis": "pelvis",
     "root": "pelvis",
     "neck": "neck",
+    "necknose": "neck",  # Human3.6M's "Neck/Nose"
     "head": "head",
 }
 # "Left...", "L_...", "..._L", "...Left" in any case; "L" + a capital only as written ("LHip",
@@ -161,7 +165,22 @@ def match_joints(skeleton: Skeleton, model: Skeleton, joint_map: dict[str, str] 
     for n, label in zip(model.joint_names, theirs):
         if n not in found and label is not None and len(by_label.get(label, [])) == 1:
             found[n] = by_label[label][0]
+            taken.add(found[n])
+    # spines of different lengths: the input's spine joint nearest in relative height along the chain
+    spine = [i for i, label in enumerate(mine) if label and label.startswith("spine_") and i not in taken]
+    for n, label in zip(model.joint_names, theirs):
+        if n in found or not label or not label.startswith("spine_") or not spine:
+            continue
+        best = min(spine, key=lambda i: abs(_spine_height(mine[i]) - _spine_height(label)))
+        found[n] = best
+        spine.remove(best)
     return found
+
+
+def _spine_height(label: str) -> float:
+    """ "spine_2of3" -> 0.5: the joint's place between pelvis (0) and neck (1)."""
+    rank, count = label[len("spine_") :].split("of")
+    return int(rank) / (int(count) + 1)
 
 
 def read_joint_map(path) -> dict[str, str]:
@@ -189,6 +208,7 @@ def describe_mapping(skeleton: Skeleton, model: Skeleton, joint_map: dict[str, s
     """Lines for `inspect --ckpt`: each model joint and the input joint that plays it (and how
     it was found), the model joints not found, and the input joints the model does not use."""
     found = match_joints(skeleton, model, joint_map)
+    mine, theirs = joint_labels(skeleton), joint_labels(model)
     lines = []
     for n in model.joint_names:
         if n not in found:
@@ -200,6 +220,8 @@ def describe_mapping(skeleton: Skeleton, model: Skeleton, joint_map: dict[str, s
             if (joint_map or {}).get(given) == n
             else "name"
             if _strip_namespace(given).lower() == _strip_namespace(n).lower()
+            else "nearest spine joint"
+            if mine[found[n]] != theirs[model.index(n)]
             else "body part"
         )
         lines.append(f"{n:<16} <- {given} ({how})")
