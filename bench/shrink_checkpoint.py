@@ -1,6 +1,8 @@
 """A training checkpoint -> a weights-only bf16 copy small enough to bring back from a lent GPU
-(hyperparameters kept, optimiser state dropped): `mocapfix fix` and evaluation read it; training
-cannot resume from it. --fp32 keeps the weights in float32 (Motion-DVAE runs in fp32).
+or to ship (hyperparameters, the model's kind and config and the fill policy kept, optimiser
+state dropped): `mocapfix fix` and evaluation read it; training cannot resume from it. --fp32
+keeps the weights in float32 (Motion-DVAE runs in fp32). A checkpoint from before checkpoints
+named their model gets the entry (from the network fix rebuilds).
 
     python bench/shrink_checkpoint.py checkpoints/xmae_bandai_gpu/best-*.ckpt small.ckpt
     python bench/shrink_checkpoint.py --fp32 checkpoints/motion_dvae_denoise_bvh/last.ckpt dn.ckpt
@@ -24,7 +26,19 @@ def main(argv=None) -> int:
     if not matches:
         raise SystemExit(f"no checkpoint matches {argv[0]}")
     ckpt = torch.load(matches[0], map_location="cpu", weights_only=True)
-    small = {k: ckpt[k] for k in ("hyper_parameters", "global_step", "epoch", "pytorch-lightning_version") if k in ckpt}
+    keep = ("hyper_parameters", "model", "fill_policy", "global_step", "epoch", "pytorch-lightning_version")
+    small = {k: ckpt[k] for k in keep if k in ckpt}
+    if "model" not in small:
+        from mocapfix.clip import MotionFileError
+        from mocapfix.fixers import load_fixer
+        from mocapfix.models.build import checkpoint_entry
+
+        try:
+            fixer = load_fixer(matches[0])
+        except MotionFileError:  # not a model fix reads: copied as it is
+            fixer = None
+        if fixer is not None and fixer.kind == "xmae":
+            small["model"] = checkpoint_entry("xmae", fixer.net.config)
     small["state_dict"] = {
         k: v.to(torch.bfloat16) if v.is_floating_point() and not fp32 else v for k, v in ckpt["state_dict"].items()
     }

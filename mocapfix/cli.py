@@ -293,6 +293,18 @@ def _own_error(e: ValueError) -> BaseException:
     return e
 
 
+def list_models() -> int:
+    """`mocapfix models`: the shipped models, a line each (model cards: docs/models.md)."""
+    from mocapfix.fixers import load_fixer
+    from mocapfix.pretrained import MODELS, pretrained_path
+
+    for name, m in MODELS.items():
+        fixer = load_fixer(pretrained_path(name))
+        print(f"{name}: {m.summary}. License: {m.license}.\n    joints: {', '.join(fixer.skeleton.joint_names)}")
+    print("use: mocapfix fix INPUT --model NAME   (model cards: docs/models.md)")
+    return 0
+
+
 class _StderrHandler(logging.StreamHandler):
     """A StreamHandler on whatever sys.stderr is when it writes (pytest swaps it between calls)."""
 
@@ -319,7 +331,9 @@ def main(argv: list[str] | None = None) -> int:
         print(
             "usage: mocapfix {fit,validate,test,predict} --config NAME|FILE [--key.path value ...]\n"
             "       mocapfix inspect FILE... [--json]\n"
-            "       mocapfix fix INPUT... --ckpt CKPT [-o OUT | --out-dir DIR] [--mode infill|denoise|both]\n"
+            "       mocapfix fix INPUT... --ckpt CKPT|--model NAME [-o OUT|--out-dir DIR] [--mode MODE]\n"
+            "       mocapfix inspect FILE... --ckpt CKPT|--model NAME  (how the file's joints map onto the model's)\n"
+            "       mocapfix models\n"
             "       mocapfix demo\n"
             "       mocapfix --version\n"
             "`mocapfix COMMAND --help` lists its options; `mocapfix fit --config NAME --print_config` every setting.\n"
@@ -335,6 +349,8 @@ def main(argv: list[str] | None = None) -> int:
         from mocapfix.fix_cli import main as fix_main
 
         return fix_main(argv[1:])
+    if command == "models":
+        return list_models()
     if command == "demo":
         from mocapfix.demo import main as demo_main
 

@@ -30,6 +30,7 @@ from mocapfix.io.conventions import metres_per_unit, to_z_up
 from mocapfix.io.files import atomic_write
 from mocapfix.io.joint_names import read_joint_map
 from mocapfix.io.positions import load_npz, npz_array, write_clips, write_positions
+from mocapfix.pretrained import pretrained_path
 
 FIXED = ".fixed"  # default output: <stem>.fixed<ext> beside the input
 LONG_INPUT_S = 600.0  # progress is shown for inputs this long even when stderr is not a terminal
@@ -304,7 +305,9 @@ def _device(name: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="mocapfix fix", description=__doc__.split("\n")[0])
     ap.add_argument("paths", nargs="+", metavar="INPUT", help="motion files or folders")
-    ap.add_argument("--ckpt", required=True, help="a mocapfix checkpoint (XMAE, or Motion-DVAE's denoising stage)")
+    which = ap.add_mutually_exclusive_group(required=True)
+    which.add_argument("--ckpt", help="a mocapfix checkpoint (XMAE, or Motion-DVAE's denoising stage)")
+    which.add_argument("--model", help="a model shipped with mocapfix (`mocapfix models` lists them)")
     where = ap.add_mutually_exclusive_group()
     where.add_argument("-o", "--out", default=None, help="output file (one input file only)")
     where.add_argument("--out-dir", default=None, help="folder for the outputs (default: <input>.fixed.<ext>)")
@@ -350,7 +353,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--device cuda, but no CUDA device is available")
     try:
         joint_map = read_joint_map(args.joint_map) if args.joint_map else None
-    except MotionFileError as e:
+        ckpt = str(pretrained_path(args.model)) if args.model else args.ckpt
+    except ValueError as e:  # MotionFileError is one
         print(f"error: {e}", file=sys.stderr)
         return 1
     # SIGTERM (a scheduler's time limit, `kill`) ends the run the way Ctrl-C does: as an exception,
@@ -362,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return fix_files(
             args.paths,
-            args.ckpt,
+            ckpt,
             args.out,
             args.out_dir,
             args.mode,

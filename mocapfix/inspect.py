@@ -199,20 +199,23 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="mocapfix inspect", description=__doc__.split("\n")[0])
     ap.add_argument("paths", nargs="+", metavar="FILE", help="motion files or folders")
     ap.add_argument("--json", action="store_true", help="one JSON object per file per line")
-    ap.add_argument("--ckpt", default=None, help="also show how each file's joints map onto this model's")
+    which = ap.add_mutually_exclusive_group()
+    which.add_argument("--ckpt", default=None, help="also show how each file's joints map onto this model's")
+    which.add_argument("--model", default=None, help="the same for a shipped model (`mocapfix models`)")
     ap.add_argument("--joint-map", default=None, help="YAML, `input name: model name` per line (with --ckpt)")
     add_read_arguments(ap)
     args = ap.parse_args(argv)
     model = joint_map = None
     try:
-        if args.ckpt:
+        if args.ckpt or args.model:
             from mocapfix.fixers import load_fixer
+            from mocapfix.pretrained import pretrained_path
 
-            model = load_fixer(args.ckpt).skeleton
+            model = load_fixer(pretrained_path(args.model) if args.model else args.ckpt).skeleton
         if args.joint_map:
             joint_map = read_joint_map(args.joint_map)
     except Exception as e:
-        print(f"error: {_one_line(args.joint_map if model else args.ckpt, e)}", file=sys.stderr)
+        print(f"error: {_one_line(args.joint_map if model else args.ckpt or args.model, e)}", file=sys.stderr)
         return 1
     return inspect_files(
         args.paths,

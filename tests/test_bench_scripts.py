@@ -396,6 +396,12 @@ def test_shrink_checkpoint_keeps_weights_and_hparams(tmp_path):
         assert "optimizer_states" not in small and small["hyper_parameters"] == {"lr": 1e-4}
         assert small["state_dict"]["w"].dtype == dtype and small["state_dict"]["n"].dtype == torch.int64
         torch.testing.assert_close(small["state_dict"]["w"].float(), full["state_dict"]["w"], atol=1e-2, rtol=1e-2)
+    # an XMAE checkpoint from before checkpoints named their model: the entry added, the policy kept
+    old = REPO / "tests" / "data" / "old_checkpoints" / "xmae-4ceef7a.ckpt"
+    assert main(["--fp32", str(old), str(tmp_path / "x.ckpt")]) == 0
+    small = torch.load(tmp_path / "x.ckpt", weights_only=True)
+    assert small["model"]["kind"] == "xmae" and small["model"]["config"]["enc_dim"] == 32
+    assert "fill_policy" in small and "optimizer_states" not in small
 
 
 def test_fast_path_accuracy_runs_fit_and_test_per_seed(tmp_path):
