@@ -28,7 +28,7 @@ import roma
 import torch
 
 from mocapfix.clip import Clip, MotionFileError, check_human_scale
-from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill
+from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill, limb_infill
 from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, policy_names, suspect_tokens
 from mocapfix.fixers import Fixer, RotationFixer
@@ -336,7 +336,7 @@ def _fix_positions(
     bad_windows = sum(len(b) for b in bad)
 
     out_clips, notes = [], []
-    filled = replaced = lerped = 0
+    filled = replaced = lerped = other_filled = 0
     filled_by: dict[str, int] = {}
     never = {}
     sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
@@ -374,10 +374,16 @@ def _fix_positions(
 
         positions = c.positions.copy()
         positions[:, index[k]] = new
+        if mode != "denoise":
+            positions, n = _fill_other_joints(positions, index[k], c.skeleton)
+            other_filled += n
         sigma_before.update(torch.from_numpy(x_in[k])[None])
         sigma_after.update(torch.from_numpy(new)[None])
         out_clips.append(c.replace(positions=positions, rotations=None, root_translation=None, offsets=None))
 
+    if other_filled:
+        notes.append(f"{other_filled} missing tokens of joints the model does not use filled along the skeleton")
+        filled += other_filled
     if lerped:
         notes.append(f"{lerped} frames at {fps_m:g} fps had no data within a window: linear interpolation")
     if bad_windows:
@@ -406,6 +412,22 @@ def _fix_positions(
         filled_by,
     )
     return out_clips, report
+
+
+def _fill_other_joints(positions: np.ndarray, model_joints: np.ndarray, skeleton: Skeleton) -> tuple[np.ndarray, int]:
+    """positions: (T, J, 3) a clip with the model's joints fixed -> the holes of its other joints
+    (fingers, extra spine joints) filled by the limb fill (each from its parent, bone length kept,
+    evaluation/baselines.py), and how many tokens that filled. Observed tokens stay as they are;
+    a joint never seen in the clip stays missing."""
+    other = np.setdiff1d(np.arange(skeleton.num_joints), model_joints)
+    holes = ~np.isfinite(positions[:, other]).all(-1)  # (T, E)
+    if not holes.any():
+        return positions, 0
+    x = torch.from_numpy(positions.astype(np.float64))[None]
+    filled = limb_infill(x, ~torch.isnan(x).any(-1), skeleton.parents)[0].numpy()  # (T, J, 3)
+    out = positions.copy()
+    out[:, other] = np.where(holes[..., None], filled[:, other], positions[:, other])
+    return out, int(np.isfinite(out[:, other]).all(-1)[holes].sum())
 
 
 def _policy_fill(

@@ -307,7 +307,7 @@ def test_pass_through_joints_unchanged(tmp_path, ckpt, motion, capsys):
     names = ("prop",) + SMPL.joint_names[::-1]
     order = list(range(22))[::-1]
     pos = np.concatenate([np.full((120, 1, 3), 0.5, dtype=np.float32), motion[0][:, order]], axis=1)
-    pos[10:20, 0] = np.nan  # a gap in the unknown joint stays a gap
+    pos[10:20, 0] = np.nan  # a gap in the unknown joint: filled along the skeleton (a root: its own spline)
     pos[50:60, 5] = np.nan  # a gap in a model joint is filled
     parents = [-1] + [0] * 22  # any tree: only names matter to the model
     write_positions(tmp_path / "x.npz", pos, 30, Skeleton(names, parents))
@@ -315,7 +315,9 @@ def test_pass_through_joints_unchanged(tmp_path, ckpt, motion, capsys):
     assert rc == 0, err
     res = _npz(tmp_path / "x.fixed.npz")
     assert list(res["joint_names"]) == list(names)
-    np.testing.assert_array_equal(res["positions"][:, 0], pos[:, 0])
+    seen = np.isfinite(pos[:, 0])
+    np.testing.assert_array_equal(res["positions"][:, 0][seen], pos[:, 0][seen])
+    np.testing.assert_allclose(res["positions"][10:20, 0], 0.5, atol=1e-6)
     assert np.isfinite(res["positions"][:, 1:]).all()
 
 
@@ -442,7 +444,7 @@ def test_bad_inputs_each_one_line_and_the_rest_still_run(tmp_path, ckpt, motion,
         "shape.npz": "(frames, joints, 3)",
         "nofps.npz": "fps",
         "nanperson.npz": "person 1: no data",
-        "h36m.npz": "missing spine1, spine2, spine3, left_foot",
+        "h36m.npz": "missing spine3, left_foot, right_foot, left_collar",
         "text.csv": "columns",
         "mm_as_m.npz": "m long (median), read as m: not a human body",
     }
@@ -490,13 +492,15 @@ def test_not_a_mocapfix_checkpoint(tmp_path, motion, capsys, kind):
     assert not (tmp_path / "a.fixed.npz").exists()
 
 
-def test_checkpoint_of_another_skeleton_names_the_missing_joints(tmp_path, motion, capsys):
+def test_checkpoint_of_another_skeleton_maps_by_body_part_or_names_the_missing_joints(tmp_path, motion, capsys):
     ck = _ckpt(tmp_path / "h.ckpt", preset("h36m17"), fps=50.0, frames=50)
-    write_positions(tmp_path / "a.npz", motion[0], 30, SMPL)
+    write_positions(tmp_path / "a.npz", motion[0], 30, SMPL)  # SMPL's names onto Human3.6M's joints
     rc, _, err = fix([tmp_path / "a.npz", "--ckpt", ck], capsys)
-    assert (
-        rc == 1 and "skeleton does not match the model's (h36m17, 17 joints): missing Spine, Thorax, Neck/Nose" in err
-    )
+    assert rc == 0, err
+    no_wrists = [j for j in range(22) if "wrist" not in SMPL.joint_names[j]]
+    write_positions(tmp_path / "b.npz", motion[0][:, no_wrists], 30, SMPL.subset(no_wrists))
+    rc, _, err = fix([tmp_path / "b.npz", "--ckpt", ck], capsys)
+    assert rc == 1 and "skeleton does not match the model's (h36m17, 17 joints): missing LWrist, RWrist" in err
 
 
 def test_never_overwrites_input_or_existing_output(tmp_path, ckpt, motion, capsys):
