@@ -22,10 +22,8 @@ from pathlib import Path
 import torch
 from common import describe, pick_device, write_result
 
-from mocapfix.data.datamodule import (
-    MotionDataModule,  # noqa: E402
-    complete_windows,  # noqa: E402
-)
+from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
+from mocapfix.data.windows import complete_windows  # noqa: E402
 from mocapfix.evaluation.metrics import _second_difference  # noqa: E402
 from mocapfix.models.dvae_inference import FIRST_FRAMES  # noqa: E402
 from mocapfix.training.denoise_module import DVAEDenoiseModule  # noqa: E402
