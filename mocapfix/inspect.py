@@ -206,16 +206,19 @@ def main(argv=None) -> int:
     add_read_arguments(ap)
     args = ap.parse_args(argv)
     model = joint_map = None
+    if args.joint_map and not (args.ckpt or args.model):
+        ap.error("--joint-map goes with --ckpt or --model")
+    what = args.model or args.ckpt
     try:
-        if args.ckpt or args.model:
+        if what:
             from mocapfix.fixers import load_fixer
             from mocapfix.pretrained import pretrained_path
 
             model = load_fixer(pretrained_path(args.model) if args.model else args.ckpt).skeleton
-        if args.joint_map:
-            joint_map = read_joint_map(args.joint_map)
+            what = args.joint_map
+            joint_map = read_joint_map(args.joint_map) if args.joint_map else None
     except Exception as e:
-        print(f"error: {_one_line(args.joint_map if model else args.ckpt or args.model, e)}", file=sys.stderr)
+        print(f"error: {_one_line(what, e)}", file=sys.stderr)
         return 1
     return inspect_files(
         args.paths,

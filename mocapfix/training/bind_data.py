@@ -11,9 +11,22 @@ from __future__ import annotations
 import lightning as L
 from lightning.pytorch.callbacks import Callback
 
+from mocapfix.data.spec import DataSpec
+
 
 class BindData(Callback):
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         dm = trainer.datamodule
         if dm is not None and hasattr(dm, "spec"):
             pl_module.bind_data(dm.spec(), stage)
+
+
+def require_same_window(hparams, data: DataSpec, built: str) -> None:
+    """A network built for one skeleton and window (its hyperparameters: skeleton, window_fps,
+    window_frames) must meet data of the same; else a ValueError that says both."""
+    parents, frames, fps = tuple(hparams["skeleton"]["parents"]), hparams["window_frames"], hparams["window_fps"]
+    if (tuple(data.skeleton.parents), data.window_frames) != (parents, frames) or abs(data.fps - fps) > 1e-6:
+        raise ValueError(
+            f"{built} {len(parents)} joints, {frames} frames at {fps} fps; the data gives "
+            f"{data.skeleton.num_joints} joints, {data.window_frames} frames at {data.fps} fps"
+        )

@@ -55,7 +55,7 @@ from mocapfix.models.dvae_inference import (
 )
 from mocapfix.models.dvae_state import velocity_mask
 from mocapfix.skeleton import Skeleton
-from mocapfix.training.bind_data import BindData
+from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.dvae_module import (
     MotionDVAEModule,
     anneal_steps_of,
@@ -183,13 +183,7 @@ class DVAEDenoiseModule(L.LightningModule):
                 "use a positions-state prior or noise: rotation"
             )
         require_complete_windows(data, stage)
-        prior_window = (tuple(ph["skeleton"]["parents"]), ph["window_frames"], ph["window_fps"])
-        if (data.skeleton.parents, data.window_frames) != prior_window[:2] or abs(data.fps - prior_window[2]) > 1e-6:
-            raise ValueError(
-                f"the prior was trained on {len(ph['skeleton']['parents'])} joints, {ph['window_frames']} "
-                f"frames at {ph['window_fps']} fps; the data gives {data.skeleton.num_joints} joints, "
-                f"{data.window_frames} frames at {data.fps} fps"
-            )
+        require_same_window(ph, data, "the prior was trained on")
 
     def configure_optimizers(self):
         return torch.optim.Adamax(self.trainable_parameters(), lr=self.hparams.lr, betas=tuple(self.hparams.betas))

@@ -27,7 +27,7 @@ from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.dvae import DVAEConfig, MotionDVAE, gaussian_kl
 from mocapfix.models.dvae_state import MotionState, mean_joint_rotations
 from mocapfix.skeleton import Skeleton
-from mocapfix.training.bind_data import BindData
+from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
 
 STD_FLOOR = 0.05  # dimensions the data never moves (a joint axis the synthetic body never turns) stay finite
@@ -245,14 +245,8 @@ class MotionDVAEModule(L.LightningModule):
                 mean, std = state_statistics(self.codec, data.windows["train"])
                 self.net.x_mean.copy_(mean)
                 self.net.x_std.copy_(std)
-        elif (skeleton["parents"], frames) != (self.hparams.skeleton["parents"], self.hparams.window_frames) or abs(
-            fps - self.hparams.window_fps
-        ) > 1e-6:
-            raise ValueError(
-                f"this model was built for {len(self.hparams.skeleton['parents'])} joints, "
-                f"{self.hparams.window_frames} frames at {self.hparams.window_fps} fps; the data gives "
-                f"{len(skeleton['parents'])} joints, {frames} frames at {fps} fps"
-            )
+        else:
+            require_same_window(self.hparams, data, "this model was built for")
 
     def setup(self, stage: str) -> None:
         if self.net is None:

@@ -25,7 +25,7 @@ from mocapfix.inference import xmae_fill, xmae_reconstruct
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.xmae import PRESETS, XMAE, XMAEConfig
 from mocapfix.skeleton import Skeleton
-from mocapfix.training.bind_data import BindData
+from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.schedules import warmup_cosine
 
@@ -187,14 +187,8 @@ class XMAEModule(L.LightningModule):
         if self.net is None:
             self.hparams.update(skeleton=skeleton, window_fps=fps, window_frames=frames)
             self._build()
-        elif (skeleton["parents"], frames) != (self.hparams.skeleton["parents"], self.hparams.window_frames) or abs(
-            fps - self.hparams.window_fps
-        ) > 1e-6:
-            raise ValueError(
-                f"this model was built for {len(self.hparams.skeleton['parents'])} joints, "
-                f"{self.hparams.window_frames} frames at {self.hparams.window_fps} fps; the data gives "
-                f"{len(skeleton['parents'])} joints, {frames} frames at {fps} fps"
-            )
+        else:
+            require_same_window(self.hparams, data, "this model was built for")
 
     def setup(self, stage: str) -> None:
         if self.net is None:
