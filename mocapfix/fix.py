@@ -48,7 +48,7 @@ def map_joints(skeleton: Skeleton, model: Skeleton, source="", joint_map: dict[s
     name), the same name (any case, namespace prefixes aside), else the same body part under
     another convention's name (io/joint_names.py: Mixamo, CMU, SMPL, Human3.6M, ...). A model
     joint the input lacks is an error naming them all; input joints the model does not know are
-    not in the map (they pass through)."""
+    not in the map (the model never sees them; _fill_other_joints fills their holes)."""
     found = match_joints(skeleton, model, joint_map)
     missing = [n for n in model.joint_names if n not in found]
     if missing:
