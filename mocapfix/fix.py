@@ -43,14 +43,24 @@ MODES = ("infill", "denoise", "both")
 # --- joints and frame times ---
 
 
-def map_joints(skeleton: Skeleton, model: Skeleton, source="", joint_map: dict[str, str] | None = None) -> np.ndarray:
+def map_joints(
+    skeleton: Skeleton,
+    model: Skeleton,
+    source="",
+    joint_map: dict[str, str] | None = None,
+    allow_missing: bool = False,
+) -> np.ndarray:
     """(J_model,) index of each model joint in `skeleton`: by `joint_map` (input name -> model
     name), the same name (any case, namespace prefixes aside), else the same body part under
     another convention's name (io/joint_names.py: Mixamo, CMU, SMPL, Human3.6M, ...). A model
-    joint the input lacks is an error naming them all; input joints the model does not know are
-    not in the map (the model never sees them; _fill_other_joints fills their holes)."""
+    joint the input lacks is an error naming them all, unless allow_missing: then its index is -1
+    (a positions model estimates it like any missing token) as long as at least half of the
+    model's joints are found. Input joints the model does not know are not in the map (the model
+    never sees them; _fill_other_joints fills their holes)."""
     found = match_joints(skeleton, model, joint_map)
     missing = [n for n in model.joint_names if n not in found]
+    if missing and allow_missing and 2 * len(found) >= model.num_joints:
+        return np.array([found.get(n, -1) for n in model.joint_names], dtype=np.int64)
     if missing:
         raise MotionFileError(
             source,
@@ -197,7 +207,8 @@ def fix_clips(
     estimates, first = _fix_positions(clips, fixer, "both", overlap, batch_size, progress, None, joint_map)
     masked, suspects = [], 0
     for c, e in zip(clips, estimates):
-        idx = map_joints(c.skeleton, fixer.skeleton, c.source, joint_map)
+        idx = map_joints(c.skeleton, fixer.skeleton, c.source, joint_map, allow_missing=True)
+        idx = idx[idx >= 0]  # the model joints the recording has
         x = torch.from_numpy(c.positions[:, idx])
         obs = ~torch.isnan(x).any(-1)
         bad = suspect_tokens(policy, torch.from_numpy(e.positions[:, idx]), x, obs).numpy()  # (T, Jm)
@@ -254,8 +265,9 @@ def _fix_positions(
     # Each clip at the model's joints and fps. Frames past the input's end are unobserved.
     index, x_in, x_m = [], [], []
     for i, c in enumerate(clips):
-        idx = map_joints(c.skeleton, model, source, joint_map)
-        x = c.positions[:, idx]  # (T, Jm, 3)
+        idx = map_joints(c.skeleton, model, source, joint_map, allow_missing=True)
+        # (T, Jm, 3); a model joint the recording lacks (-1) is missing in every frame
+        x = np.where((idx >= 0)[None, :, None], c.positions[:, np.maximum(idx, 0)], np.nan).astype(np.float32)
         if not np.isfinite(x).all(-1).any():
             raise MotionFileError(source, f"{who(i)}no data for any of the model's joints in any frame")
         index.append(idx)
@@ -338,7 +350,7 @@ def _fix_positions(
     out_clips, notes = [], []
     filled = replaced = lerped = other_filled = 0
     filled_by: dict[str, int] = {}
-    never = {}
+    never, absent_joints = {}, {}
     sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
     for k, c in enumerate(clips):
         a, b = offsets[k], offsets[k + 1]
@@ -355,7 +367,10 @@ def _fix_positions(
             resid = lerp_infill(resid[None], torch.from_numpy(obs)[None])[0].numpy()
             new = np.where(obs[..., None], x, est + resid)
             if policy is not None:
+                absent = index[k] < 0
+                model_fill = new[:, absent]
                 new = _policy_fill(policy, x, obs, new, c.fps, model, filled_by)
+                new[:, absent] = model_fill  # no classical fill has anything to go on there
         elif mode == "denoise":
             new = np.where(obs[..., None], est, np.nan)
         else:
@@ -368,12 +383,16 @@ def _fix_positions(
             raise MotionFileError(source, f"{who(k)}the estimate is not finite; nothing written")
         filled += int((~obs).sum()) if mode != "denoise" else 0
         replaced += int(obs.sum()) if mode != "infill" else 0
-        lost = [model.joint_names[j] for j in np.nonzero(~obs.any(0))[0]]
+        present = index[k] >= 0
+        lost = [model.joint_names[j] for j in np.nonzero(~obs.any(0) & present)[0]]
         if lost:
             never[who(k) or ""] = lost
+        if not present.all():
+            absent_joints[who(k) or ""] = [model.joint_names[j] for j in np.nonzero(~present)[0]]
+            filled -= int((~obs[:, ~present]).sum()) if mode != "denoise" else 0  # estimated, not written
 
         positions = c.positions.copy()
-        positions[:, index[k]] = new
+        positions[:, index[k][present]] = new[:, present]
         if mode != "denoise":
             positions, n = _fill_other_joints(positions, index[k], c.skeleton)
             other_filled += n
@@ -391,6 +410,8 @@ def _fix_positions(
     fate = "left missing" if mode == "denoise" else "estimated from the rest of the body"
     for person, joints in never.items():
         notes.append(f"{person}joints never observed: {', '.join(joints)} ({fate})")
+    for person, joints in absent_joints.items():
+        notes.append(f"{person}model joints not in the recording: {', '.join(joints)} (estimated, not written)")
     whole = _joints_missing_for_a_window(x_m, W, overlap)
     if whole:
         notes.append(f"{whole} windows had a joint missing throughout ({fate})")

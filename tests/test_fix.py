@@ -435,7 +435,8 @@ def test_bad_inputs_each_one_line_and_the_rest_still_run(tmp_path, ckpt, motion,
     two = motion.copy()
     two[1] = np.nan
     write_positions(tmp_path / "nanperson.npz", two, 30, SMPL)
-    write_positions(tmp_path / "h36m.npz", motion[0][:, :17], 30, preset("h36m17"))
+    legs = [0, 1, 2, 3, 4, 5, 6]  # Human3.6M's hip and legs: under half of the model's joints
+    write_positions(tmp_path / "h36m.npz", motion[0][:, [0, 2, 5, 8, 1, 4, 7]], 30, preset("h36m17").subset(legs))
     (tmp_path / "text.csv").write_text("hello\n")
     write_positions(tmp_path / "mm_as_m.npz", motion[0] * 1000, 30, SMPL, unit="m")  # mm numbers said to be m
     bad = {
@@ -444,7 +445,7 @@ def test_bad_inputs_each_one_line_and_the_rest_still_run(tmp_path, ckpt, motion,
         "shape.npz": "(frames, joints, 3)",
         "nofps.npz": "fps",
         "nanperson.npz": "person 1: no data",
-        "h36m.npz": "missing spine3, left_foot, right_foot, left_collar",
+        "h36m.npz": "missing spine1, spine2, spine3, left_foot",
         "text.csv": "columns",
         "mm_as_m.npz": "m long (median), read as m: not a human body",
     }
@@ -497,10 +498,17 @@ def test_checkpoint_of_another_skeleton_maps_by_body_part_or_names_the_missing_j
     write_positions(tmp_path / "a.npz", motion[0], 30, SMPL)  # SMPL's names onto Human3.6M's joints
     rc, _, err = fix([tmp_path / "a.npz", "--ckpt", ck], capsys)
     assert rc == 0, err
+    # a recording without the wrists: the model estimates them and does not write them
     no_wrists = [j for j in range(22) if "wrist" not in SMPL.joint_names[j]]
     write_positions(tmp_path / "b.npz", motion[0][:, no_wrists], 30, SMPL.subset(no_wrists))
-    rc, _, err = fix([tmp_path / "b.npz", "--ckpt", ck], capsys)
-    assert rc == 1 and "skeleton does not match the model's (h36m17, 17 joints): missing LWrist, RWrist" in err
+    rc, out, err = fix([tmp_path / "b.npz", "--ckpt", ck], capsys)
+    assert rc == 0 and "model joints not in the recording: LWrist, RWrist (estimated, not written)" in out, err
+    assert _npz(tmp_path / "b.fixed.npz")["positions"].shape == (120, 20, 3)
+    # fewer than half of the model's joints: not this model's kind of skeleton, an error naming them
+    legs = [j for j in range(22) if any(w in SMPL.joint_names[j] for w in ("pelvis", "hip", "knee", "ankle"))]
+    write_positions(tmp_path / "c.npz", motion[0][:, legs], 30, SMPL.subset(legs))
+    rc, _, err = fix([tmp_path / "c.npz", "--ckpt", ck], capsys)
+    assert rc == 1 and "skeleton does not match the model's (h36m17, 17 joints): missing Spine" in err
 
 
 def test_never_overwrites_input_or_existing_output(tmp_path, ckpt, motion, capsys):

@@ -55,3 +55,20 @@ def test_fix_by_model_name_on_an_smpl_recording(tmp_path, capsys):
     assert main(["fix", str(tmp_path / "smpl.npz"), "--model", "no-such-model", "--force"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no shipped model 'no-such-model' (shipped: xmae-cpu-bandai" in err[0]
+
+
+def test_a_recording_without_some_of_the_models_joints(tmp_path, capsys):
+    """SMPL without collars and toes (a Human3.6M-like body) onto the Bandai-trained model: the
+    four joints it lacks are estimated from the rest and not written; the rest is fixed."""
+    motion = generate_clips(1, 4.0, fps=30, seed=6)[0].positions
+    keep = [j for j, n in enumerate(preset("smpl22").joint_names) if "collar" not in n and "foot" not in n]
+    holes = motion[:, keep].copy()
+    holes[40:55, keep.index(20)] = np.nan  # left wrist, 0.5 s
+    write_positions(tmp_path / "body18.npz", holes, 30, preset("smpl22").subset(keep))
+    capsys.readouterr()
+    assert main(["fix", str(tmp_path / "body18.npz"), "--model", "xmae-cpu-bandai", "--mode", "both"]) == 0
+    out = capsys.readouterr().out
+    assert "model joints not in the recording: Shoulder_L, Shoulder_R, Toes_L, Toes_R" in out
+    fixed = np.load(tmp_path / "body18.fixed.npz")["positions"]
+    assert fixed.shape == holes.shape and np.isfinite(fixed).all()
+    assert np.linalg.norm(fixed[40:55, keep.index(20)] - motion[40:55, 20], axis=-1).mean() < 0.1
