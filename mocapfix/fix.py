@@ -204,7 +204,10 @@ def fix_clips(
         return _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy, joint_map)
 
     # Pass 1: the model's estimate of every token; the observed tokens it disagrees with are suspect.
-    estimates, first = _fix_positions(clips, fixer, "both", overlap, batch_size, progress, None, joint_map)
+    # (only the model's joints of it are used: the other joints are left as they are)
+    estimates, first = _fix_positions(
+        clips, fixer, "both", overlap, batch_size, progress, None, joint_map, fill_other_joints=False
+    )
     masked, suspects = [], 0
     for c, e in zip(clips, estimates):
         idx = map_joints(c.skeleton, fixer.skeleton, c.source, joint_map, allow_missing=True)
@@ -217,7 +220,9 @@ def fix_clips(
         positions[:, idx] = np.where(bad[..., None], np.nan, positions[:, idx])
         masked.append(c.replace(positions=positions))
     # Pass 2: the holes and the suspect tokens filled by the policy; the rest stays bit-identical.
-    out, report = _fix_positions(masked, fixer, "infill", overlap, batch_size, progress, policy, joint_map)
+    out, report = _fix_positions(
+        masked, fixer, "infill", overlap, batch_size, progress, policy, joint_map, fill_other_joints=mode != "denoise"
+    )
     report.filled, report.replaced = report.filled - suspects, suspects
     if mode == "denoise":  # holes of the input stay holes
         out = [
@@ -245,9 +250,11 @@ def _fix_positions(
     progress: Callable[[int, int], None] | None,
     policy: FillPolicy | None,
     joint_map: dict[str, str] | None = None,
+    fill_other_joints: bool = True,
 ) -> tuple[list[Clip], FixReport]:
     """fix_clips for a positions model, one pass: the model's estimate merged by mode (infill with
-    the fill policy where there is one)."""
+    the fill policy where there is one); the holes of joints the model does not use filled too
+    (fill_other_joints, unless denoise)."""
     model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps
     source = clips[0].source or clips[0].name
     many = len(clips) > 1
@@ -393,7 +400,7 @@ def _fix_positions(
 
         positions = c.positions.copy()
         positions[:, index[k][present]] = new[:, present]
-        if mode != "denoise":
+        if fill_other_joints and mode != "denoise":
             positions, n = _fill_other_joints(positions, index[k], c.skeleton)
             other_filled += n
         sigma_before.update(torch.from_numpy(x_in[k])[None])
