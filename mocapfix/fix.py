@@ -3,7 +3,7 @@
 One file's clips (its people) -> the model's joints, by name -> the model's fps -> sliding
 windows of the model's length (every window of every person in one batched pass) -> the
 model's estimate of every token -> windows blended with smooth weights -> the input's frame
-times -> merged with the input by mode:
+times (mocapfix/windowing.py: blend_windows) -> merged with the input by mode:
 
     infill   missing tokens (NaN) get the estimate; observed tokens stay bit-identical.
     denoise  observed tokens get the estimate; missing tokens stay missing.
@@ -12,14 +12,15 @@ times -> merged with the input by mode:
 A Fixer (mocapfix.fixers) turns a batch of windows into estimates; there is one per checkpoint
 kind. Nothing here imports training code.
 
-Fixers on positions (XMAE; Motion-DVAE on its positions state) take windows of joint positions.
-Motion-DVAE on its rotations state takes windows of joint rotations (BVH, AMASS input) and gives
-rotations back: those clips go through fix_rotation_clips, and a BVH input gets a BVH output.
+What a window holds is the part that differs by fixer, behind windowing.WindowSource:
+PositionWindows (XMAE; Motion-DVAE on its positions state: joint positions, Lerp as the fallback,
+then the fill policy, the anchoring of fills on the data, and the other joints' holes) and
+RotationWindows (Motion-DVAE on its rotations state: joint rotations of BVH or AMASS input,
+blended as quaternions; a BVH input gets a BVH output).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -36,11 +37,12 @@ from mocapfix.io import read_motion
 from mocapfix.io.joint_names import match_joints
 from mocapfix.kinematics import fk_axis_angle
 from mocapfix.skeleton import Skeleton
+from mocapfix.windowing import blend_windows, model_frames, resample_frames, resample_motion, window_layout
 
 MODES = ("infill", "denoise", "both")
 
 
-# --- joints and frame times ---
+# --- joints ---
 
 
 def map_joints(
@@ -71,90 +73,6 @@ def map_joints(
     return np.array([found[n] for n in model.joint_names], dtype=np.int64)
 
 
-def resample_frames(x: np.ndarray, src_fps: float, dst_fps: float, num: int) -> np.ndarray:
-    """x: (T, ...) sampled at t = k / src_fps -> (num, ...) at t = k / dst_fps, linear.
-    A sample takes NaN from a neighbour it uses; shared instants are copied exactly; times past
-    the last frame are NaN (the caller decides what they mean)."""
-    T = x.shape[0]
-    f = np.arange(num) * (src_fps / dst_fps)
-    f = np.where(np.abs(f - np.round(f)) < 1e-6, np.round(f), f)
-    past = f > T - 1
-    f = np.minimum(f, T - 1)
-    i0 = np.floor(f).astype(np.int64)
-    i1 = np.minimum(i0 + 1, T - 1)
-    w = (f - i0).reshape(-1, *([1] * (x.ndim - 1)))
-    out = x[i0] * (1 - w) + x[i1] * w
-    exact = (w == 0).reshape(-1)
-    out[exact] = x[i0[exact]]  # bit-identical, and no NaN from an unused neighbour
-    out[past] = np.nan
-    return out.astype(x.dtype, copy=False)
-
-
-def model_frames(num_frames: int, fps: float, model_fps: float) -> int:
-    """Frames at the model's fps that cover the input's time span (the last one may be past it)."""
-    return int(math.ceil((num_frames - 1) * model_fps / fps - 1e-6)) + 1
-
-
-# --- windows ---
-
-
-def window_layout(num_frames: int, window: int, overlap: float) -> tuple[np.ndarray, int]:
-    """Starts of the windows over a clip of num_frames (model fps) and the stride.
-    Stride window * (1 - overlap); one more window ends at the clip's end when the stride does
-    not land there. A clip shorter than a window gets one window, centred: start < 0."""
-    stride = max(1, int(round(window * (1.0 - overlap))))
-    if num_frames <= window:
-        return np.array([-((window - num_frames) // 2)], dtype=np.int64), stride
-    starts = np.arange(0, num_frames - window + 1, stride, dtype=np.int64)
-    if starts[-1] != num_frames - window:
-        starts = np.append(starts, num_frames - window)
-    return starts, stride
-
-
-def windows_for(need: np.ndarray, window: int, overlap: float) -> tuple[np.ndarray, int]:
-    """Starts of the windows that cover the needed frames need (K,) bool, and the stride.
-
-    A run of needed frames no longer than three quarters of a window gets one window centred on
-    it: the paper evaluates with the gap in the middle of the window, where the model has
-    context on both sides. A longer run gets the regular grid of window_layout over the run and a quarter
-    window of context on each side. When that takes more windows than the plain grid (short runs
-    close together: scattered missing tokens), the grid's windows that hold a needed frame are
-    used instead. With every frame needed it is window_layout's grid."""
-    K = len(need)
-    stride = max(1, int(round(window * (1.0 - overlap))))
-    if K <= window:
-        return window_layout(K, window, overlap)
-    edges = np.diff(np.concatenate([[0], need.astype(np.int8), [0]]))
-    starts = []
-    for s, e in zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]):  # runs [s, e)
-        if e - s <= 3 * window // 4:
-            starts.append([min(max((s + e - window) // 2, 0), K - window)])
-        else:
-            lo, hi = max(0, s - window // 4), min(K, e + window // 4)
-            grid, _ = window_layout(hi - lo, window, overlap)
-            starts.append(np.clip(grid + lo, 0, K - window))
-    if not starts:
-        return np.zeros(0, dtype=np.int64), stride
-    starts = np.unique(np.concatenate(starts)).astype(np.int64)
-    # Many short runs close together (scattered missing tokens): the plain grid is cheaper.
-    grid, _ = window_layout(K, window, overlap)
-    grid = grid[[need[g : g + window].any() for g in grid]]
-    return (grid if len(grid) < len(starts) else starts), stride
-
-
-def blend_weights(window: int, stride: int) -> np.ndarray:
-    """(W,) weights that rise over the overlap, stay 1 between, and fall over the overlap:
-    sin^2 ramps, so two windows one stride apart sum to exactly 1 where they overlap (Hann for
-    overlap W/2). Never 0, so a frame that only one window covers (clip ends) keeps it."""
-    overlap = window - stride
-    w = np.ones(window)
-    if overlap > 0:
-        ramp = np.sin(0.5 * np.pi * (np.arange(overlap) + 0.5) / overlap) ** 2
-        w[:overlap] = ramp
-        w[window - overlap :] = np.minimum(w[window - overlap :], ramp[::-1])
-    return w
-
-
 # --- fixing the clips of one file ---
 
 
@@ -169,6 +87,25 @@ class FixReport:
     windows: int  # windows the model ran on
     notes: list[str] = field(default_factory=list)
     filled_by: dict[str, int] = field(default_factory=dict)  # method -> missing tokens it filled (fill policy)
+
+
+def _who(clips: list[Clip]) -> Callable[[int], str]:
+    """Clip i's name in a message: "" for a file of one clip."""
+
+    def who(i: int) -> str:
+        c = clips[i]
+        if len(clips) == 1:
+            return ""
+        return f"sequence {c.name}: " if c.meta.get("format") == "h36m" else f"person {c.meta.get('person_id', i)}: "
+
+    return who
+
+
+def _frames_and_people(clips: list[Clip]) -> tuple[int, int]:
+    """Frames per person and people, as a report gives them (Human3.6M's clips are sequences of one
+    subject, laid end to end, not people)."""
+    total = sum(c.num_frames for c in clips)
+    return (total if clips[0].meta.get("format") == "h36m" else total // len(clips)), len(clips)
 
 
 def fix_clips(
@@ -198,7 +135,7 @@ def fix_clips(
         raise ValueError("fix_clips needs at least one clip")
     check_human_scale(clips, clips[0].source or clips[0].name)
     if getattr(fixer, "state", "positions") == "rotations":
-        return fix_rotation_clips(clips, fixer, mode, overlap, batch_size, progress, joint_map)
+        return _fix_rotations(clips, fixer, mode, overlap, batch_size, progress, joint_map)
     policy: FillPolicy | None = getattr(fixer, "policy", None)
     if policy is None or mode == "infill":
         return _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy, joint_map)
@@ -257,17 +194,7 @@ def _fix_positions(
     (fill_other_joints, unless denoise)."""
     model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps
     source = clips[0].source or clips[0].name
-    many = len(clips) > 1
-
-    def who(i: int) -> str:
-        c = clips[i]
-        return (
-            ""
-            if not many
-            else f"sequence {c.name}: "
-            if c.meta.get("format") == "h36m"
-            else f"person {c.meta.get('person_id', i)}: "
-        )
+    who = _who(clips)
 
     # Each clip at the model's joints and fps. Frames past the input's end are unobserved.
     index, x_in, x_m = [], [], []
@@ -302,57 +229,11 @@ def _fix_positions(
         nm[np.minimum(np.ceil(f - 1e-6).astype(np.int64), len(xm) - 1)] = True
         need_m.append(nm)
 
-    # Every window of every clip, as rows of frame indices into the clips laid end to end;
-    # padding (short clips) points at a NaN row past the end. Windows with data go to the model;
-    # windows without any (a hole longer than a window) get Lerp instead, blended the same way,
-    # so there is no seam where the model's estimate meets the fallback.
-    offsets = np.cumsum([0] + [len(xm) for xm in x_m])
-    pad_row = int(offsets[-1])
-    padded = np.concatenate(x_m + [np.full((1,) + x_m[0].shape[1:], np.nan, dtype=np.float32)])
-    model_rows, lerp_rows, stride = [], [], W
-    for k, xm in enumerate(x_m):
-        starts, stride = windows_for(need_m[k], W, overlap)
-        f = starts[:, None] + np.arange(W)[None]  # (n, W) clip frames
-        valid = (f >= 0) & (f < len(xm))
-        fc = np.clip(f, 0, len(xm) - 1)
-        needed = (valid & need_m[k][fc]).any(1)
-        data = (valid & np.isfinite(xm).all(-1).any(-1)[fc]).any(1)
-        r = np.where(valid, fc + offsets[k], pad_row)
-        model_rows.append(r[needed & data])
-        lerp_rows.append(r[needed & ~data])
-    rows = np.concatenate(model_rows)  # (N, W)
-    weights = torch.from_numpy(blend_weights(W, stride))  # (W,)
+    # Windows with data go to the model; windows without any (a hole longer than a window) get
+    # Lerp instead, blended the same way, so there is no seam where the estimate meets the fallback.
+    has_data = [np.isfinite(xm).all(-1).any(-1) for xm in x_m]  # (K,) per clip
+    blended = blend_windows(PositionWindows(fixer, x_m), need_m, has_data, overlap, batch_size, progress)
     Jm = model.num_joints
-    acc = torch.zeros(pad_row + 1, Jm, 3, dtype=torch.float64)
-    wsum = torch.zeros(pad_row + 1, dtype=torch.float64)
-
-    def add(r: torch.Tensor, est: torch.Tensor) -> None:
-        # r: (B, W) rows, est: (B, W, Jm, 3); padding rows weigh nothing
-        w = weights[None].expand(len(r), -1) * (r != pad_row)  # (B, W)
-        acc.index_add_(0, r.reshape(-1), (est * w[..., None, None]).reshape(-1, Jm, 3))
-        wsum.index_add_(0, r.reshape(-1), w.reshape(-1))
-
-    bad = []
-    for b0 in range(0, len(rows), batch_size):
-        r = torch.from_numpy(rows[b0 : b0 + batch_size])  # (B, W)
-        pos = torch.from_numpy(padded)[r]  # (B, W, Jm, 3)
-        est = fixer.estimate(pos, ~torch.isnan(pos).any(-1)).to(torch.float64)  # (B, W, Jm, 3)
-        ok = torch.isfinite(est).flatten(1).all(1)  # (B,)
-        add(r[ok], est[ok])
-        bad.append(rows[b0 : b0 + batch_size][~ok.numpy()])
-        if progress is not None:
-            progress(min(b0 + batch_size, len(rows)), len(rows))
-    model_wsum = wsum.clone()
-    fallback = np.concatenate(lerp_rows + bad)
-    if len(fallback):
-        lerp = [
-            lerp_infill(torch.from_numpy(xm).double()[None], torch.from_numpy(np.isfinite(xm).all(-1))[None])[0]
-            for xm in x_m
-        ]
-        lerp = torch.cat(lerp + [torch.zeros(1, Jm, 3, dtype=torch.float64)])  # (frames + 1, Jm, 3)
-        r = torch.from_numpy(fallback)
-        add(r, lerp[r])
-    bad_windows = sum(len(b) for b in bad)
 
     out_clips, notes = [], []
     filled = replaced = lerped = other_filled = 0
@@ -360,9 +241,8 @@ def _fix_positions(
     never, absent_joints = {}, {}
     sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
     for k, c in enumerate(clips):
-        a, b = offsets[k], offsets[k + 1]
-        est_m = (acc[a:b] / wsum[a:b].clamp_min(1e-12)[:, None, None]).numpy()  # (K, Jm, 3)
-        lerped += int(((model_wsum[a:b] <= 0).numpy() & need_m[k]).sum())
+        est_m = blended.tracks[k].reshape(-1, Jm, 3)  # (K, Jm, 3); NaN at frames no window needed
+        lerped += int((~blended.by_model[k] & need_m[k]).sum())
         est = resample_frames(est_m, fps_m, c.fps, c.num_frames)  # (T, Jm, 3)
 
         x = x_in[k].astype(np.float64)
@@ -412,8 +292,8 @@ def _fix_positions(
         filled += other_filled
     if lerped:
         notes.append(f"{lerped} frames at {fps_m:g} fps had no data within a window: linear interpolation")
-    if bad_windows:
-        notes.append(f"{bad_windows} windows gave non-finite estimates: linear interpolation there")
+    if blended.failed:
+        notes.append(f"{blended.failed} windows gave non-finite estimates: linear interpolation there")
     fate = "left missing" if mode == "denoise" else "estimated from the rest of the body"
     for person, joints in never.items():
         notes.append(f"{person}joints never observed: {', '.join(joints)} ({fate})")
@@ -422,12 +302,7 @@ def _fix_positions(
     whole = _joints_missing_for_a_window(x_m, W, overlap)
     if whole:
         notes.append(f"{whole} windows had a joint missing throughout ({fate})")
-    people = len(clips)
-    frames = (
-        sum(c.num_frames for c in clips) // people
-        if clips[0].meta.get("format") != "h36m"
-        else sum(c.num_frames for c in clips)
-    )
+    frames, people = _frames_and_people(clips)
     report = FixReport(
         frames,
         people,
@@ -435,11 +310,35 @@ def _fix_positions(
         replaced,
         float(sigma_before.compute()),
         float(sigma_after.compute()),
-        len(rows),
+        blended.windows,
         notes,
         filled_by,
     )
     return out_clips, report
+
+
+class PositionWindows:
+    """Windows of joint positions for a positions fixer (windowing.WindowSource): x_m[k] (K, Jm, 3)
+    each clip at the model's joints and fps, NaN at missing tokens; padding is missing too.
+    Estimates are blended as positions; the fallback is Lerp over the clip."""
+
+    fixed_length = True  # XMAE's positional embedding has one length
+
+    def __init__(self, fixer: Fixer, x_m: list[np.ndarray]):
+        self.fixer, self.x_m = fixer, x_m
+        self.window, self.dim = fixer.window, 3 * x_m[0].shape[1]
+        self._lerp: dict[int, np.ndarray] = {}
+
+    def estimate(self, windows: list[tuple[int, np.ndarray]]) -> torch.Tensor:
+        pos = np.stack([np.where((f >= 0)[:, None, None], self.x_m[k][np.maximum(f, 0)], np.nan) for k, f in windows])
+        pos = torch.from_numpy(pos.astype(np.float32))  # (B, W, Jm, 3)
+        return self.fixer.estimate(pos, ~torch.isnan(pos).any(-1)).double().flatten(2)  # (B, W, 3 Jm)
+
+    def fallback(self, k: int) -> np.ndarray:
+        if k not in self._lerp:
+            x = torch.from_numpy(self.x_m[k]).double()[None]  # (1, K, Jm, 3)
+            self._lerp[k] = lerp_infill(x, ~torch.isnan(x).any(-1))[0].flatten(1).numpy()
+        return self._lerp[k]
 
 
 def _fill_other_joints(positions: np.ndarray, model_joints: np.ndarray, skeleton: Skeleton) -> tuple[np.ndarray, int]:
@@ -520,28 +419,35 @@ def rotation_clips(
     return read_motion(path, "bvh" if source == "auto" else source, **read_options, keep_joints=keep)
 
 
-def resample_motion(
-    rotations: np.ndarray, root: np.ndarray, src_fps: float, dst_fps: float, num: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """rotations (T, J, 3) axis-angle and root translation (T, 3) sampled at t = k / src_fps ->
-    (num, J, 3), (num, 3) at t = k / dst_fps: rotations by slerp, the root linearly. Shared
-    instants are copied exactly; times past the last frame hold it."""
-    T = rotations.shape[0]
-    f = np.arange(num) * (src_fps / dst_fps)
-    f = np.minimum(np.where(np.abs(f - np.round(f)) < 1e-6, np.round(f), f), T - 1)
-    i0 = np.floor(f).astype(np.int64)
-    i1 = np.minimum(i0 + 1, T - 1)
-    w = f - i0  # (num,)
-    r0, r1 = (roma.rotvec_to_rotmat(torch.from_numpy(rotations[i]).double()) for i in (i0, i1))  # (num, J, 3, 3)
-    step = roma.rotmat_to_rotvec(r0.transpose(-1, -2) @ r1) * torch.from_numpy(w)[:, None, None]
-    rot = roma.rotmat_to_rotvec(r0 @ roma.rotvec_to_rotmat(step)).numpy()  # slerp: R0 exp(w log(R0^T R1))
-    out_root = root[i0] * (1 - w[:, None]) + root[i1] * w[:, None]
-    exact = w == 0
-    rot[exact], out_root[exact] = rotations[i0[exact]], root[i0[exact]]
-    return rot.astype(rotations.dtype), out_root.astype(root.dtype)
+class RotationWindows:
+    """Windows of joint rotations for a rotations fixer (windowing.WindowSource): per clip the
+    local axis-angle rotations (K, Jm, 3) and root translation (K, 3) at the model's fps, and the
+    bone offsets (Jm, 3). The estimate is blended as unit quaternions, each turned to the
+    hemisphere of the input's (q and -q are one rotation), and renormalised after (the weighted
+    sum); the root translation linearly. The fallback is the input itself."""
+
+    fixed_length = False  # recurrent networks: a short clip is a short window
+
+    def __init__(self, fixer: RotationFixer, rotations: list, roots: list, offsets: list):
+        self.fixer, self.rotations, self.roots, self.offsets = fixer, rotations, roots, offsets
+        self.window, self.dim = fixer.window, 4 * rotations[0].shape[1] + 3
+        self.q_ref = [roma.rotvec_to_unitquat(torch.from_numpy(r).double()) for r in rotations]  # (K, Jm, 4)
+
+    def estimate(self, windows: list[tuple[int, np.ndarray]]) -> torch.Tensor:
+        rot = torch.stack([torch.from_numpy(self.rotations[k][f]) for k, f in windows])  # (B, L, Jm, 3)
+        root = torch.stack([torch.from_numpy(self.roots[k][f]) for k, f in windows])  # (B, L, 3)
+        offs = torch.stack([torch.from_numpy(self.offsets[k]) for k, _ in windows])  # (B, Jm, 3)
+        est_rot, est_root = self.fixer.estimate_rotations(rot, root, offs)
+        q = roma.rotvec_to_unitquat(est_rot.double())  # (B, L, Jm, 4)
+        ref = torch.stack([self.q_ref[k][f] for k, f in windows])
+        q = torch.where((q * ref).sum(-1, keepdim=True) < 0, -q, q)
+        return torch.cat([q.flatten(2), est_root.double()], -1)  # (B, L, 4 Jm + 3)
+
+    def fallback(self, k: int) -> np.ndarray:
+        return torch.cat([self.q_ref[k].flatten(1), torch.from_numpy(self.roots[k]).double()], -1).numpy()
 
 
-def fix_rotation_clips(
+def _fix_rotations(
     clips: list[Clip],
     fixer: RotationFixer,
     mode: str = "denoise",
@@ -559,16 +465,11 @@ def fix_rotation_clips(
     more joints: they keep their rotations and move with their parents). Windows as for
     positions (resampled to the model's fps by slerp, windows of the model's length, stride
     window * (1 - overlap)); a clip shorter than a window is one window of its own length (the
-    model's networks are recurrent). Overlapping windows are blended with the same sin^2
-    weights: rotations as the normalised weighted sum of their quaternions (each turned to the
-    hemisphere of the input's, so q and -q agree), the root translation linearly."""
-    model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps
+    model's networks are recurrent). Overlapping windows are blended as RotationWindows says."""
+    model, fps_m = fixer.skeleton, fixer.fps
     source = clips[0].source or clips[0].name
-    many = len(clips) > 1
+    who = _who(clips)
     notes = list(getattr(fixer, "notes", []))
-
-    def who(i: int) -> str:
-        return f"person {clips[i].meta.get('person_id', i)}: " if many else ""
 
     index = []
     for i, c in enumerate(clips):
@@ -593,15 +494,14 @@ def fix_rotation_clips(
     sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
     for c, idx in zip(clips, index):
         sigma_before.update(torch.from_numpy(c.positions[:, idx])[None])
-    people = len(clips)
-    frames = sum(c.num_frames for c in clips) // people
+    frames, people = _frames_and_people(clips)
     if mode == "infill":
         notes.append("rotation input has no missing tokens: nothing to fill (--mode denoise replaces them)")
         before = float(sigma_before.compute())
         return list(clips), FixReport(frames, people, 0, 0, before, before, 0, notes)
 
-    # Each clip at the model's fps; every window of every clip as (clip, start, length).
-    rot_m, root_m, windows = [], [], []
+    # Each clip at the model's fps; every frame needs the estimate.
+    rot_m, root_m = [], []
     for k, (c, idx) in enumerate(zip(clips, index)):
         K = model_frames(c.num_frames, c.fps, fps_m)
         if K < 2:
@@ -609,50 +509,17 @@ def fix_rotation_clips(
         r, t = resample_motion(c.rotations[:, idx], c.root_translation, c.fps, fps_m, K)
         rot_m.append(r)
         root_m.append(t)
-        length = min(W, K)
-        starts, _ = window_layout(K, length, overlap)
-        windows += [(k, int(s), length) for s in starts]
-    # Windows of one length run together (short clips make their own batches).
-    windows.sort(key=lambda w: w[2])
-    q_ref = [roma.rotvec_to_unitquat(torch.from_numpy(r).double()) for r in rot_m]  # (K, Jm, 4) the input's
-    q_acc = [torch.zeros_like(q) for q in q_ref]
-    t_acc = [torch.zeros(len(r), 3, dtype=torch.float64) for r in root_m]
-    w_acc = [torch.zeros(len(r), dtype=torch.float64) for r in root_m]
-    batches = [windows[i : i + batch_size] for i in range(0, len(windows), batch_size)]
-    batches = [[w for w in b if w[2] == length] for b in batches for length in sorted({w[2] for w in b})]
-    done = bad = 0
-    for batch in batches:
-        length = batch[0][2]
-        frames_of = [torch.arange(s, s + length) for _, s, _ in batch]
-        rot = torch.stack([torch.from_numpy(rot_m[k][s : s + length]) for k, s, _ in batch])  # (B, L, Jm, 3)
-        root = torch.stack([torch.from_numpy(root_m[k][s : s + length]) for k, s, _ in batch])  # (B, L, 3)
-        offs = torch.stack([torch.from_numpy(clips[k].offsets[index[k]]) for k, _, _ in batch])  # (B, Jm, 3)
-        est_rot, est_root = fixer.estimate_rotations(rot, root, offs)
-        ok = (torch.isfinite(est_rot).flatten(1).all(1) & torch.isfinite(est_root).flatten(1).all(1)).tolist()
-        stride = max(1, int(round(length * (1.0 - overlap))))
-        weights = torch.from_numpy(blend_weights(length, stride))  # (L,)
-        for b, (k, _s, _) in enumerate(batch):
-            if not ok[b]:  # those frames keep the input unless another window covers them
-                bad += 1
-                continue
-            f = frames_of[b]
-            q = roma.rotvec_to_unitquat(est_rot[b].double())  # (L, Jm, 4)
-            q = torch.where((q * q_ref[k][f]).sum(-1, keepdim=True) < 0, -q, q)
-            q_acc[k].index_add_(0, f, q * weights[:, None, None])
-            t_acc[k].index_add_(0, f, est_root[b].double() * weights[:, None])
-            w_acc[k].index_add_(0, f, weights)
-        done += len(batch)
-        if progress is not None:
-            progress(done, len(windows))
+    windows = RotationWindows(fixer, rot_m, root_m, [c.offsets[idx] for c, idx in zip(clips, index)])
+    need = [np.ones(len(r), dtype=bool) for r in rot_m]
+    blended = blend_windows(windows, need, need, overlap, batch_size, progress)
 
     out_clips, replaced = [], 0
+    Jm = model.num_joints
     for k, (c, idx) in enumerate(zip(clips, index)):
-        have = (w_acc[k] > 0)[:, None]
-        q = torch.where(have[..., None], q_acc[k], q_ref[k])
+        track = torch.from_numpy(blended.tracks[k])  # (K, 4 Jm + 3)
+        q = track[:, : 4 * Jm].reshape(-1, Jm, 4)
         rot = roma.unitquat_to_rotvec(q / q.norm(dim=-1, keepdim=True)).numpy()  # (K, Jm, 3)
-        root = torch.where(
-            have, t_acc[k] / w_acc[k].clamp_min(1e-12)[:, None], torch.from_numpy(root_m[k]).double()
-        ).numpy()  # (K, 3)
+        root = track[:, 4 * Jm :].numpy()  # (K, 3)
         rot, root = resample_motion(rot, root, fps_m, c.fps, c.num_frames)
         rotations = c.rotations.astype(np.float64)
         rotations[:, idx] = rot
@@ -673,9 +540,9 @@ def fix_rotation_clips(
                 root_translation=root.astype(np.float32),
             )
         )
-    if bad:
-        notes.append(f"{bad} windows gave non-finite estimates: the input kept where no other window covers")
+    if blended.failed:
+        notes.append(f"{blended.failed} windows gave non-finite estimates: the input blended in there")
     report = FixReport(
-        frames, people, 0, replaced, float(sigma_before.compute()), float(sigma_after.compute()), len(windows), notes
+        frames, people, 0, replaced, float(sigma_before.compute()), float(sigma_after.compute()), blended.windows, notes
     )
     return out_clips, report

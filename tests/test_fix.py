@@ -16,7 +16,7 @@ from mocapfix.cli import main
 from mocapfix.clip import Clip, MotionFileError
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.recording import corrupt_recording
-from mocapfix.fix import blend_weights, fix_clips, map_joints, model_frames, resample_frames, window_layout, windows_for
+from mocapfix.fix import fix_clips, map_joints
 from mocapfix.fixers import load_fixer, resolve_precision, xmae_checkpoint
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import write_bvh
@@ -25,6 +25,7 @@ from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.models.xmae import XMAE
 from mocapfix.skeleton import Skeleton, preset
+from mocapfix.windowing import blend_weights, model_frames, resample_frames, window_layout, windows_for
 
 SMPL = preset("smpl22")
 SMPL_REST = np.stack([np.zeros(22), np.linspace(-0.2, 0.2, 22), np.linspace(0.0, 1.7, 22)], axis=-1)  # (22, 3)

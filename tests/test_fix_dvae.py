@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from mocapfix.cli import main
 from mocapfix.clip import MotionFileError
-from mocapfix.fix import fix_clips, resample_motion
+from mocapfix.fix import fix_clips
 from mocapfix.fixers import DVAEFixer, load_fixer, model_kind, read_checkpoint
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import read_bvh
@@ -29,6 +29,7 @@ from mocapfix.models.dvae_inference import Observation
 from mocapfix.skeleton import preset
 from mocapfix.training.denoise_module import DVAEDenoiseModule
 from mocapfix.training.dvae_module import MotionDVAEModule
+from mocapfix.windowing import resample_motion
 
 SMPL = preset("smpl22")
 BANDAI_FILE = "dataset-1_walk-left_active_001.bvh"  # 90 frames at 30 fps
