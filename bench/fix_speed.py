@@ -6,6 +6,7 @@ checkpoint of the shape fix reads. Each case times the whole file path: read, fi
     python bench/fix_speed.py                     # CPU, the default cases
     python bench/fix_speed.py --device cuda --batch-size 256
     python bench/fix_speed.py --precision fp32      # without bf16 matmuls
+    python bench/fix_speed.py --model xmae-cpu-bandai   # a shipped model (its fill policy too)
 
 Cases:
     denoise        --mode both on a clean clip: the model runs on every window
@@ -32,10 +33,11 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mocapfix.fix_cli import fix_files  # noqa: E402
-from mocapfix.fixers import resolve_precision, xmae_checkpoint  # noqa: E402
+from mocapfix.fixers import load_fixer, resolve_precision, xmae_checkpoint  # noqa: E402
 from mocapfix.io.positions import write_positions  # noqa: E402
 from mocapfix.io.synthetic import generate_clips  # noqa: E402
 from mocapfix.models.xmae import XMAE  # noqa: E402
+from mocapfix.pretrained import pretrained_path  # noqa: E402
 from mocapfix.skeleton import preset  # noqa: E402
 
 CASES = ("denoise", "infill-gaps", "infill-spread")
@@ -70,6 +72,7 @@ def main(argv=None) -> int:
     ap.add_argument("--batch-size", type=int, default=64)
     ap.add_argument("--precision", default="auto", choices=("auto", "fp32", "bf16"), help="fix --precision")
     ap.add_argument("--repeat", type=int, default=1, help="timed runs per case (the best is reported)")
+    ap.add_argument("--model", default=None, help="a shipped model (mocapfix models), not the paper-sized one")
     ap.add_argument(
         "--json-out", default=None, help="where to write the results (default bench/results/fix_speed-<device>.json)"
     )
@@ -77,13 +80,18 @@ def main(argv=None) -> int:
 
     torch.manual_seed(0)
     frames = int(round(args.window_s * args.fps))
-    net = XMAE(22, frames)  # paper sizes (Table 1)
-    params = sum(p.numel() for p in net.parameters())
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        ckpt = tmp / "xmae_paper_random.ckpt"
-        torch.save(xmae_checkpoint(net, preset("smpl22"), args.fps), ckpt)
+        if args.model:  # its joints are matched to the clip's SMPL names by body part
+            ckpt = pretrained_path(args.model)
+            fixer = load_fixer(ckpt)
+            net, frames, label = fixer.net, fixer.window, f"{args.model} (shipped, fill policy)"
+        else:
+            net, label = XMAE(22, frames), "XMAE paper size (random init)"  # Table 1
+            ckpt = tmp / "xmae_paper_random.ckpt"
+            torch.save(xmae_checkpoint(net, preset("smpl22"), args.fps), ckpt)
+        params = sum(p.numel() for p in net.parameters())
         inputs = make_inputs(tmp, args.seconds, args.fps)
         # warm-up: first calls pay for thread pools and kernel selection
         fix_files(
@@ -140,7 +148,7 @@ def main(argv=None) -> int:
         "fps": args.fps,
         "joints": 22,
         "window_frames": frames,
-        "model": "XMAE paper size (random init)",
+        "model": label,
         "parameters": params,
         "device": args.device,
         "precision": resolve_precision(args.precision, torch.device(args.device)),
@@ -154,7 +162,7 @@ def main(argv=None) -> int:
 
     head = f"{'case':<14} {'mode':<7} {'overlap':>7} {'windows':>7} {'seconds':>8} {'x realtime':>10} {'ms/window':>9}"
     print(
-        f"mocapfix fix: {args.seconds:g} s clip, 22 joints, {args.fps:g} fps, XMAE paper size ({params / 1e6:.1f} M "
+        f"mocapfix fix: {args.seconds:g} s clip, 22 joints, {args.fps:g} fps, {label} ({params / 1e6:.2f} M "
         f"parameters), {args.device}, {result['precision']}, {torch.get_num_threads()} threads"
     )
     print(head)

@@ -368,6 +368,32 @@ def test_fix_policy_bandai(tmp_path, bandai_dir):
     assert 500 <= rows["displaced arm tokens"]["before_mm"] <= 1000
 
 
+def test_fix_overlap_bandai(tmp_path, bandai_dir):
+    """The overlap table with the shipped model on two test clips: the first row is its own
+    baseline, fewer windows at a smaller overlap, and errors of a working model (the clean clips
+    come back within a few mm; the displaced arms, 500-1000 mm off, well below that)."""
+    r = bench(
+        "fix_overlap_bandai",
+        "--model",
+        "xmae-cpu-bandai",
+        "--path",
+        bandai_dir,
+        "--device",
+        "cpu",
+        "--overlaps",
+        "0.5,0",
+        "--max-clips",
+        "2",
+        "--cache-dir",
+        tmp_path / "cache",
+        tmp_path=tmp_path,
+    )
+    first, last = r["rows"]
+    assert r["clips"] == 2 and r["policy"] and first["speedup"] == 1.0 and first["clean_change_mm"] == 0.0
+    assert last["windows"] < first["windows"]
+    assert first["clean_mm"] < 5 and first["displaced arms_mm"] < 100
+
+
 @pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_inference_cuda_graphs(tmp_path):
