@@ -23,11 +23,14 @@ import torch
 from common import describe, pick_device, write_result
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
-from mocapfix.data.windows import complete_windows  # noqa: E402
+from mocapfix.data.windows import (
+    complete_windows,  # noqa: E402
+    select,  # noqa: E402
+)
 from mocapfix.evaluation.metrics import _second_difference  # noqa: E402
 from mocapfix.models.dvae_inference import FIRST_FRAMES  # noqa: E402
 from mocapfix.training.denoise_module import DVAEDenoiseModule  # noqa: E402
-from mocapfix.training.dvae_module import MotionDVAEModule, select  # noqa: E402
+from mocapfix.training.dvae_module import MotionDVAEModule  # noqa: E402
 
 DEFAULT_BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"
 

@@ -13,8 +13,9 @@ from cli_utils import CONFIGS, QUIET, SMALL_DATA, run_cli
 from test_dvae_training import CPU, TINY_DVAE, bandai_subset
 
 from mocapfix.data.datamodule import MotionDataModule
+from mocapfix.evaluation.denoise_table import METHODS
 from mocapfix.models.dvae_state import to_canonical
-from mocapfix.training.denoise_module import METHODS, DVAEDenoiseModule
+from mocapfix.training.denoise_module import DVAEDenoiseModule
 from mocapfix.training.dvae_module import MotionDVAEModule
 
 # a few Adamax steps that really move the weights, and a short optimisation mode

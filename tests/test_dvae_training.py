@@ -12,7 +12,8 @@ import torch
 from cli_utils import CONFIGS, QUIET, SMALL_DATA, run_cli
 
 from mocapfix.skeleton import PRESETS
-from mocapfix.training.dvae_module import MotionDVAEModule, anneal_steps_of, kl_anneal_weight
+from mocapfix.training.dvae_module import MotionDVAEModule
+from mocapfix.training.schedules import anneal_steps_of, kl_anneal_weight
 
 # Tiny networks: these tests exercise the loop, not the model size.
 TINY_DVAE = [

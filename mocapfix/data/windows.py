@@ -28,6 +28,23 @@ def complete_windows(batch: dict) -> torch.Tensor:
     return ok
 
 
+def select(batch: dict, keep: torch.Tensor) -> dict:
+    """The windows of a batch where keep (B,) is True; values that are not per window as they are."""
+    return {k: v[keep] if torch.is_tensor(v) and v.shape[:1] == keep.shape else v for k, v in batch.items()}
+
+
+def spread_complete_batches(dataset, max_windows: int = 4096, batch_size: int = 512):
+    """Up to max_windows windows spread evenly over the dataset, in batches, complete windows only
+    (for statistics over a dataset without reading all of it)."""
+    n = len(dataset)
+    idx = torch.linspace(0, n - 1, min(n, max_windows)).round().long().unique().tolist()
+    for i in range(0, len(idx), batch_size):
+        batch = dataset.__getitems__(idx[i : i + batch_size])
+        batch = select(batch, complete_windows(batch))
+        if len(batch["positions"]):
+            yield batch
+
+
 def resample(clip: Clip, fps: float) -> Clip:
     """The clip at `fps`, frame times 0, 1/fps, ... within its duration.
 

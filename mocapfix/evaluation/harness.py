@@ -53,23 +53,3 @@ def publish(
     logger = module.logger
     log_dir = Path(logger.log_dir if logger is not None and logger.log_dir else module.trainer.default_root_dir)
     return write_eval_json(log_dir / "eval.json", rows)
-
-
-def format_denoise_table(rows: list[dict], key: str, methods: tuple[str, ...]) -> str:
-    """Motion-DVAE's Table 1 layout: one line per method, MPJPE / root-relative MPJPE / joint
-    acceleration per noise level, and seconds per frame. key: "sigma_rad" or "sigma_m"."""
-    sigmas = sorted({r[key] for r in rows})
-    unit = "rad" if key == "sigma_rad" else "m"
-    lines = [
-        f"Motion-DVAE denoising, Gaussian noise sigma ({unit}): " + " ".join(f"{s:g}" for s in sigmas),
-        f"{'method':20s} {'MPJPE mm':>26s} {'rel. mm':>26s} {'accel m/s^2':>26s} {'s/frame':>12s}",
-    ]
-    for m in methods:
-        sub = {r[key]: r for r in rows if r["method"] == m}
-        cols = [" ".join(f"{sub[s][c]:8.1f}" for s in sigmas) for c in ("mpjpe_mm", "mpjpe_rel_mm", "accel_ms2")]
-        spf = [sub[s]["seconds_per_frame"] for s in sigmas if sub[s]["seconds_per_frame"] is not None]
-        lines.append(
-            f"{m:20s} {cols[0]:>26s} {cols[1]:>26s} {cols[2]:>26s} "
-            f"{(f'{sum(spf) / len(spf):.2e}' if spf else '-'):>12s}"
-        )
-    return "\n".join(lines)

@@ -37,9 +37,10 @@ import torch.nn as nn
 
 from mocapfix.data.corruption import gaussian_noise, rotation_noise
 from mocapfix.data.spec import DataSpec
-from mocapfix.data.windows import complete_windows
-from mocapfix.evaluation.harness import TestTable, format_denoise_table, publish
-from mocapfix.evaluation.metrics import MPJPE, JointAcceleration
+from mocapfix.data.windows import complete_windows, select
+from mocapfix.evaluation.denoise_table import DenoiseTable, format_denoise_table
+from mocapfix.evaluation.harness import publish
+from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.models.build import checkpoint_entry
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
 
@@ -56,17 +57,9 @@ from mocapfix.models.dvae_inference import (
 from mocapfix.models.dvae_state import velocity_mask
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.bind_data import BindData, require_same_window
-from mocapfix.training.dvae_module import (
-    MotionDVAEModule,
-    anneal_steps_of,
-    compile_in_place,
-    kl_anneal_weight,
-    require_complete_windows,
-    select,
-)
+from mocapfix.training.dvae_module import MotionDVAEModule, compile_in_place, require_complete_windows
 from mocapfix.training.figures import log_validation_figure
-
-METHODS = ("noisy", "dvae_regression", "dvae_optimisation")
+from mocapfix.training.schedules import anneal_steps_of, kl_anneal_weight
 
 
 class DVAEDenoiseModule(L.LightningModule):
@@ -378,18 +371,7 @@ class DVAEDenoiseModule(L.LightningModule):
             torch.cuda.synchronize(self.device)
 
     def on_test_epoch_start(self):
-        sigmas = [float(s) for s in self.hparams.test_sigmas]
-        self._sigmas = sigmas
-        fps = self.window_fps
-        cells = {
-            (i, m, k): JointAcceleration(fps) if k == "acc" else MPJPE(root_relative=k == "rel")
-            for i in range(len(sigmas))
-            for m in METHODS
-            for k in ("abs", "rel", "acc")
-        }
-        self._table = TestTable({**cells, "truth_acc": JointAcceleration(fps)}).to(self.device)
-        self._seconds = {(i, m): 0.0 for i in range(len(sigmas)) for m in METHODS}
-        self._frames = {i: 0 for i in range(len(sigmas))}
+        self._table = DenoiseTable(self.hparams.test_sigmas, self.window_fps).to(self.device)
 
     def test_step(self, batch, batch_idx):
         keep = complete_windows(batch)
@@ -397,10 +379,9 @@ class DVAEDenoiseModule(L.LightningModule):
             return
         batch = select(batch, keep)
         truth = batch["positions"].float()
-        self._table.update("truth_acc", truth)
-        for i, sigma in enumerate(self._sigmas):
+        self._table.update_truth(truth)
+        for i, sigma in enumerate(self._table.sigmas):
             obs = self.observation(self.add_noise(batch, sigma, self._generator(batch_idx, i + 1)))
-            self._frames[i] += truth.shape[0] * truth.shape[1]
             self._sync()
             t0 = time.perf_counter()
             regression = self.estimate(obs)
@@ -409,52 +390,18 @@ class DVAEDenoiseModule(L.LightningModule):
             optimisation = self.optimise_and_estimate(obs) if self.hparams.opt_iterations > 0 else regression
             self._sync()
             t2 = time.perf_counter()
-            self._seconds[(i, "dvae_regression")] += t1 - t0
-            self._seconds[(i, "dvae_optimisation")] += t2 - t1 if self.hparams.opt_iterations > 0 else t1 - t0
-            preds = {"noisy": obs.positions, "dvae_regression": regression, "dvae_optimisation": optimisation}
-            for m, pred in preds.items():
-                pred = pred.float()
-                self._table.update((i, m, "abs"), pred, truth)
-                self._table.update((i, m, "rel"), pred, truth)
-                self._table.update((i, m, "acc"), pred)
+            self._table.update(i, "noisy", obs.positions, truth)
+            self._table.update(i, "dvae_regression", regression, truth, t1 - t0)
+            optimised = self.hparams.opt_iterations > 0
+            self._table.update(i, "dvae_optimisation", optimisation, truth, t2 - t1 if optimised else t1 - t0)
 
     def on_test_epoch_end(self):
         key = "sigma_rad" if self.hparams.noise == "rotation" else "sigma_m"
-        cells = self._table.compute()
-        if "truth_acc" not in cells:  # no complete test window
+        result = self._table.rows(key)
+        if result is None:  # no complete test window
             return
-        rows, scalars = [], {}
-        for i, sigma in enumerate(self._sigmas):
-            rows.append(
-                {
-                    "task": "noise",
-                    "part": "full",
-                    key: sigma,
-                    "method": "ground_truth",
-                    "mpjpe_mm": 0.0,
-                    "mpjpe_rel_mm": 0.0,
-                    "accel_ms2": round(cells["truth_acc"], 2),
-                    "seconds_per_frame": None,
-                }
-            )
-            for m in METHODS:
-                spf = self._seconds[(i, m)] / max(1, self._frames[i]) if m != "noisy" else None
-                rows.append(
-                    {
-                        "task": "noise",
-                        "part": "full",
-                        key: sigma,
-                        "method": m,
-                        "mpjpe_mm": round(cells[(i, m, "abs")], 2),
-                        "mpjpe_rel_mm": round(cells[(i, m, "rel")], 2),
-                        "accel_ms2": round(cells[(i, m, "acc")], 2),
-                        "seconds_per_frame": None if spf is None else float(f"{spf:.3g}"),
-                    }
-                )
-                scalars[f"test/{key}{sigma}/{m}_mpjpe_mm"] = rows[-1]["mpjpe_mm"]
-        self.eval_rows = rows
-        text = format_denoise_table(rows, key, ("ground_truth", *METHODS))
-        self.eval_json_path = publish(self, rows, scalars, text)
+        self.eval_rows, scalars = result
+        self.eval_json_path = publish(self, self.eval_rows, scalars, format_denoise_table(self.eval_rows, key))
 
     # --- predict: noisy windows in, denoised joint positions out ---
 

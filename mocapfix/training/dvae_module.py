@@ -19,7 +19,7 @@ import lightning as L
 import torch
 
 from mocapfix.data.spec import DataSpec
-from mocapfix.data.windows import complete_windows
+from mocapfix.data.windows import complete_windows, select, spread_complete_batches
 from mocapfix.evaluation.harness import publish
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.models.body import build_body_model
@@ -29,21 +29,9 @@ from mocapfix.models.dvae_state import MotionState, mean_joint_rotations
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
+from mocapfix.training.schedules import anneal_steps_of, kl_anneal_weight
 
 STD_FLOOR = 0.05  # dimensions the data never moves (a joint axis the synthetic body never turns) stay finite
-
-
-def kl_anneal_weight(step: int, anneal_steps: int) -> float:
-    """Linear KL annealing: 0 at step 0, 1 from anneal_steps on (1 throughout when anneal_steps <= 0)."""
-    return 1.0 if anneal_steps <= 0 else min(1.0, step / anneal_steps)
-
-
-def anneal_steps_of(trainer, steps: int | None, epochs: float) -> int:
-    """The annealing length in optimiser steps: `steps` when given, else `epochs` epochs of the trainer."""
-    if steps is not None:
-        return int(steps)
-    per_epoch = trainer.num_training_batches / max(1, trainer.accumulate_grad_batches)
-    return int(round(epochs * per_epoch)) if per_epoch != float("inf") else 0
 
 
 def compile_in_place(net: torch.nn.Module, body: torch.nn.Module | None) -> None:
@@ -66,21 +54,6 @@ def require_complete_windows(data: DataSpec, stage: str) -> None:
                 "complete windows: drop the joints that are always missing (data.drop_joints) or "
                 "choose other files for this split"
             )
-
-
-def select(batch: dict, keep: torch.Tensor) -> dict:
-    return {k: v[keep] if torch.is_tensor(v) and v.shape[:1] == keep.shape else v for k, v in batch.items()}
-
-
-def spread_complete_batches(dataset, max_windows: int = 4096, batch_size: int = 512):
-    """Up to max_windows windows spread evenly over the dataset, in batches, complete windows only."""
-    n = len(dataset)
-    idx = torch.linspace(0, n - 1, min(n, max_windows)).round().long().unique().tolist()
-    for i in range(0, len(idx), batch_size):
-        batch = dataset.__getitems__(idx[i : i + batch_size])
-        batch = select(batch, complete_windows(batch))
-        if len(batch["positions"]):
-            yield batch
 
 
 @torch.no_grad()

@@ -1,4 +1,4 @@
-"""Learning-rate schedules, stepped per optimiser step."""
+"""Schedules stepped per optimiser step: the learning rate's and the KL weight's."""
 
 from __future__ import annotations
 
@@ -11,3 +11,16 @@ def warmup_cosine(step: int, warmup_steps: int, total_steps: int) -> float:
         return (step + 1) / warmup_steps
     progress = min(1.0, (step - warmup_steps) / max(1, total_steps - warmup_steps))
     return 0.5 * (1.0 + math.cos(math.pi * progress))
+
+
+def kl_anneal_weight(step: int, anneal_steps: int) -> float:
+    """Linear KL annealing: 0 at step 0, 1 from anneal_steps on (1 throughout when anneal_steps <= 0)."""
+    return 1.0 if anneal_steps <= 0 else min(1.0, step / anneal_steps)
+
+
+def anneal_steps_of(trainer, steps: int | None, epochs: float) -> int:
+    """The annealing length in optimiser steps: `steps` when given, else `epochs` epochs of the trainer."""
+    if steps is not None:
+        return int(steps)
+    per_epoch = trainer.num_training_batches / max(1, trainer.accumulate_grad_batches)
+    return int(round(epochs * per_epoch)) if per_epoch != float("inf") else 0
