@@ -179,6 +179,34 @@ class TrainingInput(NamedTuple):
     padding: torch.Tensor  # (B, K) True where a sample kept fewer than K tokens
 
 
+def check_training_corruption(
+    mask_ratio: float, displace_ratio: float, clean_loss_ratio: float, max_displacement_m: float
+) -> None:
+    """ValueError, in the config's terms, for settings of XMAE's training corruption that cannot
+    be drawn or would score no token."""
+    for name, ratio in (("mask_ratio", mask_ratio), ("displace_ratio", displace_ratio)):
+        if not 0.0 <= ratio <= 1.0:
+            raise ValueError(f"{name} must be in [0, 1] (a fraction of all tokens), got {ratio}")
+    if mask_ratio + displace_ratio > 1.0:
+        raise ValueError(
+            f"mask_ratio + displace_ratio must be at most 1 (fractions of the same tokens), "
+            f"got {mask_ratio} + {displace_ratio}"
+        )
+    if max_displacement_m < 0:
+        raise ValueError(f"max_displacement_m must be >= 0 (a distance in metres), got {max_displacement_m}")
+    clean = 1.0 - mask_ratio - displace_ratio  # the share of tokens left observed and clean
+    if not 0.0 <= clean_loss_ratio <= clean + 1e-9:
+        raise ValueError(
+            f"clean_loss_ratio {clean_loss_ratio} must be in [0, 1 - mask_ratio - displace_ratio "
+            f"= {clean:.3g}]: the share of all tokens that are clean and scored anyway"
+        )
+    if mask_ratio + displace_ratio + clean_loss_ratio <= 0.0:
+        raise ValueError(
+            "mask_ratio, displace_ratio and clean_loss_ratio are all 0: no token would be scored "
+            "(the loss is over masked, displaced and clean_loss_ratio tokens)"
+        )
+
+
 def xmae_training_input(
     positions: torch.Tensor,
     mask_ratio: float,

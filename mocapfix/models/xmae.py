@@ -126,6 +126,23 @@ PRESETS: dict[str, dict] = {
 }
 
 
+def preset_sizes(preset: str, **overrides) -> dict:
+    """The network's sizes: the preset's, then every override that is not None (num_joints and
+    num_frames come from the data). ValueError for an unknown preset or widths the heads do not
+    divide, said in the config's terms before anything is built."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+    sizes = {**PRESETS[preset], **{k: v for k, v in overrides.items() if v is not None}}
+    defaults = XMAEConfig(0, 0)
+    enc_dim, dec_dim, head_dim = (sizes.get(k, getattr(defaults, k)) for k in ("enc_dim", "dec_dim", "head_dim"))
+    if head_dim < 1 or enc_dim % head_dim or dec_dim % head_dim:
+        raise ValueError(
+            f"enc_dim ({enc_dim}) and dec_dim ({dec_dim}) must be multiples of head_dim ({head_dim}): "
+            "attention splits each width into heads of head_dim channels"
+        )
+    return sizes
+
+
 class XMAE(nn.Module):
     def __init__(
         self,

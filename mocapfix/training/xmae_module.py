@@ -14,16 +14,17 @@ import lightning as L
 import torch
 import torch.nn as nn
 
-from mocapfix.data.corruption import uniform_like, xmae_training_input
+from mocapfix.data.corruption import check_training_corruption, uniform_like, xmae_training_input
 from mocapfix.data.spec import DataSpec
 from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill
 from mocapfix.evaluation.harness import TestTable, publish
 from mocapfix.evaluation.metrics import MPJPE
-from mocapfix.evaluation.policy import Calibration, FillPolicy, apply_fill_policy, suspect_tokens
+from mocapfix.evaluation.model_fills import calibrate, candidate_fills, policy_output
+from mocapfix.evaluation.policy import Calibration, FillPolicy, apply_fill_policy
 from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows
 from mocapfix.inference import xmae_fill, xmae_reconstruct
 from mocapfix.models.build import build_model, checkpoint_entry
-from mocapfix.models.xmae import PRESETS, XMAE, XMAEConfig
+from mocapfix.models.xmae import XMAE, XMAEConfig, preset_sizes
 from mocapfix.skeleton import Skeleton
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
@@ -106,9 +107,12 @@ class XMAEModule(L.LightningModule):
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
         """
         super().__init__()
-        if preset not in PRESETS:
-            raise ValueError(f"preset must be one of {', '.join(PRESETS)}, got {preset!r}")
-        given = dict(
+        if compile_mode not in COMPILE_MODES:
+            raise ValueError(f"compile_mode must be one of {COMPILE_MODES}, got {compile_mode!r}")
+        check_training_corruption(mask_ratio, displace_ratio, clean_loss_ratio, max_displacement_m)
+        # the network's sizes (num_joints and num_frames come from the data, at setup)
+        self.sizes = preset_sizes(
+            preset,
             enc_dim=enc_dim,
             enc_depth=enc_depth,
             enc_mlp_dim=enc_mlp_dim,
@@ -120,41 +124,6 @@ class XMAEModule(L.LightningModule):
             position_unit_m=position_unit_m,
             fill_input=fill_input,
         )
-        # the network's sizes: the preset's, then what the config sets (num_joints and num_frames
-        # come from the data, at setup)
-        self.sizes = {**PRESETS[preset], **{k: v for k, v in given.items() if v is not None}}
-        defaults = XMAEConfig(0, 0)
-        enc_dim, dec_dim, head_dim = (
-            self.sizes.get(k, getattr(defaults, k)) for k in ("enc_dim", "dec_dim", "head_dim")
-        )
-        if compile_mode not in COMPILE_MODES:
-            raise ValueError(f"compile_mode must be one of {COMPILE_MODES}, got {compile_mode!r}")
-        if head_dim < 1 or enc_dim % head_dim or dec_dim % head_dim:
-            raise ValueError(
-                f"enc_dim ({enc_dim}) and dec_dim ({dec_dim}) must be multiples of head_dim ({head_dim}): "
-                "attention splits each width into heads of head_dim channels"
-            )
-        for name, ratio in (("mask_ratio", mask_ratio), ("displace_ratio", displace_ratio)):
-            if not 0.0 <= ratio <= 1.0:
-                raise ValueError(f"{name} must be in [0, 1] (a fraction of all tokens), got {ratio}")
-        if mask_ratio + displace_ratio > 1.0:
-            raise ValueError(
-                f"mask_ratio + displace_ratio must be at most 1 (fractions of the same tokens), "
-                f"got {mask_ratio} + {displace_ratio}"
-            )
-        if max_displacement_m < 0:
-            raise ValueError(f"max_displacement_m must be >= 0 (a distance in metres), got {max_displacement_m}")
-        clean = 1.0 - mask_ratio - displace_ratio  # the share of tokens left observed and clean
-        if not 0.0 <= clean_loss_ratio <= clean + 1e-9:
-            raise ValueError(
-                f"clean_loss_ratio {clean_loss_ratio} must be in [0, 1 - mask_ratio - displace_ratio "
-                f"= {clean:.3g}]: the share of all tokens that are clean and scored anyway"
-            )
-        if mask_ratio + displace_ratio + clean_loss_ratio <= 0.0:
-            raise ValueError(
-                "mask_ratio, displace_ratio and clean_loss_ratio are all 0: no token would be scored "
-                "(the loss is over masked, displaced and clean_loss_ratio tokens)"
-            )
         self.save_hyperparameters()
         self.net: XMAE | None = None
         self.fill_policy: FillPolicy | None = None  # from the last validation, or the checkpoint
@@ -189,6 +158,9 @@ class XMAEModule(L.LightningModule):
             self._build()
         else:
             require_same_window(self.hparams, data, "this model was built for")
+
+    def _reconstruct(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+        return xmae_reconstruct(self.net, positions, observed)
 
     def setup(self, stage: str) -> None:
         if self.net is None:
@@ -267,44 +239,22 @@ class XMAEModule(L.LightningModule):
             self._figure_sample = (positions[0], gap.positions[0], gap.observed[0], xmae[0])
         room = self.hparams.calibration_windows - (self._calibration.windows if self._calibration else 0)
         if self._calibration is not None and room > 0 and not self.trainer.sanity_checking:
-            self._calibrate(positions[:room], self._generator(batch_idx))
+            hp = self.hparams
+            calibrate(
+                self._calibration,
+                self._reconstruct,
+                positions[:room],
+                self.skeleton,
+                hp.window_fps,
+                hp.eval_gaps_s,
+                self._generator(batch_idx),
+            )
 
     # --- the fill policy (evaluation/policy.py) ---
 
     def on_validation_epoch_start(self):
         hp = self.hparams
         self._calibration = Calibration(hp.eval_gaps_s) if hp.get("calibration_windows", 0) > 0 else None
-
-    def _calibrate(self, positions: torch.Tensor, generator: torch.Generator) -> None:
-        """XMAE and the classical fills on the infill tasks, and XMAE on the clean windows."""
-        observed = ~torch.isnan(positions).any(-1)
-        self._calibration.add_clean(xmae_reconstruct(self.net, positions, observed), positions, observed)
-        for t in paper_tasks(self.skeleton, self.hparams.eval_gaps_s, ()):
-            if t.task != "infill" or t.part.startswith("right"):  # one side per limb: the policy has no side
-                continue
-            c = t.corrupt(positions, self.hparams.window_fps, self.skeleton, generator)
-            scored = t.evaluated(c, positions)
-            self._calibration.add_fills(
-                t.part.split("_")[-1], t.gap_s, self._fills(c.positions, c.observed), positions, scored
-            )
-
-    def _fills(self, positions: torch.Tensor, observed: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Every candidate fill of the missing tokens: XMAE's and the classical ones."""
-        return {
-            "xmae": xmae_reconstruct(self.net, positions, observed),
-            **{name: fill(positions, observed, self.skeleton.parents) for name, fill in CLASSICAL.items()},
-        }
-
-    def _policy_output(
-        self, positions: torch.Tensor, observed: torch.Tensor, fills: dict[str, torch.Tensor]
-    ) -> torch.Tensor:
-        """What `fix --mode both` outputs for a window: suspect observed tokens taken out, then
-        every hole filled by the method the policy names. fills: _fills(positions, observed)."""
-        suspect = suspect_tokens(self.fill_policy, fills["xmae"], positions, observed)
-        keep = observed & ~suspect
-        if suspect.any():  # other holes: fill again
-            fills = self._fills(positions, keep)
-        return apply_fill_policy(self.fill_policy, positions, keep, fills, self.hparams.window_fps, self.skeleton)[0]
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.net is not None:
@@ -362,13 +312,14 @@ class XMAEModule(L.LightningModule):
             c = t.corrupt(positions, self.hparams.window_fps, self.skeleton, generator)
             scored = t.evaluated(c, positions)
             # the classical fills fill the missing tokens and leave the observed ones as given
-            preds = self._fills(c.positions, c.observed)
-            if self.fill_policy is not None and t.task == "infill":  # fix --mode infill
-                preds["policy"] = apply_fill_policy(
-                    self.fill_policy, c.positions, c.observed, preds, self.hparams.window_fps, self.skeleton
-                )[0]
-            elif self.fill_policy is not None:  # fix --mode both
-                preds["policy"] = self._policy_output(c.positions, c.observed, preds)
+            preds = candidate_fills(self._reconstruct, c.positions, c.observed, self.skeleton)
+            fps, policy = self.hparams.window_fps, self.fill_policy
+            if policy is not None and t.task == "infill":  # fix --mode infill
+                preds["policy"] = apply_fill_policy(policy, c.positions, c.observed, preds, fps, self.skeleton)[0]
+            elif policy is not None:  # fix --mode both
+                preds["policy"] = policy_output(
+                    policy, self._reconstruct, c.positions, c.observed, preds, fps, self.skeleton
+                )
             for m, pred in preds.items():
                 for rel in ("abs", "rel"):
                     self._table.update((t.key, m, rel), pred.float(), positions.float(), scored)
