@@ -18,7 +18,7 @@
 # calls), so back-to-back calls with RESUME=1 continue last.ckpt. MAX_TIME / PRIOR_TIME count the
 # whole run (Lightning's Timer state is in the checkpoint), so raise them by one call each time.
 # FIT_ONLY=1 (xmae): fit only, no test/fix, for the calls before the last. COMPILE=1 (xmae, dvae*):
-# model.compile_model (34 instead of 42 ms a step on the H100, docs/performance.md); give it on
+# model.compile_model (25.1 instead of 36.5 ms a step on the H100, docs/performance.md); give it on
 # the first call: a resumed run takes the checkpoint's hyperparameters over the command line.
 #
 # Needs, carried as git-ignored folders (the GPU image has torch and lightning but not these):
