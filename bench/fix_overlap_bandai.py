@@ -29,7 +29,7 @@ from fix_policy_bandai import DEFAULT_BVH, displace_arms
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
 from mocapfix.evaluation.recording import corrupt_recording  # noqa: E402
 from mocapfix.fix import fix_clips  # noqa: E402
-from mocapfix.fixers import load_fixer  # noqa: E402
+from mocapfix.fix.fixers import load_fixer  # noqa: E402
 from mocapfix.pretrained import pretrained_path  # noqa: E402
 
 

@@ -24,7 +24,7 @@ from common import describe, pick_device, print_table, write_result
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
 from mocapfix.fix import fix_clips  # noqa: E402
-from mocapfix.fixers import load_fixer  # noqa: E402
+from mocapfix.fix.fixers import load_fixer  # noqa: E402
 
 DEFAULT_BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"
 

@@ -32,13 +32,13 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mocapfix.fix_cli import fix_files  # noqa: E402
-from mocapfix.fixers import load_fixer, resolve_precision, xmae_checkpoint  # noqa: E402
+from mocapfix.apps.fix_cli import fix_files  # noqa: E402
+from mocapfix.core.skeleton import preset  # noqa: E402
+from mocapfix.fix.fixers import load_fixer, resolve_precision, xmae_checkpoint  # noqa: E402
 from mocapfix.io.positions import write_positions  # noqa: E402
 from mocapfix.io.synthetic import generate_clips  # noqa: E402
 from mocapfix.models.xmae import XMAE  # noqa: E402
 from mocapfix.pretrained import pretrained_path  # noqa: E402
-from mocapfix.skeleton import preset  # noqa: E402
 
 CASES = ("denoise", "infill-gaps", "infill-spread")
 

@@ -2,7 +2,7 @@
 random), batch-1 latency, FLOPs per window and the achieved rate beside the device's measured
 matmul rate.
 
-The timed call is the product's reconstruction pass (mocapfix.inference.xmae_reconstruct:
+The timed call is the product's reconstruction pass (mocapfix.models.xmae_inference.xmae_reconstruct:
 normalisation, observed-token index, encoder over observed tokens, cross-attention decoder over
 all tokens), the one `fix`, validation and `predict` use, in the precision `fix --precision`
 gives it: fp32 weights, bf16 autocast for the matmuls (default on CUDA), or fp32 throughout.
@@ -27,8 +27,8 @@ from common import add_window_arguments, describe, matmul_tflops, pick_device, p
 from torch.nn.attention import SDPBackend, sdpa_kernel
 from torch.utils.flop_counter import FlopCounterMode
 
-from mocapfix.inference import xmae_reconstruct  # noqa: E402
 from mocapfix.models.xmae import XMAE  # noqa: E402
+from mocapfix.models.xmae_inference import xmae_reconstruct  # noqa: E402
 
 
 def make_windows(B: int, T: int, J: int, missing: float, device, seed: int = 0):

@@ -4,7 +4,7 @@ Benchmark 2 (inference.py) says how many full windows a second the product's rec
 runs (8,530 on the H100 in session 7, against a target of 10,000) and what fraction of the
 matmul rate that is; this says where the time goes, as profile_train_step.py does for training:
 wall vs kernel time (busy), kernels per pass, kernel time by kind (matmul, attention, Triton,
-copies), the slowest kernels. The pass is mocapfix.inference.xmae_reconstruct (the one `fix`,
+copies), the slowest kernels. The pass is mocapfix.models.xmae_inference.xmae_reconstruct (the one `fix`,
 validation and `predict` use) under bf16 autocast on a GPU, compiled with CUDA graphs unless
 --eager.
 
@@ -24,8 +24,8 @@ from inference import make_windows
 from profile_train_step import add_output_arguments, print_profile, summarise
 from torch.profiler import ProfilerActivity, profile
 
-from mocapfix.inference import xmae_reconstruct  # noqa: E402
 from mocapfix.models.xmae import XMAE  # noqa: E402
+from mocapfix.models.xmae_inference import xmae_reconstruct  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -29,8 +29,8 @@ def main(argv=None) -> int:
     keep = ("hyper_parameters", "model", "fill_policy", "global_step", "epoch", "pytorch-lightning_version")
     small = {k: ckpt[k] for k in keep if k in ckpt}
     if "model" not in small:
-        from mocapfix.clip import MotionFileError
-        from mocapfix.fixers import load_fixer
+        from mocapfix.core.clip import MotionFileError
+        from mocapfix.fix.fixers import load_fixer
         from mocapfix.models.build import checkpoint_entry
 
         try:

@@ -1,6 +1,6 @@
 import sys
 
-from mocapfix.cli import main
+from mocapfix.apps.main import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -45,7 +45,7 @@ QUIET = ["--trainer.enable_progress_bar", "false", "--trainer.enable_model_summa
 
 
 def run_cli(args: list[str], cwd: Path) -> int:
-    from mocapfix.cli import main
+    from mocapfix.apps.main import main
 
     old = os.getcwd()
     os.chdir(cwd)

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from mocapfix.clip import MotionFileError
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.skeleton import PRESETS
 from mocapfix.io import read_motion
 from mocapfix.io.amass import amass_split_of, read_amass
-from mocapfix.kinematics import fk_axis_angle
-from mocapfix.skeleton import PRESETS
 
 SMPL22 = list(PRESETS["smpl22"].parents)
 # smplx picks extra joints from fixed vertex indices of the real mesh: point them at vertex 0.

@@ -83,3 +83,18 @@ def test_lerp_on_cuda():
     observed = rng.random((3, 25, 5)) < 0.4
     out = lerp_infill(torch.from_numpy(x).cuda(), torch.from_numpy(observed).cuda())
     np.testing.assert_allclose(out.cpu().numpy(), np_lerp(x, observed), rtol=1e-10, atol=1e-10)
+
+
+def test_gaussian_smooth_keeps_constants_and_lines_and_cuts_jitter():
+    from mocapfix.evaluation.baselines import gaussian_smooth
+
+    T = 30
+    t = torch.arange(T, dtype=torch.float64)
+    const = torch.full((1, T, 2, 3), 0.7, dtype=torch.float64)
+    torch.testing.assert_close(gaussian_smooth(const, 2.0), const)  # the ends too: renormalised kernel
+    line = (0.01 * t)[None, :, None, None].expand(1, T, 2, 3)
+    inner = slice(6, T - 6)  # the kernel (radius 6) inside the window: symmetric, a line stays
+    torch.testing.assert_close(gaussian_smooth(line, 2.0)[:, inner], line[:, inner])
+    g = torch.Generator().manual_seed(0)
+    noise = 0.01 * torch.randn(4, T, 5, 3, generator=g, dtype=torch.float64)
+    assert gaussian_smooth(noise, 2.0).std() < 0.4 * noise.std()  # white noise: about 1/sqrt(2 sqrt(pi) 2)

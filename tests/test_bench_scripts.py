@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from mocapfix.fixers import xmae_checkpoint
+from mocapfix.fix.fixers import xmae_checkpoint
 from mocapfix.models.xmae import XMAE
 
 REPO = Path(__file__).resolve().parents[1]

@@ -13,9 +13,9 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from mocapfix.clip import MotionFileError
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.io.bvh import _frame_rate, read_bvh, write_bvh
-from mocapfix.kinematics import fk_axis_angle
 
 CM_Y_UP = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]]) * 0.01  # file (cm, y up) -> metres, z up: (x, -z, y)
 

@@ -6,7 +6,8 @@ import pytest
 import yaml
 from cli_utils import CONFIGS, run_cli
 
-from mocapfix.cli import CONFIG_DIR, expand_configs, main, packaged_configs
+from mocapfix.apps.cli import CONFIG_DIR, expand_configs, packaged_configs
+from mocapfix.apps.main import main
 
 
 def print_config(args, tmp_path, capsys) -> dict:

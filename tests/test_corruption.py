@@ -5,6 +5,8 @@ import pytest
 import roma
 import torch
 
+from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.skeleton import preset
 from mocapfix.data.corruption import (
     available,
     constant_displacement,
@@ -20,8 +22,6 @@ from mocapfix.data.corruption import (
     rotation_noise,
     training_gaps,
 )
-from mocapfix.kinematics import fk_axis_angle
-from mocapfix.skeleton import preset
 
 B, T, J = 6, 50, 17
 N = T * J

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from mocapfix.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.skeleton import preset
 from mocapfix.data.datamodule import MotionDataModule
 from mocapfix.data.windows import resample, split_of
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
-from mocapfix.skeleton import preset
 
 
 def _positions_folder(tmp_path, n_files=12, seconds=3.0, fps=60.0):

@@ -13,7 +13,7 @@ from cli_utils import CONFIGS, QUIET, SMALL_DATA, run_cli
 from test_dvae_training import CPU, TINY_DVAE, bandai_subset
 
 from mocapfix.data.datamodule import MotionDataModule
-from mocapfix.evaluation.denoise_table import METHODS
+from mocapfix.evaluation.denoise_table import METHODS, SMOOTHERS
 from mocapfix.models.dvae_state import to_canonical
 from mocapfix.training.denoise_module import DVAEDenoiseModule
 from mocapfix.training.dvae_module import MotionDVAEModule
@@ -279,7 +279,7 @@ def test_test_prints_and_writes_eval_json(denoised, capsys):
     assert "dvae_regression" in out and "accel m/s^2" in out
     rows = json.loads((d / lines[-1].split(": ", 1)[1]).read_text())
     keys = {(r["sigma_rad"], r["method"]) for r in rows}
-    assert keys == {(s, m) for s in (0.1, 0.15, 0.2) for m in ("ground_truth", *METHODS)}
+    assert keys == {(s, m) for s in (0.1, 0.15, 0.2) for m in ("ground_truth", *METHODS, *SMOOTHERS)}
     for r in rows:
         assert set(r) == {
             "task",
@@ -292,11 +292,13 @@ def test_test_prints_and_writes_eval_json(denoised, capsys):
             "seconds_per_frame",
         }
         assert r["task"] == "noise" and r["part"] == "full"
-        assert (r["seconds_per_frame"] is None) == (r["method"] in ("noisy", "ground_truth"))
+        assert (r["seconds_per_frame"] is None) == (r["method"] in ("noisy", "ground_truth", *SMOOTHERS))
     by = {(r["sigma_rad"], r["method"]): r for r in rows}
     # noise on the joint rotations moves the joints, more with a larger sigma; the ground truth has its own acceleration
     assert 0 < by[(0.1, "noisy")]["mpjpe_mm"] < by[(0.2, "noisy")]["mpjpe_mm"]
     assert by[(0.1, "noisy")]["accel_ms2"] > by[(0.1, "ground_truth")]["accel_ms2"] > 0
+    # the classical smoother takes jitter out: less acceleration than the noisy input, more with a wider kernel
+    assert by[(0.2, "smooth4f")]["accel_ms2"] < by[(0.2, "smooth1f")]["accel_ms2"] < by[(0.2, "noisy")]["accel_ms2"]
     spf = by[(0.15, "dvae_regression")]["seconds_per_frame"]
     assert spf > 0
     with capsys.disabled():

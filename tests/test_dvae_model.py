@@ -10,8 +10,8 @@ import pytest
 import torch
 from torch.distributions import Gamma, InverseGamma, Normal, kl_divergence
 
+from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.io.synthetic import generate_clips
-from mocapfix.kinematics import fk_axis_angle
 from mocapfix.models.dvae import inverse_gamma_kl
 from mocapfix.models.dvae_state import velocity_mask
 from mocapfix.training.denoise_module import DVAEDenoiseModule

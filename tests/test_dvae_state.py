@@ -8,8 +8,8 @@ import math
 import roma
 import torch
 
+from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.io.synthetic import generate_clips
-from mocapfix.kinematics import fk_axis_angle
 from mocapfix.models.body import SkeletonFK
 from mocapfix.models.dvae_state import (
     MotionState,

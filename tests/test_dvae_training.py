@@ -11,7 +11,7 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, SMALL_DATA, run_cli
 
-from mocapfix.skeleton import PRESETS
+from mocapfix.core.skeleton import PRESETS
 from mocapfix.training.dvae_module import MotionDVAEModule
 from mocapfix.training.schedules import anneal_steps_of, kl_anneal_weight
 

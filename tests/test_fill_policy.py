@@ -10,13 +10,13 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, SMALL_DATA, TINY, run_cli
 
-from mocapfix.clip import Clip
+from mocapfix.core.clip import Clip
+from mocapfix.core.skeleton import PRESETS
 from mocapfix.evaluation.baselines import lerp_infill, spline_infill
 from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, hole_frames, suspect_tokens, token_parts
 from mocapfix.fix import fix_clips
-from mocapfix.fixers import load_fixer
+from mocapfix.fix.fixers import load_fixer
 from mocapfix.io.synthetic import generate_clips
-from mocapfix.skeleton import PRESETS
 
 SMPL = PRESETS["smpl22"]
 # val and test splits large enough that the method best on one is best on the other (a 3-clip

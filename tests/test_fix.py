@@ -12,20 +12,20 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, TINY, run_cli
 
-from mocapfix.cli import main
-from mocapfix.clip import Clip, MotionFileError
+from mocapfix.apps.main import main
+from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.skeleton import Skeleton, preset
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.recording import corrupt_recording
 from mocapfix.fix import fix_clips, map_joints
-from mocapfix.fixers import load_fixer, resolve_precision, xmae_checkpoint
+from mocapfix.fix.fixers import load_fixer, resolve_precision, xmae_checkpoint
+from mocapfix.fix.windowing import blend_weights, model_frames, resample_frames, window_layout, windows_for
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import write_bvh
 from mocapfix.io.h36m import H36M_KEEP
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.models.xmae import XMAE
-from mocapfix.skeleton import Skeleton, preset
-from mocapfix.windowing import blend_weights, model_frames, resample_frames, window_layout, windows_for
 
 SMPL = preset("smpl22")
 SMPL_REST = np.stack([np.zeros(22), np.linspace(-0.2, 0.2, 22), np.linspace(0.0, 1.7, 22)], axis=-1)  # (22, 3)
@@ -347,17 +347,24 @@ def test_nothing_observed_in_a_window_falls_back_to_lerp_and_says_so(ckpt, motio
     assert "never observed: left_wrist" in text
 
 
-def test_bvh_input_writes_positions_npz(tmp_path, ckpt, capsys):
+def test_bvh_input_writes_a_bvh_or_positions_npz(tmp_path, ckpt, capsys):
     clip = generate_clips(1, 2.0, fps=30, seed=1)[0]
     clip.meta.update(unit="cm", up_axis="y")
     write_bvh(tmp_path / "walk.bvh", clip)
+    # by default a BVH (the model's positions put back on the file's skeleton: tests/test_ik.py)
     rc, out, err = fix([tmp_path / "walk.bvh", "--ckpt", ckpt, "--mode", "both"], capsys)
     assert rc == 0, err
-    assert "walk.fixed.npz" in out and "gives positions, not rotations" in out
-    res = _npz(tmp_path / "walk.fixed.npz")
+    assert "walk.fixed.bvh" in out and "inverse kinematics" in out
+    # or positions, on request
+    rc, out, err = fix([tmp_path / "walk.bvh", "--ckpt", ckpt, "--mode", "both", "-o", tmp_path / "walk.npz"], capsys)
+    assert rc == 0, err
+    assert "walk.npz" in out and "a .bvh output (the default for a BVH input) keeps rotations" in out
+    res = _npz(tmp_path / "walk.npz")
     assert str(res["unit"]) == "cm" and str(res["up_axis"]) == "y" and res["positions"].shape == (60, 22, 3)
-    rc, _, err = fix([tmp_path / "walk.bvh", "--ckpt", ckpt, "-o", tmp_path / "walk2.bvh"], capsys)
-    assert rc == 1 and "positions, not rotations" in err and not (tmp_path / "walk2.bvh").exists()
+    # a positions input cannot become a BVH
+    write_positions(tmp_path / "p.npz", clip.positions, 30.0, clip.skeleton)
+    rc, _, err = fix([tmp_path / "p.npz", "--ckpt", ckpt, "-o", tmp_path / "p.bvh"], capsys)
+    assert rc == 1 and "needs a BVH input" in err and not (tmp_path / "p.bvh").exists()
 
 
 def test_h36m_input_keeps_its_layout(tmp_path, capsys):
@@ -554,7 +561,7 @@ def test_interrupted_run_leaves_no_output(tmp_path, ckpt, motion, monkeypatch, c
 def test_progress_bar_on_a_terminal_and_lines_otherwise():
     import io
 
-    from mocapfix.fix_cli import Progress
+    from mocapfix.apps.fix_cli import Progress
 
     class Tty(io.StringIO):
         def isatty(self):
@@ -718,8 +725,8 @@ def test_wrong_command_lines_are_usage_errors(tmp_path, ckpt, motion, capsys):
 
 
 def test_an_error_about_another_file_names_the_input_too(tmp_path):
-    from mocapfix.clip import MotionFileError
-    from mocapfix.fix_cli import _one_line
+    from mocapfix.apps.fix_cli import _one_line
+    from mocapfix.core.clip import MotionFileError
 
     models = MotionFileError(tmp_path / "models", "no SMPLH model for gender 'robot'")
     assert (

@@ -16,20 +16,20 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation, Slerp
 
-from mocapfix.cli import main
-from mocapfix.clip import MotionFileError
+from mocapfix.apps.main import main
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.skeleton import preset
 from mocapfix.fix import fix_clips
-from mocapfix.fixers import DVAEFixer, load_fixer, model_kind, read_checkpoint
+from mocapfix.fix.fixers import DVAEFixer, load_fixer, model_kind, read_checkpoint
+from mocapfix.fix.windowing import resample_motion
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import read_bvh
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
-from mocapfix.kinematics import fk_axis_angle
 from mocapfix.models.dvae_inference import Observation
-from mocapfix.skeleton import preset
 from mocapfix.training.denoise_module import DVAEDenoiseModule
 from mocapfix.training.dvae_module import MotionDVAEModule
-from mocapfix.windowing import resample_motion
 
 SMPL = preset("smpl22")
 BANDAI_FILE = "dataset-1_walk-left_active_001.bvh"  # 90 frames at 30 fps
@@ -274,7 +274,7 @@ def test_fix_bandai_bvh_with_a_rotations_state_dvae_writes_the_inputs_hierarchy(
     # positions instead, on request: the input's body joints (the helper joint_Root is left out)
     rc, out, err = fix([bandai_file, "--ckpt", rotations_ckpt, "--mode", "both", "-o", tmp_path / "w.npz"], capsys)
     assert rc == 0, err
-    assert "positions .npz/.csv: rotations are written to .bvh, from a BVH input" in out
+    assert "positions .npz/.csv: a .bvh output (the default for a BVH input) keeps rotations" in out
     back = read_motion(tmp_path / "w.npz")[0]
     assert back.skeleton.joint_names == inp.skeleton.joint_names[1:] and np.isfinite(back.positions).all()
     np.testing.assert_allclose(back.positions, res.positions[:, 1:], atol=1e-4)  # the same motion as the BVH
@@ -345,7 +345,7 @@ def test_python_m_mocapfix_fix_with_a_dvae_checkpoint(tmp_path, bandai_file, rot
 
 
 def test_bf16_is_refused_for_a_dvae_checkpoint(positions_ckpt, capsys):
-    from mocapfix.cli import main
+    from mocapfix.apps.main import main
 
     capsys.readouterr()
     assert main(["fix", str(positions_ckpt), "--ckpt", str(positions_ckpt), "--precision", "bf16"]) == 1

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from mocapfix.clip import MotionFileError
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.skeleton import PRESETS
 from mocapfix.io import detect_source, read_motion
 from mocapfix.io.h36m import H36M_KEEP, H36M_SPLIT, read_h36m
-from mocapfix.skeleton import PRESETS
 
 
 def _seq(T, seed):

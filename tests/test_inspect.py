@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from mocapfix.inspect import inspect_files, main, motion_stats
+from mocapfix.apps.inspect import inspect_files, main, motion_stats
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.io import read_motion
-from mocapfix.skeleton import Skeleton
 
 NAMES = ["Hips", "Spine", "Head"]
 PARENTS = [-1, 0, 1]

@@ -5,7 +5,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from mocapfix.clip import MotionFileError
+from mocapfix.core.clip import MotionFileError
 from mocapfix.io import list_motion_files, read_motion
 
 PARENTS = np.array([-1, 0, 1])

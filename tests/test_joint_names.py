@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 import torch
 
-from mocapfix.cli import main
-from mocapfix.clip import MotionFileError
+from mocapfix.apps.main import main
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.skeleton import Skeleton, preset
 from mocapfix.fix import map_joints
-from mocapfix.fixers import xmae_checkpoint
+from mocapfix.fix.fixers import xmae_checkpoint
 from mocapfix.io import read_motion
 from mocapfix.io.joint_names import joint_labels, match_joints, side_and_word
 from mocapfix.io.positions import write_positions
 from mocapfix.models.xmae import XMAE
-from mocapfix.skeleton import Skeleton, preset
 
 # Bandai Namco's names (after the reader drops joint_Root) -> Mixamo's for the same joints
 MIXAMO = {

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
+from mocapfix.core.skeleton import preset
 from mocapfix.evaluation.metrics import MPJPE, AccelError, JointAcceleration, LimbSigma
-from mocapfix.skeleton import preset
 
 B, T, J = 4, 20, 17
 

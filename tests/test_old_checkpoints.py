@@ -14,13 +14,13 @@ import numpy as np
 import torch
 from cli_utils import CONFIGS, QUIET, SMALL_DATA, run_cli
 
-from mocapfix.cli import main
-from mocapfix.fixers import DVAEFixer, XMAEFixer, load_fixer, model_kind, read_checkpoint
+from mocapfix.apps.main import main
+from mocapfix.core.skeleton import preset
+from mocapfix.fix.fixers import DVAEFixer, XMAEFixer, load_fixer, model_kind, read_checkpoint
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import write_bvh
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
-from mocapfix.skeleton import preset
 
 OLD = Path(__file__).parent / "data" / "old_checkpoints"
 XMAE_OLD = OLD / "xmae-4ceef7a.ckpt"

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapfix.cli import main
-from mocapfix.fixers import load_fixer
+from mocapfix.apps.main import main
+from mocapfix.core.skeleton import preset
+from mocapfix.fix.fixers import load_fixer
 from mocapfix.io import read_motion
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.pretrained import MODELS, pretrained_path
-from mocapfix.skeleton import preset
 
 
 def test_models_lists_every_shipped_model_with_its_license(capsys):

@@ -12,14 +12,14 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, TINY, run_cli
 
-from mocapfix.clip import MotionFileError
-from mocapfix.fix_cli import write_output
-from mocapfix.inspect import inspect_files
+from mocapfix.apps.fix_cli import write_output
+from mocapfix.apps.inspect import inspect_files
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.skeleton import PRESETS
 from mocapfix.io import list_motion_files, read_motion
 from mocapfix.io.bvh import read_bvh, write_bvh
 from mocapfix.io.conventions import parse_unit, resolve_unit
 from mocapfix.io.positions import read_positions
-from mocapfix.skeleton import PRESETS
 
 
 def _bandai(bandai_files, i=3, frames=None):
@@ -203,12 +203,13 @@ def test_fit_on_a_folder_with_absurd_values_stays_finite_and_fix_fills_them(band
     state = torch.load(ckpt, map_location="cpu", weights_only=True)["state_dict"]
     assert all(torch.isfinite(v).all() for v in state.values() if v.is_floating_point())
 
-    from mocapfix.fix_cli import main as fix_main
+    from mocapfix.apps.fix_cli import main as fix_main
 
     assert (
         fix_main([str(data / "a.bvh"), "--ckpt", str(ckpt), "--out-dir", str(tmp_path / "out"), "--progress", "never"])
         == 0
     )
+    # absurd root channels leave the file without usable rotations: positions come out
     [fixed] = read_motion(tmp_path / "out" / "a.npz")
     assert not fixed.missing_mask().any()  # the absurd frames were filled
     pos = fixed.positions

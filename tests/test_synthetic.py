@@ -5,9 +5,9 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
+from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.skeleton import preset
 from mocapfix.io.synthetic import ACTIVITIES, generate_clips
-from mocapfix.kinematics import fk_axis_angle
-from mocapfix.skeleton import preset
 
 SKEL = preset("smpl22")
 J = {n: i for i, n in enumerate(SKEL.joint_names)}

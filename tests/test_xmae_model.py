@@ -142,7 +142,7 @@ def test_fill_input_starts_at_the_fill_and_learns_a_correction():
     """fill_input (not in the paper): the untrained network answers the Lerp fill exactly (its
     correction head starts at zero), and one optimiser step moves it off."""
     from mocapfix.evaluation.baselines import lerp_infill
-    from mocapfix.inference import xmae_reconstruct
+    from mocapfix.models.xmae_inference import xmae_reconstruct
 
     torch.manual_seed(0)
     net = XMAE(

@@ -173,13 +173,28 @@ def test_fit_writes_tensorboard_scalars_hparams_and_figures(tmp_path):
     ):
         assert tag in scalars, f"{tag} missing from {sorted(scalars)}"
     assert "val/infill_example" in ea.Tags()["images"]
-    assert len(ea.Images("val/infill_example")) == 2  # one figure per validation
+    figures = ea.Images("val/infill_example")
+    assert len(figures) == 2  # one figure per validation
+    # three windows side by side, each from the front and the side: twice as wide as tall
+    assert figures[0].width >= 1.9 * figures[0].height
     # the hparams plugin entry TensorBoard's HPARAMS tab reads
     assert any(t.startswith("_hparams_") for t in ea.summary_metadata), "no hparams summary"
     lr = [e.value for e in ea.Scalars("lr-Adam")]
     assert lr[0] < lr[1] and lr[-1] < max(lr), "warm-up then decay"
     assert (tmp_path / "checkpoints" / "tb" / "last.ckpt").exists()
     assert list((tmp_path / "checkpoints" / "tb").glob("best-*.ckpt"))
+
+    # test: the table as text and MPJPE by gap length as a figure, beside the scalars
+    ckpt = tmp_path / "checkpoints" / "tb" / "last.ckpt"
+    args = ["test", "--config", CONFIGS / "xmae.yaml", *TINY, *SMALL_DATA, *QUIET, "--experiment", "tb"]
+    assert run_cli([*args, "--ckpt_path", ckpt], tmp_path) == 0
+    test_dir = max((tmp_path / "logs" / "tb").glob("version_*"), key=lambda p: int(p.name.split("_")[1]))
+    ea = EventAccumulator(str(test_dir), size_guidance={"images": 0, "tensors": 0})
+    ea.Reload()
+    assert "test/mpjpe_by_gap" in ea.Tags()["images"]
+    assert "test/table/text_summary" in ea.Tags()["tensors"]
+    text = ea.Tensors("test/table/text_summary")[0].tensor_proto.string_val[0].decode()
+    assert "xmae" in text and "lerp" in text
 
 
 def test_resume_continues_step_and_optimiser(tmp_path):
@@ -465,7 +480,7 @@ def test_a_model_setting_error_is_its_own_line(tmp_path, capsys):
 
 def test_version(capsys):
     from mocapfix import __version__
-    from mocapfix.cli import main
+    from mocapfix.apps.main import main
 
     assert main(["--version"]) == 0 and capsys.readouterr().out.strip() == f"mocapfix {__version__}"
 
@@ -629,7 +644,7 @@ def test_sigterm_during_fit_keeps_the_step_reached_and_exits_nonzero(tmp_path, c
 
 
 def test_no_command_is_the_usage_and_a_usage_error(capsys):
-    from mocapfix.cli import main
+    from mocapfix.apps.main import main
 
     assert main([]) == 2
     captured = capsys.readouterr()
@@ -639,7 +654,7 @@ def test_no_command_is_the_usage_and_a_usage_error(capsys):
 
 def test_fill_input_trains_resumes_and_fixes(tmp_path):
     """The fill_input switch end to end: a checkpoint that fix loads as the same network."""
-    from mocapfix.fixers import load_fixer
+    from mocapfix.fix.fixers import load_fixer
 
     common = [
         "fit",

@@ -1,7 +1,6 @@
-"""`python -m mocapfix` / `mocapfix`.
-
-fit | validate | test | predict: LightningCLI (--config NAME or FILE, --print_config, --key.path value).
-inspect: what a motion file holds. demo: a short CPU training run on the embedded data.
+"""fit | validate | test | predict: LightningCLI (--config NAME or FILE, --print_config,
+--key.path value) with the project's wiring: configs by name, logger, checkpoints, one-line
+errors. The other commands: apps/main.py.
 
 Configs (mocapfix/configs, shipped in the package; `configs/` in a checkout) are pieces,
 data/*.yaml, model/*.yaml, trainer/*.yaml, and experiments that name their pieces in a
@@ -12,7 +11,6 @@ and LightningCLI merges them in that order.
 
 from __future__ import annotations
 
-import logging
 import os
 import pickle
 import signal
@@ -20,7 +18,7 @@ import sys
 from pathlib import Path
 
 LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
-CONFIG_DIR = Path(__file__).resolve().parent / "configs"
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 
 
 def packaged_configs() -> list[str]:
@@ -293,96 +291,22 @@ def _own_error(e: ValueError) -> BaseException:
     return e
 
 
-def list_models() -> int:
-    """`mocapfix models`: the shipped models, a line each (model cards: docs/models.md)."""
-    from mocapfix.fixers import load_fixer
-    from mocapfix.pretrained import MODELS, pretrained_path
+def run_lightning(command: str, argv: list[str]) -> int:
+    """fit / validate / test / predict through LightningCLI; the project's input errors and
+    SIGTERM become one line and an exit code."""
+    from lightning.pytorch.utilities.exceptions import SIGTERMException
 
-    for name, m in MODELS.items():
-        fixer = load_fixer(pretrained_path(name))
-        print(f"{name}: {m.summary}. License: {m.license}.\n    joints: {', '.join(fixer.skeleton.joint_names)}")
-    print("use: mocapfix fix INPUT --model NAME   (model cards: docs/models.md)")
-    return 0
-
-
-class _StderrHandler(logging.StreamHandler):
-    """A StreamHandler on whatever sys.stderr is when it writes (pytest swaps it between calls)."""
-
-    @property
-    def stream(self):
-        return sys.stderr
-
-    @stream.setter
-    def stream(self, value):
-        pass
-
-
-def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    # Our own progress lines (parsing, cache, windows); Lightning configures its own loggers.
-    logger = logging.getLogger("mocapfix")
-    if not any(isinstance(h, _StderrHandler) for h in logger.handlers):  # once, however often main runs
-        handler = _StderrHandler()
-        handler.setFormatter(logging.Formatter("%(message)s"))
-        logger.addHandler(handler)
-    logger.setLevel(logging.INFO)
-    command = argv[0] if argv else None
-    if command in (None, "-h", "--help"):
+    try:
+        _lightning_cli(argv)
+    except SIGTERMException:  # a SystemExit without a code: the shell would read success
         print(
-            "usage: mocapfix {fit,validate,test,predict} --config NAME|FILE [--key.path value ...]\n"
-            "       mocapfix inspect FILE... [--json]\n"
-            "       mocapfix fix INPUT... --ckpt CKPT|--model NAME [-o OUT|--out-dir DIR] [--mode MODE]\n"
-            "       mocapfix inspect FILE... --ckpt CKPT|--model NAME  (how the file's joints map onto the model's)\n"
-            "       mocapfix models\n"
-            "       mocapfix demo\n"
-            "       mocapfix --version\n"
-            "`mocapfix COMMAND --help` lists its options; `mocapfix fit --config NAME --print_config` every setting.\n"
-            f"packaged configs: {', '.join(packaged_configs())}",
-            file=sys.stdout if command else sys.stderr,
+            f"mocapfix {command}: stopped by SIGTERM (a fit keeps its state in checkpoints/<experiment>/last.ckpt)",
+            file=sys.stderr,
         )
-        return 0 if command else 2
-    if command == "inspect":
-        from mocapfix.inspect import main as inspect_main
-
-        return inspect_main(argv[1:])
-    if command == "fix":
-        from mocapfix.fix_cli import main as fix_main
-
-        return fix_main(argv[1:])
-    if command == "models":
-        return list_models()
-    if command == "demo":
-        from mocapfix.demo import main as demo_main
-
-        return demo_main(argv[1:])
-    if command in ("-V", "--version"):
-        from mocapfix import __version__
-
-        print(f"mocapfix {__version__}")
-        return 0
-    if command in LIGHTNING_COMMANDS:
-        from lightning.pytorch.utilities.exceptions import SIGTERMException
-
-        try:
-            _lightning_cli(argv)
-        except SIGTERMException:  # a SystemExit without a code: the shell would read success
-            print(
-                f"mocapfix {command}: stopped by SIGTERM (a fit keeps its state in checkpoints/<experiment>/last.ckpt)",
-                file=sys.stderr,
-            )
-            return 128 + signal.SIGTERM
-        except ValueError as e:  # the project's input checks (MotionFileError is one) say file and problem
-            if os.environ.get("MOCAPFIX_TRACEBACK"):
-                raise
-            print(f"mocapfix {command}: {_own_error(e)}  (MOCAPFIX_TRACEBACK=1 for the traceback)", file=sys.stderr)
-            return 2
-        return 0
-    print(
-        f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect, fix or demo",
-        file=sys.stderr,
-    )
-    return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+        return 128 + signal.SIGTERM
+    except ValueError as e:  # the project's input checks (MotionFileError is one) say file and problem
+        if os.environ.get("MOCAPFIX_TRACEBACK"):
+            raise
+        print(f"mocapfix {command}: {_own_error(e)}  (MOCAPFIX_TRACEBACK=1 for the traceback)", file=sys.stderr)
+        return 2
+    return 0

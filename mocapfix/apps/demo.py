@@ -12,10 +12,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--experiment", default="demo")
     ap.add_argument("--config", default="xmae", help="a packaged config's name or a file (default: xmae)")
     args = ap.parse_args(argv)
-    from mocapfix.cli import main as cli_main
+    from mocapfix.apps.cli import run_lightning
 
     print(f"mocapfix demo: training XMAE ({args.config}) for {args.steps} steps on the CPU, synthetic data")
-    return cli_main(
+    return run_lightning(
+        "fit",
         [
             "fit",
             "--config",
@@ -33,5 +34,5 @@ def main(argv: list[str] | None = None) -> int:
             # the fill policy from a few val windows: the paper-sized network is slow on a CPU
             "--model.init_args.calibration_windows",
             "32",
-        ]
+        ],
     )

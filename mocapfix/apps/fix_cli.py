@@ -21,9 +21,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mocapfix.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.ik import ik_error_mm, inverse_kinematics
+from mocapfix.core.render import holes_map, render, tracks_for
 from mocapfix.fix import MODES, fix_clips, map_joints, rotation_clips
-from mocapfix.fixers import PRECISIONS, load_fixer
+from mocapfix.fix.fixers import PRECISIONS, load_fixer
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
@@ -37,10 +39,11 @@ LONG_INPUT_S = 600.0  # progress is shown for inputs this long even when stderr 
 
 
 def output_suffix(clips: list[Clip], path: Path, rotations: bool = False) -> str:
-    """Positions files keep their extension; BVH stays BVH with a rotation model (rotations:
-    True); otherwise BVH and AMASS (rotations in, positions out) and Human3.6M become .npz."""
+    """Positions files keep their extension; BVH stays BVH (a rotation model's rotations, or a
+    positions model's positions put back on the input's hierarchy by inverse kinematics);
+    AMASS (rotations in, positions out) and Human3.6M become .npz."""
     fmt = clips[0].meta.get("format", "")
-    if rotations and fmt == "bvh":
+    if fmt == "bvh" and (rotations or clips[0].has_rotations):
         return ".bvh"
     return path.suffix.lower() if fmt in ("positions-npz", "positions-csv") else ".npz"
 
@@ -57,10 +60,10 @@ def output_path(
         target = path.with_name(path.stem + FIXED + suffix)
     fmt = clips[0].meta.get("format", "")
     ext = target.suffix.lower()
-    if ext == ".bvh" and rotations and fmt == "bvh":
+    if ext == ".bvh" and fmt == "bvh" and (rotations or clips[0].has_rotations):
         return target
     if ext == ".bvh":
-        why = "the model gives positions, not rotations" if not rotations else "a BVH output needs a BVH input"
+        why = "a BVH output needs a BVH input" if fmt != "bvh" else "the input has no joint rotations"
         raise MotionFileError(path, f"cannot write {target.name}: {why}; write .npz or .csv")
     if ext not in (".npz", ".csv") or (fmt == "h36m" and ext != ".npz"):
         raise MotionFileError(
@@ -106,6 +109,28 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
         )
         return
     write_clips(target, clips)
+
+
+def onto_hierarchy(fixed: list[Clip], inputs: list[Clip]) -> tuple[list[Clip], float, float]:
+    """A positions model's fixed clips back on the input BVH's own skeleton (core/ik.py): each
+    clip gets rotations and root translation, and the positions their FK gives. -> the clips and
+    the mean and max distance (mm) the IK left between those positions and the model's."""
+    out, means, worst = [], [], 0.0
+    for f, c in zip(fixed, inputs):
+        offsets, parents = torch.from_numpy(c.offsets), c.skeleton.parents
+        target = torch.from_numpy(f.positions)
+        rot, root = inverse_kinematics(
+            target, parents, offsets, torch.from_numpy(c.rotations), torch.from_numpy(c.root_translation)
+        )
+        posed, mean, top = ik_error_mm(target, parents, offsets, rot, root)
+        means.append(mean)
+        worst = max(worst, top)
+        out.append(
+            c.replace(
+                positions=posed.float().numpy(), rotations=rot.float().numpy(), root_translation=root.float().numpy()
+            )
+        )
+    return out, float(np.mean(means)), worst
 
 
 def _onto(fixed: list[Clip], inputs: list[Clip]) -> list[Clip]:
@@ -196,10 +221,12 @@ def fix_files(
     stderr=None,
     precision: str = "fp32",
     joint_map: dict[str, str] | None = None,
+    render_gif: bool = False,
     **read_options,
 ) -> int:
     """Fix every file; -> exit code (0 all written, 1 some failed). read_options go to read_motion;
-    joint_map (input name -> model name) names joints io/joint_names.py does not find."""
+    joint_map (input name -> model name) names joints io/joint_names.py does not find;
+    render_gif: an animation of the input beside the output next to each output (core/render.py)."""
     out_stream, err = stdout or sys.stdout, stderr or sys.stderr
     try:
         fixer = load_fixer(ckpt, device, precision)
@@ -240,21 +267,34 @@ def fix_files(
             )
             progress_bar = Progress(str(path), show, err)
             fixed, report = fix_clips(work, fixer, mode, overlap, batch_size, progress_bar, joint_map)
+            if target.suffix.lower() == ".bvh" and not rotations:
+                fixed, ik_mean, ik_max = onto_hierarchy(fixed, clips)
+                report.notes.append(
+                    f"BVH by inverse kinematics onto the input's skeleton: its bone lengths moved joints "
+                    f"{ik_mean:.1f} mm on average from the model's positions (max {ik_max:.1f} mm)"
+                )
             write_output(target, fixed, clips, path)
             written[resolved] = path
+            if render_gif:  # the first person: a preview, not a report of every clip
+                tracks = tracks_for(clips[0], [(target.name, fixed[0])])
+                render(tracks, clips[0].skeleton.limbs, clips[0].fps, target.with_suffix(".gif"))
+                holes_map(tracks, clips[0].skeleton.joint_names, clips[0].fps, target.with_suffix(".holes.png"))
         except Exception as e:  # one bad file must not stop the others
             print(f"error: {_one_line(path, e)}", file=err, flush=True)
             failed = True
             continue
         elapsed = time.perf_counter() - t0
         notes = list(report.notes)
-        if clips[0].meta.get("format") in ("bvh", "amass") and target.suffix.lower() != ".bvh":
-            notes.insert(
-                0,
-                "positions .npz/.csv: rotations are written to .bvh, from a BVH input"
-                if rotations
-                else f"positions .npz/.csv: {fixer.kind.upper()} gives positions, not rotations",
-            )
+        fmt = clips[0].meta.get("format")
+        if fmt in ("bvh", "amass") and target.suffix.lower() != ".bvh":
+            if fmt == "amass":
+                note = f"positions .npz/.csv: {fixer.kind.upper()} gives positions, not rotations"
+            elif rotations or clips[0].has_rotations:
+                note = "positions .npz/.csv: a .bvh output (the default for a BVH input) keeps rotations"
+            else:
+                why = clips[0].meta.get("no_rotations")
+                note = f"positions .npz/.csv: this BVH has no usable joint rotations{f' ({why})' if why else ''}"
+            notes.insert(0, note)
         if report.filled_by:
             notes.insert(0, "filled by " + ", ".join(f"{m} {n}" for m, n in sorted(report.filled_by.items())))
         kind = "sequences" if clips[0].meta.get("format") == "h36m" else "person" if report.people == 1 else "people"
@@ -327,6 +367,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--overlap", type=float, default=0.5, help="fraction of a window shared by neighbours, [0, 1)")
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    ap.add_argument(
+        "--render",
+        action="store_true",
+        help="also write OUTPUT.gif (the input beside the output) and OUTPUT.holes.png (joints x time)",
+    )
     ap.add_argument("--json", action="store_true", help="one JSON object per file instead of the report line")
     ap.add_argument(
         "--progress",
@@ -379,6 +424,7 @@ def main(argv: list[str] | None = None) -> int:
             args.json,
             precision=args.precision,
             joint_map=joint_map,
+            render_gif=args.render,
             unit=args.unit,
             up_axis=args.up_axis,
             fps=args.fps,

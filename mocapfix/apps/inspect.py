@@ -14,10 +14,10 @@ import sys
 
 import numpy as np
 
-from mocapfix.clip import Clip, body_limbs, limb_lengths
+from mocapfix.core.clip import Clip, body_limbs, limb_lengths
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.joint_names import describe_mapping, read_joint_map
-from mocapfix.skeleton import Skeleton
 
 _HIP_NAMES = ("hips", "hip", "pelvis")
 
@@ -211,7 +211,7 @@ def main(argv=None) -> int:
     what = args.model or args.ckpt
     try:
         if what:
-            from mocapfix.fixers import load_fixer
+            from mocapfix.fix.fixers import load_fixer
             from mocapfix.pretrained import pretrained_path
 
             model = load_fixer(pretrained_path(args.model) if args.model else args.ckpt).skeleton

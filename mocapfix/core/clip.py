@@ -10,7 +10,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mocapfix.skeleton import Skeleton
+from mocapfix.core.skeleton import Skeleton
 
 
 class MotionFileError(ValueError):

@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import torch
 
-from mocapfix.kinematics import fk_axis_angle
+from mocapfix.core.kinematics import fk_axis_angle
 
 
 class Corrupted(NamedTuple):

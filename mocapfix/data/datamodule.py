@@ -16,10 +16,10 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from mocapfix.clip import Clip, MotionFileError, check_human_scale
+from mocapfix.core.clip import Clip, MotionFileError, check_human_scale
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.spec import DataSpec
 from mocapfix.data.windows import cache_key, load_clips, resample, save_clips, split_of, window_starts
-from mocapfix.skeleton import Skeleton
 
 log = logging.getLogger(__name__)
 

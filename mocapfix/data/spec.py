@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.windows import complete_windows
-from mocapfix.skeleton import Skeleton
 
 
 @dataclass(frozen=True)

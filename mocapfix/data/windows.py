@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mocapfix.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.io.positions import load_npz
-from mocapfix.kinematics import fk_axis_angle
-from mocapfix.skeleton import Skeleton
 
 
 def complete_windows(batch: dict) -> torch.Tensor:

@@ -4,6 +4,8 @@ does not overshoot). A learned model is worth using only where it beats the best
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from scipy.interpolate import CubicSpline, PchipInterpolator
@@ -126,3 +128,17 @@ CLASSICAL = {
     "pchip": lambda p, o, parents: spline_infill(p, o, "pchip"),
     "limb": limb_infill,
 }
+
+
+def gaussian_smooth(positions: torch.Tensor, sigma_frames: float) -> torch.Tensor:
+    """The classical answer to jitter: each joint's trajectory convolved in time with a Gaussian
+    of sigma_frames frames; at the window's ends the kernel is renormalised over the frames
+    inside (no padding values invented). positions: (B, T, J, 3), complete -> (B, T, J, 3)."""
+    B, T, J, _ = positions.shape
+    radius = max(1, int(math.ceil(3 * sigma_frames)))
+    t = torch.arange(-radius, radius + 1, dtype=positions.dtype, device=positions.device)
+    kernel = torch.exp(-0.5 * (t / sigma_frames) ** 2)[None, None]  # (1, 1, 2r+1)
+    x = positions.permute(0, 2, 3, 1).reshape(B * J * 3, 1, T)
+    num = torch.nn.functional.conv1d(x, kernel, padding=radius)
+    den = torch.nn.functional.conv1d(torch.ones_like(x[:1]), kernel, padding=radius)
+    return (num / den).reshape(B, J, 3, T).permute(0, 3, 1, 2)

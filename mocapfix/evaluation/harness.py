@@ -1,19 +1,13 @@
 """The test harness every LightningModule's `test` uses: a table of metrics accumulated over the
-test batches, and its publication (logged scalars, the printed table, eval.json in the run's log
-folder). The modules say what to predict; this file keeps the bookkeeping, so the three test
-tables (XMAE's paper tables, the Motion-DVAE prior's reconstruction, the denoiser's noise table)
-are counted, synced across processes and written the same way.
+test batches. The modules say what to predict; this keeps the cells, so the three test tables
+(XMAE's paper tables, the Motion-DVAE prior's reconstruction, the denoiser's noise table) are
+counted and synced across processes the same way (training/test_report.py publishes them).
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import lightning as L
 import torch.nn as nn
 from torchmetrics import Metric
-
-from mocapfix.evaluation.tasks import write_eval_json
 
 
 class TestTable(nn.Module):
@@ -36,20 +30,3 @@ class TestTable(nn.Module):
     def compute(self) -> dict[tuple, float]:
         """cell -> value, for the cells that saw data."""
         return {k: float(self.metrics[self.index[k]].compute()) for k in self.keys if self.updated(k)}
-
-
-def publish(
-    module: L.LightningModule, rows: list[dict], scalars: dict[str, float], text: str | None = None
-) -> Path | None:
-    """The end of a test: `scalars` logged (Lightning reduces them across processes), `text`
-    printed and `rows` written to eval.json in the run's log folder by the first process.
-    Returns eval.json's path (None on other processes)."""
-    for name, value in scalars.items():
-        module.log(name, value, sync_dist=True)
-    if not module.trainer.is_global_zero:
-        return None
-    if text:
-        print("\n" + text)
-    logger = module.logger
-    log_dir = Path(logger.log_dir if logger is not None and logger.log_dir else module.trainer.default_root_dir)
-    return write_eval_json(log_dir / "eval.json", rows)

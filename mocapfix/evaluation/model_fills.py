@@ -9,10 +9,10 @@ from collections.abc import Callable
 
 import torch
 
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.evaluation.baselines import CLASSICAL
 from mocapfix.evaluation.policy import Calibration, FillPolicy, apply_fill_policy, suspect_tokens
 from mocapfix.evaluation.tasks import paper_tasks
-from mocapfix.skeleton import Skeleton
 
 # positions: (B, T, J, 3) metres, NaN allowed at unobserved tokens; observed: (B, T, J) -> (B, T, J, 3)
 Reconstruct = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]

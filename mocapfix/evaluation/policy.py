@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from mocapfix.skeleton import Skeleton
+from mocapfix.core.skeleton import Skeleton
 
 PARTS = ("full", "arm", "leg")
 CLEAN_QUANTILE = 0.995  # of the model's disagreement with clean observed tokens: above it, a token is suspect

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import torch
 
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.corruption import Corrupted, constant_displacement, gaussian_noise, infill_gap
-from mocapfix.skeleton import Skeleton
 
 log = logging.getLogger(__name__)
 

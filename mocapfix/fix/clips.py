@@ -3,13 +3,13 @@
 One file's clips (its people) -> the model's joints, by name -> the model's fps -> sliding
 windows of the model's length (every window of every person in one batched pass) -> the
 model's estimate of every token -> windows blended with smooth weights -> the input's frame
-times (mocapfix/windowing.py: blend_windows) -> merged with the input by mode:
+times (windowing.py: blend_windows) -> merged with the input by mode:
 
     infill   missing tokens (NaN) get the estimate; observed tokens stay bit-identical.
     denoise  observed tokens get the estimate; missing tokens stay missing.
     both     every token gets the estimate (denoised and filled).
 
-A Fixer (mocapfix.fixers) turns a batch of windows into estimates; there is one per checkpoint
+A Fixer (mocapfix.fix.fixers) turns a batch of windows into estimates; there is one per checkpoint
 kind. Nothing here imports training code.
 
 What a window holds is the part that differs by fixer, behind windowing.WindowSource:
@@ -28,16 +28,16 @@ import numpy as np
 import roma
 import torch
 
-from mocapfix.clip import Clip, MotionFileError, check_human_scale
+from mocapfix.core.clip import Clip, MotionFileError, check_human_scale
+from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill, limb_infill
 from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, policy_names, suspect_tokens
-from mocapfix.fixers import Fixer, RotationFixer
+from mocapfix.fix.fixers import Fixer, RotationFixer
+from mocapfix.fix.windowing import blend_windows, model_frames, resample_frames, resample_motion, window_layout
 from mocapfix.io import read_motion
 from mocapfix.io.joint_names import match_joints
-from mocapfix.kinematics import fk_axis_angle
-from mocapfix.skeleton import Skeleton
-from mocapfix.windowing import blend_windows, model_frames, resample_frames, resample_motion, window_layout
 
 MODES = ("infill", "denoise", "both")
 

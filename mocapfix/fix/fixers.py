@@ -13,11 +13,11 @@ from typing import Protocol
 
 import torch
 
-from mocapfix.clip import MotionFileError
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.policy import FillPolicy
-from mocapfix.inference import xmae_reconstruct
-from mocapfix.kinematics import fk_axis_angle
 from mocapfix.models.body import build_body_model
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.dvae import DVAEConfig, InitialStatePredictor, MotionDVAE, NoisePredictor
@@ -31,7 +31,7 @@ from mocapfix.models.dvae_inference import (
 )
 from mocapfix.models.dvae_state import STATES, MotionState, velocity_mask
 from mocapfix.models.xmae import XMAE, XMAEConfig
-from mocapfix.skeleton import Skeleton
+from mocapfix.models.xmae_inference import xmae_reconstruct
 
 
 class Fixer(Protocol):
@@ -67,7 +67,7 @@ class RotationFixer(Protocol):
 
 class XMAEFixer:
     """XMAE applied as the paper does: every available token observed (denoising is the same
-    pass as infilling), the normalisation of mocapfix.inference."""
+    pass as infilling), the normalisation of mocapfix.models.xmae_inference."""
 
     kind = "xmae"
     state = "positions"

@@ -3,7 +3,7 @@ model's length -> the model's estimates blended back into one track per clip.
 
 Nothing here knows what a frame holds (positions, rotations): blend_windows asks a WindowSource
 for the estimate of a batch of windows as flat per-frame vectors and blends them with sin^2
-weights. mocapfix/fix.py has the two sources (joint positions; joint rotations) and what is done
+weights. clips.py has the two sources (joint positions; joint rotations) and what is done
 with the blended tracks.
 """
 
@@ -130,7 +130,7 @@ def blend_weights(window: int, stride: int) -> np.ndarray:
 
 
 class WindowSource(Protocol):
-    """What blend_windows needs from a representation of the clips (fix.py: positions, rotations)."""
+    """What blend_windows needs from a representation of the clips (clips.py: positions, rotations)."""
 
     window: int  # frames per window, model fps
     dim: int  # D, the length of a frame's vector

@@ -14,7 +14,7 @@ import math
 import os
 from pathlib import Path
 
-from mocapfix.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError
 
 log = logging.getLogger(__name__)
 SOURCES = ("auto", "bvh", "positions", "h36m", "amass")
@@ -31,8 +31,9 @@ def _frame_rate(text: str) -> float:
     return fps
 
 
-def add_read_arguments(parser) -> None:
-    """The reader options every file-taking command shares (inspect, fix): an argparse parser."""
+def add_read_arguments(parser, fps: bool = True) -> None:
+    """The reader options every file-taking command shares (inspect, fix, render): an argparse
+    parser. fps=False leaves --fps to the command (render: the animation's frame rate)."""
     parser.add_argument("--source", default="auto", choices=SOURCES)
     parser.add_argument(
         "--unit",
@@ -40,7 +41,8 @@ def add_read_arguments(parser) -> None:
         help="the file's unit: m, cm, mm, inch or metres per file unit (0.0564); auto: from the body",
     )
     parser.add_argument("--up-axis", default="auto", help="override the file's up axis: z, y")
-    parser.add_argument("--fps", type=_frame_rate, default=None, help="frame rate for files that lack one")
+    if fps:
+        parser.add_argument("--fps", type=_frame_rate, default=None, help="frame rate for files that lack one")
     parser.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
 
 

@@ -17,7 +17,7 @@ import warnings
 import numpy as np
 from scipy.ndimage import median_filter
 
-from mocapfix.clip import Clip
+from mocapfix.core.clip import Clip
 from mocapfix.io.conventions import REFERENCE_STATURE_M
 
 MIN_REACH_M = 3.0  # a joint farther than max(this, 1.5 statures) from its body's median joint

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapfix.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.skeleton import PRESETS
 from mocapfix.io.positions import load_npz, npz_array
-from mocapfix.skeleton import PRESETS
 
 NUM_BODY_JOINTS = 22
 # Standard AMASS split (sub-dataset folder names; newer releases renamed some: both listed).

@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapfix.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.skeleton import Skeleton, guess_groups
 from mocapfix.io.conventions import guess_up_axis, metres_per_unit, resolve_unit
 from mocapfix.io.files import atomic_write
-from mocapfix.skeleton import Skeleton, guess_groups
 
 # y-up -> z-up is a +90 degree rotation about x: (x, y, z) -> (x, -z, y). Right-handed (det +1),
 # so rotations stay rotations and left stays left (conventions.to_z_up as a matrix).

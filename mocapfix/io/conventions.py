@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocapfix.clip import MotionFileError
-from mocapfix.skeleton import guess_groups
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.skeleton import guess_groups
 
 NAMED_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}  # metres per unit
 _ALIASES = {

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapfix.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.skeleton import PRESETS
 from mocapfix.io.conventions import parse_unit
 from mocapfix.io.positions import load_npz, npz_array
-from mocapfix.skeleton import PRESETS
 
 H36M_FPS = 50.0
 H36M_KEEP = [0, 1, 2, 3, 6, 7, 8, 12, 13, 14, 15, 17, 18, 19, 25, 26, 27]  # 32 -> 17 joints

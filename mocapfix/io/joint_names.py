@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import re
 
-from mocapfix.skeleton import Skeleton
+from mocapfix.core.skeleton import Skeleton
 
 # side-less word (lowercase, separators removed) -> part. Order matters only for readability.
 _PART_WORDS: dict[str, str] = {
@@ -190,7 +190,7 @@ def read_joint_map(path) -> dict[str, str]:
 
     import yaml
 
-    from mocapfix.clip import MotionFileError
+    from mocapfix.core.clip import MotionFileError
 
     path = Path(path)
     try:

@@ -40,10 +40,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapfix.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.skeleton import PRESETS, Skeleton, guess_groups
 from mocapfix.io.conventions import from_z_up, guess_up_axis, parse_unit, resolve_unit, to_z_up
 from mocapfix.io.files import atomic_write
-from mocapfix.skeleton import PRESETS, Skeleton, guess_groups
 
 UP_AXES = ("z", "y")
 _SPECIAL_COLUMNS = ("person", "frame", "time")

@@ -3,7 +3,7 @@
 Each clip is a seeded sequence of activities (walk, run, turn, jump, arm_swing, wave, idle)
 cross-faded over 0.3-0.5 s. Poses are per-joint Euler angles, blended linearly between
 activities so the motion stays smooth, then turned into local axis-angle and run through
-mocapfix.kinematics, so positions == fk_axis_angle(rotations, root_translation, offsets,
+mocapfix.core.kinematics, so positions == fk_axis_angle(rotations, root_translation, offsets,
 parents) by construction.
 
 Walking and running place the feet first and solve the legs with two-link IK: the stance
@@ -22,9 +22,9 @@ import torch
 from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
-from mocapfix.clip import Clip
-from mocapfix.kinematics import fk_axis_angle
-from mocapfix.skeleton import preset
+from mocapfix.core.clip import Clip
+from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.skeleton import preset
 
 ACTIVITIES = ("walk", "run", "turn", "jump", "arm_swing", "wave", "idle")
 _ACTIVITY_P = (0.18, 0.12, 0.16, 0.12, 0.14, 0.12, 0.16)

@@ -8,7 +8,7 @@ batched over any leading dims (B, T, ...).
   virtual markers Motion-DVAE observes (HuMoR's KEYPT_VERTS, vertex indices of the SMPL mesh).
   Only those marker vertices are skinned: the 6890-vertex mesh is never built.
 
-Both pose through mocapfix.kinematics.forward_kinematics, the project's one FK, so the joints
+Both pose through mocapfix.core.kinematics.forward_kinematics, the project's one FK, so the joints
 of the two models agree wherever the offsets are SMPL's rest-joint differences.
 """
 
@@ -23,8 +23,8 @@ import roma
 import torch
 import torch.nn as nn
 
-from mocapfix.clip import MotionFileError
-from mocapfix.kinematics import forward_kinematics
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.kinematics import forward_kinematics
 
 # Virtual mocap markers of HuMoR / Motion-DVAE (eq. 9): vertex indices of the SMPL(-H) mesh.
 PAPER_MARKERS = (

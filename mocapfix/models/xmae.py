@@ -181,7 +181,7 @@ class XMAE(nn.Module):
             fill_input,
         )
         # Not in the paper: with fill_input the decoder's queries also carry a classical fill of
-        # every token (inference.py: Lerp) and the network predicts the correction to it. A small
+        # every token (xmae_inference.py: Lerp) and the network predicts the correction to it. A small
         # network then starts from the interpolation instead of having to learn it, and spends its
         # capacity on what interpolation gets wrong.
         self.fill_input = fill_input

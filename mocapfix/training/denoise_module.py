@@ -35,11 +35,12 @@ import lightning as L
 import torch
 import torch.nn as nn
 
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.corruption import gaussian_noise, rotation_noise
 from mocapfix.data.spec import DataSpec
 from mocapfix.data.windows import complete_windows, select
-from mocapfix.evaluation.denoise_table import DenoiseTable, format_denoise_table
-from mocapfix.evaluation.harness import publish
+from mocapfix.evaluation.baselines import gaussian_smooth
+from mocapfix.evaluation.denoise_table import SMOOTH_FRAMES, SMOOTHERS, DenoiseTable, format_denoise_table
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.models.build import checkpoint_entry
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
@@ -55,11 +56,11 @@ from mocapfix.models.dvae_inference import (
     uses_noise_model,
 )
 from mocapfix.models.dvae_state import velocity_mask
-from mocapfix.skeleton import Skeleton
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.dvae_module import MotionDVAEModule, compile_in_place, require_complete_windows
 from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.schedules import anneal_steps_of, kl_anneal_weight
+from mocapfix.training.test_report import publish
 
 
 class DVAEDenoiseModule(L.LightningModule):
@@ -319,7 +320,7 @@ class DVAEDenoiseModule(L.LightningModule):
         self.log("val/mpjpe_mm", self.val_mpjpe, prog_bar=True, batch_size=B)
         self.log("val/noisy_mpjpe_mm", self.val_noisy_mpjpe, batch_size=B)
         if batch_idx == 0:
-            self._figure_sample = (batch["positions"][0], obs.positions[0], est[0])
+            self._figure_sample = (batch["positions"], obs.positions, est)
 
     def on_validation_epoch_end(self):
         if self.trainer.sanity_checking:
@@ -337,7 +338,6 @@ class DVAEDenoiseModule(L.LightningModule):
                 noisy,
                 None,
                 est,
-                self.window_fps,
                 f"denoising, sigma {self.hparams.val_sigma}, step {self.global_step}",
             )
 
@@ -394,6 +394,8 @@ class DVAEDenoiseModule(L.LightningModule):
             self._table.update(i, "dvae_regression", regression, truth, t1 - t0)
             optimised = self.hparams.opt_iterations > 0
             self._table.update(i, "dvae_optimisation", optimisation, truth, t2 - t1 if optimised else t1 - t0)
+            for frames, name in zip(SMOOTH_FRAMES, SMOOTHERS):  # the classical baseline
+                self._table.update(i, name, gaussian_smooth(obs.positions, frames), truth)
 
     def on_test_epoch_end(self):
         key = "sigma_rad" if self.hparams.noise == "rotation" else "sigma_m"

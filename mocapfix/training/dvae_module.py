@@ -18,18 +18,18 @@ from typing import NamedTuple
 import lightning as L
 import torch
 
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.spec import DataSpec
 from mocapfix.data.windows import complete_windows, select, spread_complete_batches
-from mocapfix.evaluation.harness import publish
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.models.body import build_body_model
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.dvae import DVAEConfig, MotionDVAE, gaussian_kl
 from mocapfix.models.dvae_state import MotionState, mean_joint_rotations
-from mocapfix.skeleton import Skeleton
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.schedules import anneal_steps_of, kl_anneal_weight
+from mocapfix.training.test_report import publish
 
 STD_FLOOR = 0.05  # dimensions the data never moves (a joint axis the synthetic body never turns) stay finite
 
@@ -310,7 +310,7 @@ class MotionDVAEModule(L.LightningModule):
     def validation_step(self, batch, batch_idx):
         res = self._evaluate(batch, "val")
         if res is not None and batch_idx == 0:
-            self._figure_sample = (res[0][0], res[1][0])
+            self._figure_sample = res
 
     def test_step(self, batch, batch_idx):
         self._evaluate(batch, "test")
@@ -346,6 +346,5 @@ class MotionDVAEModule(L.LightningModule):
                 truth,
                 None,
                 recon,
-                self.hparams.window_fps,
                 f"Motion-DVAE reconstruction, step {self.global_step}",
             )

@@ -14,21 +14,22 @@ import lightning as L
 import torch
 import torch.nn as nn
 
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.corruption import check_training_corruption, uniform_like, xmae_training_input
 from mocapfix.data.spec import DataSpec
 from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill
-from mocapfix.evaluation.harness import TestTable, publish
+from mocapfix.evaluation.harness import TestTable
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.model_fills import calibrate, candidate_fills, policy_output
 from mocapfix.evaluation.policy import Calibration, FillPolicy, apply_fill_policy
 from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows
-from mocapfix.inference import xmae_fill, xmae_reconstruct
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.xmae import XMAE, XMAEConfig, preset_sizes
-from mocapfix.skeleton import Skeleton
+from mocapfix.models.xmae_inference import xmae_fill, xmae_reconstruct
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.schedules import warmup_cosine
+from mocapfix.training.test_report import publish
 
 log = logging.getLogger(__name__)
 
@@ -236,7 +237,7 @@ class XMAEModule(L.LightningModule):
         for name, metric in self.val_gap.items():
             self.log(f"val/gap{self.hparams.val_gap_s}s_mpjpe_mm/{name}", metric)
         if batch_idx == 0:
-            self._figure_sample = (positions[0], gap.positions[0], gap.observed[0], xmae[0])
+            self._figure_sample = (positions, gap.positions, gap.observed, xmae)
         room = self.hparams.calibration_windows - (self._calibration.windows if self._calibration else 0)
         if self._calibration is not None and room > 0 and not self.trainer.sanity_checking:
             hp = self.hparams
@@ -286,7 +287,6 @@ class XMAEModule(L.LightningModule):
                 given,
                 observed,
                 output,
-                hp.window_fps,
                 f"full-skeleton {hp.val_gap_s} s gap, step {self.global_step}",
             )
 

@@ -1,0 +1,101 @@
+"""`mocapfix` / `python -m mocapfix`: one entry point, one module per command.
+
+fit | validate | test | predict   apps/cli.py (LightningCLI, configs by name)
+fix                               apps/fix_cli.py
+inspect                           apps/inspect.py
+demo                              apps/demo.py
+models                            the shipped models (mocapfix/pretrained)
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+
+from mocapfix.apps.cli import LIGHTNING_COMMANDS, packaged_configs, run_lightning
+
+
+def list_models() -> int:
+    """`mocapfix models`: the shipped models, a line each (model cards: docs/models.md)."""
+    from mocapfix.fix import load_fixer
+    from mocapfix.pretrained import MODELS, pretrained_path
+
+    for name, m in MODELS.items():
+        fixer = load_fixer(pretrained_path(name))
+        print(f"{name}: {m.summary}. License: {m.license}.\n    joints: {', '.join(fixer.skeleton.joint_names)}")
+    print("use: mocapfix fix INPUT --model NAME   (model cards: docs/models.md)")
+    return 0
+
+
+class _StderrHandler(logging.StreamHandler):
+    """A StreamHandler on whatever sys.stderr is when it writes (pytest swaps it between calls)."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # Our own progress lines (parsing, cache, windows); Lightning configures its own loggers.
+    logger = logging.getLogger("mocapfix")
+    if not any(isinstance(h, _StderrHandler) for h in logger.handlers):  # once, however often main runs
+        handler = _StderrHandler()
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    command = argv[0] if argv else None
+    if command in (None, "-h", "--help"):
+        print(
+            "usage: mocapfix {fit,validate,test,predict} --config NAME|FILE [--key.path value ...]\n"
+            "       mocapfix inspect FILE... [--json]\n"
+            "       mocapfix fix INPUT... --ckpt CKPT|--model NAME [-o OUT|--out-dir DIR] [--mode MODE]\n"
+            "       mocapfix inspect FILE... --ckpt CKPT|--model NAME  (how the file's joints map onto the model's)\n"
+            "       mocapfix render INPUT [FIXED...] -o OUT.gif|mp4|png [--start S] [--duration S]\n"
+            "       mocapfix models\n"
+            "       mocapfix demo\n"
+            "       mocapfix --version\n"
+            "`mocapfix COMMAND --help` lists its options; `mocapfix fit --config NAME --print_config` every setting.\n"
+            f"packaged configs: {', '.join(packaged_configs())}",
+            file=sys.stdout if command else sys.stderr,
+        )
+        return 0 if command else 2
+    if command == "inspect":
+        from mocapfix.apps.inspect import main as inspect_main
+
+        return inspect_main(argv[1:])
+    if command == "fix":
+        from mocapfix.apps.fix_cli import main as fix_main
+
+        return fix_main(argv[1:])
+    if command == "render":
+        from mocapfix.apps.render import main as render_main
+
+        return render_main(argv[1:])
+    if command == "models":
+        return list_models()
+    if command == "demo":
+        from mocapfix.apps.demo import main as demo_main
+
+        return demo_main(argv[1:])
+    if command in ("-V", "--version"):
+        from mocapfix import __version__
+
+        print(f"mocapfix {__version__}")
+        return 0
+    if command in LIGHTNING_COMMANDS:
+        return run_lightning(command, argv)
+    print(
+        f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect, fix, render, models "
+        "or demo",
+        file=sys.stderr,
+    )
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,75 @@
+"""`mocapfix render INPUT [FIXED ...] -o OUT.gif|mp4|png`: a recording beside fix's outputs of it,
+front and side views, filled and replaced tokens in their own colours, a time bar of the holes
+(core/render.py). Any file fix reads; the first person of each unless --person."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.render import render, tracks_for
+from mocapfix.io import add_read_arguments, read_motion
+
+
+def render_files(
+    input_path,
+    fixed_paths,
+    out,
+    start_s: float = 0.0,
+    duration_s: float | None = None,
+    fps: float | None = None,
+    person: int = 0,
+    **read_options,
+) -> Path:
+    """Read, match and draw; MotionFileError (one line) for what a user can mend."""
+    clips = read_motion(input_path, **read_options)
+    if not 0 <= person < len(clips):
+        raise MotionFileError(input_path, f"--person {person}: the file has {len(clips)} clip(s)")
+    base = clips[person]
+    fixed = []
+    for p in fixed_paths:
+        other = read_motion(p, **read_options)
+        if person >= len(other):
+            raise MotionFileError(p, f"--person {person}: the file has {len(other)} clip(s)")
+        fixed.append((Path(p).name, other[person]))
+    try:
+        tracks = tracks_for(base.replace(name=Path(input_path).name), fixed)
+        return render(tracks, base.skeleton.limbs, base.fps, Path(out), start_s, duration_s, fps)
+    except ValueError as e:
+        raise MotionFileError(input_path, str(e)) from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="mocapfix render", description=__doc__.split("\n")[0])
+    ap.add_argument("input", help="the recording (the reference: holes and changes are against it)")
+    ap.add_argument("fixed", nargs="*", help="fix's outputs of it, drawn beside it")
+    ap.add_argument("-o", "--out", required=True, help=".gif (Pillow), .mp4 (needs ffmpeg) or .png (a filmstrip)")
+    ap.add_argument("--start", type=float, default=0.0, help="seconds into the recording")
+    ap.add_argument("--duration", type=float, default=None, help="seconds to draw (default: to the end)")
+    ap.add_argument(
+        "--fps", type=float, default=None, help="the animation's frame rate (default: the recording's, <= 30)"
+    )
+    ap.add_argument("--person", type=int, default=0, help="which clip of a multi-person file")
+    add_read_arguments(ap, fps=False)
+    args = ap.parse_args(argv)
+    try:
+        out = render_files(
+            args.input,
+            args.fixed,
+            args.out,
+            args.start,
+            args.duration,
+            args.fps,
+            args.person,
+            source=args.source,
+            unit=args.unit,
+            up_axis=args.up_axis,
+            body_model_path=args.body_model,
+        )
+    except (ValueError, OSError) as e:  # MotionFileError is a ValueError: "path: problem"
+        print(f"error: {' '.join(str(e).split())}", file=sys.stderr)
+        return 1
+    print(f"wrote {out}")
+    return 0
