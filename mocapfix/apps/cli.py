@@ -266,15 +266,16 @@ def _lightning_cli(args: list[str]):
 
     torch.set_float32_matmul_precision("high")
     # LightningCLI reads sys.argv, and warns when it is given args beside a non-empty sys.argv (as
-    # for `mocapfix demo` or a call from Python): hand it the arguments as sys.argv for the run,
-    # under the name its usage lines should show (not __main__.py).
+    # for `mocapfix demo` or a call from Python): hand it the arguments as sys.argv for the run.
+    # sys.argv[0] stays the program that runs (the `mocapfix` script, or __main__.py under
+    # `python -m`): DDP starts the other processes by running it again. Usage lines say "mocapfix".
     argv_before = sys.argv
-    sys.argv = ["mocapfix", *expand_configs(args)]
+    sys.argv = [argv_before[0] if argv_before else "mocapfix", *expand_configs(args)]
     try:
         return MocapCLI(
             datamodule_class=MotionDataModule,
             subclass_mode_model=True,
-            parser_kwargs={"parser_mode": "omegaconf"},
+            parser_kwargs={"parser_mode": "omegaconf", "prog": "mocapfix"},
             save_config_kwargs={"overwrite": True},
             auto_configure_optimizers=False,
         )

@@ -14,6 +14,7 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import torch
+from lightning.pytorch.overrides.distributed import UnrepeatedDistributedSampler
 from torch.utils.data import DataLoader, Dataset
 
 from mocapfix.core.clip import Clip, MotionFileError, check_human_scale
@@ -68,6 +69,9 @@ class WindowDataset(Dataset):
         batch = {
             "positions": self.positions[frames],  # (B, T, J, 3)
             "clip_index": self.clip_index[indices],
+            # (B,) each window's place in its split: what test corruption is seeded by, so a table
+            # does not depend on batch size or on how many processes share the split
+            "window": torch.as_tensor(indices, device=self.starts.device).long(),
         }
         if self.with_rotations:
             batch["rotations"] = self.rotations[frames]  # (B, T, J, 3)
@@ -423,10 +427,17 @@ class MotionDataModule(L.LightningDataModule):
                 "adjust val_fraction / test_fraction / patterns or window_s",
             )
         bs = hp.batch_size if split == "train" else (hp.eval_batch_size or hp.batch_size)
+        sampler = None
+        t = self.trainer
+        if split != "train" and t is not None and t.world_size > 1:
+            # every window once over the processes: Lightning's DistributedSampler would pad an
+            # uneven split with repeated windows, counted twice in the metrics
+            sampler = UnrepeatedDistributedSampler(ds, num_replicas=t.world_size, rank=t.global_rank, shuffle=False)
         return DataLoader(
             ds,
             batch_size=bs,
             shuffle=shuffle,
+            sampler=sampler,
             drop_last=shuffle and len(ds) >= bs,
             num_workers=hp.num_workers,
             pin_memory=hp.pin_memory,

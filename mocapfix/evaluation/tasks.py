@@ -42,6 +42,19 @@ class Task:
             return constant_displacement(positions, fps, self.gap_s, joints, generator)
         return gaussian_noise(positions, self.sigma_m, generator)
 
+    def corrupt_windows(
+        self, positions: torch.Tensor, fps: float, skeleton: Skeleton, seeds: torch.Tensor
+    ) -> Corrupted:
+        """corrupt, each window (B, T, J, 3) with its own generator seeded by seeds (B,): the same
+        window gets the same corruption whatever batch or process it is in."""
+        if self.task == "infill":  # no random draw
+            return self.corrupt(positions, fps, skeleton, None)
+        parts = [
+            self.corrupt(positions[b : b + 1], fps, skeleton, torch.Generator().manual_seed(int(seed)))
+            for b, seed in enumerate(seeds.tolist())
+        ]
+        return Corrupted(*(torch.cat(field) for field in zip(*parts)))
+
     def evaluated(self, c: Corrupted, target: torch.Tensor) -> torch.Tensor:
         """(B, T, J) bool: removed or displaced tokens (every token for noise) that have ground truth."""
         has_truth = ~torch.isnan(target).any(-1)
@@ -119,3 +132,14 @@ def write_eval_json(path: Path, rows: list[dict]) -> Path:
     tmp.write_text(json.dumps(rows, indent=1))
     tmp.replace(path)
     return path
+
+
+def window_seeds(batch: dict, batch_idx: int, k: int = 0, eval_seed: int = 0) -> torch.Tensor:
+    """(B,) seeds for each test window's corruption k: from the window's place in its split
+    (batch["window"], set by the data module), so a test table is the same for any batch size and
+    number of processes. A batch without it (another dataset) falls back to its batch index."""
+    B = len(batch["positions"])
+    window = batch.get("window")
+    if window is None:
+        window = batch_idx * B + torch.arange(B)
+    return eval_seed * 1_000_003 + window.cpu().long() * 101 + k

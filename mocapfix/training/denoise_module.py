@@ -42,6 +42,7 @@ from mocapfix.data.windows import complete_windows, select
 from mocapfix.evaluation.baselines import gaussian_smooth
 from mocapfix.evaluation.denoise_table import SMOOTH_FRAMES, SMOOTHERS, DenoiseTable, format_denoise_table
 from mocapfix.evaluation.metrics import MPJPE
+from mocapfix.evaluation.tasks import window_seeds
 from mocapfix.models.build import checkpoint_entry
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
 
@@ -300,9 +301,9 @@ class DVAEDenoiseModule(L.LightningModule):
 
     # --- validation: the noisy ELBO (checkpoint monitor) and, for the reader, the MPJPE ---
 
-    def _generator(self, batch_idx: int, k: int = 0) -> torch.Generator:
-        # CPU generator: the same noise on any device (see corruption.py)
-        return torch.Generator().manual_seed(self.hparams.eval_seed * 100_003 + batch_idx * 101 + k)
+    def _generator(self, batch_idx: int) -> torch.Generator:
+        # validation, one per batch; CPU generator: the same noise on any device (see corruption.py)
+        return torch.Generator().manual_seed(self.hparams.eval_seed * 100_003 + batch_idx * 101)
 
     def validation_step(self, batch, batch_idx):
         keep = complete_windows(batch)
@@ -312,8 +313,8 @@ class DVAEDenoiseModule(L.LightningModule):
         obs = self.observation(batch)
         B = len(obs.positions)
         loss, terms = self.denoise_loss(obs, self.hparams.kl_weight, sample=False)
-        self.log("val/loss", loss, prog_bar=True, batch_size=B)
-        self.log_dict({f"val/{k}": v for k, v in terms.items()}, batch_size=B)
+        self.log("val/loss", loss, prog_bar=True, batch_size=B, sync_dist=True)  # every process's windows
+        self.log_dict({f"val/{k}": v for k, v in terms.items()}, batch_size=B, sync_dist=True)
         est = self.estimate(obs)
         self.val_mpjpe(est.float(), batch["positions"].float())
         self.val_noisy_mpjpe(obs.positions.float(), batch["positions"].float())
@@ -327,7 +328,7 @@ class DVAEDenoiseModule(L.LightningModule):
             return
         loss = self.trainer.callback_metrics.get("val/loss")
         if loss is not None:
-            self.log("hp_metric", loss)
+            self.log("hp_metric", loss, sync_dist=True)
         sample = getattr(self, "_figure_sample", None)
         if sample is not None:
             truth, noisy, est = sample
@@ -370,6 +371,15 @@ class DVAEDenoiseModule(L.LightningModule):
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
 
+    def _noisy_windows(self, batch: dict, sigma: float, seeds: torch.Tensor) -> dict:
+        """add_noise, each window with its own generator (seeds (B,)): a window's noise does not
+        depend on the batch or process it is in."""
+        parts = [
+            self.add_noise(select(batch, torch.arange(len(seeds)) == b), sigma, torch.Generator().manual_seed(int(s)))
+            for b, s in enumerate(seeds.tolist())
+        ]
+        return {k: torch.cat([p[k] for p in parts]) if torch.is_tensor(v) else v for k, v in parts[0].items()}
+
     def on_test_epoch_start(self):
         self._table = DenoiseTable(self.hparams.test_sigmas, self.window_fps).to(self.device)
 
@@ -381,7 +391,8 @@ class DVAEDenoiseModule(L.LightningModule):
         truth = batch["positions"].float()
         self._table.update_truth(truth)
         for i, sigma in enumerate(self._table.sigmas):
-            obs = self.observation(self.add_noise(batch, sigma, self._generator(batch_idx, i + 1)))
+            seeds = window_seeds(batch, batch_idx, i + 1, self.hparams.eval_seed)
+            obs = self.observation(self._noisy_windows(batch, sigma, seeds))
             self._sync()
             t0 = time.perf_counter()
             regression = self.estimate(obs)

@@ -300,7 +300,7 @@ class MotionDVAEModule(L.LightningModule):
         terms, truth, recon = self.reconstruct(batch)
         loss = terms.rec + self.hparams.kl_weight * terms.kl + self.hparams.reg_weight * terms.reg
         B = len(truth)
-        self.log(f"{stage}/loss", loss, prog_bar=True, batch_size=B)
+        self.log(f"{stage}/loss", loss, prog_bar=True, batch_size=B, sync_dist=True)  # every process's windows
         self.log_dict({f"{stage}/rec": terms.rec, f"{stage}/kl": terms.kl, f"{stage}/reg": terms.reg}, batch_size=B)
         metric = self.val_mpjpe if stage == "val" else self.test_mpjpe
         metric(recon[:, 1:], truth[:, 1:])
@@ -335,7 +335,7 @@ class MotionDVAEModule(L.LightningModule):
             return
         loss = self.trainer.callback_metrics.get("val/loss")
         if loss is not None:
-            self.log("hp_metric", loss)
+            self.log("hp_metric", loss, sync_dist=True)
         sample = getattr(self, "_figure_sample", None)
         if sample is not None:
             truth, recon = sample

@@ -22,11 +22,22 @@ class WritePredictions(BasePredictionWriter):
         self.path: Path | None = None
 
     def write_on_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, predictions, batch_indices):
-        if not trainer.is_global_zero or not predictions:
-            return
-        if isinstance(predictions[0], list):  # one list per predict dataloader
+        if predictions and isinstance(predictions[0], list):  # one list per predict dataloader
             predictions = [p for per_loader in predictions for p in per_loader]
-        positions = torch.cat([p.float().cpu() for p in predictions]).numpy()  # (N, T, J, 3)
+            batch_indices = [b for per_loader in batch_indices for b in per_loader]
+        positions = torch.cat([p.float().cpu() for p in predictions]) if predictions else None  # (n, T, J, 3)
+        if trainer.world_size > 1:  # every process's windows, back in the split's order
+            index = torch.as_tensor(list(_flat(batch_indices)), dtype=torch.long)  # (n,) the windows predicted here
+            parts = [None] * trainer.world_size
+            torch.distributed.all_gather_object(parts, (index, positions))
+            parts = [(i, p) for i, p in parts if p is not None]
+            if not parts:
+                return
+            index, positions = torch.cat([i for i, _ in parts]), torch.cat([p for _, p in parts])
+            positions = positions[torch.argsort(index)]
+        if not trainer.is_global_zero or positions is None:
+            return
+        positions = positions.numpy()  # (N, T, J, 3)
         skeleton = trainer.datamodule.skeleton
         log_dir = trainer.logger.log_dir if trainer.logger and trainer.logger.log_dir else trainer.default_root_dir
         self.path = Path(log_dir) / "predictions.npz"
@@ -40,3 +51,12 @@ class WritePredictions(BasePredictionWriter):
                 parents=np.array(skeleton.parents),
             ),
         )
+
+
+def _flat(nested):
+    """The ints of batch_indices, however Lightning nested them (per dataloader, per batch)."""
+    for x in nested:
+        if isinstance(x, (list, tuple)):
+            yield from _flat(x)
+        else:
+            yield int(x)

@@ -22,7 +22,7 @@ from mocapfix.evaluation.harness import TestTable
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.model_fills import calibrate, candidate_fills, policy_output
 from mocapfix.evaluation.policy import Calibration, FillPolicy, apply_fill_policy
-from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows
+from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows, window_seeds
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.xmae import XMAE, XMAEConfig, preset_sizes
 from mocapfix.models.xmae_inference import xmae_fill, xmae_reconstruct
@@ -217,14 +217,14 @@ class XMAEModule(L.LightningModule):
 
     # --- validation ---
 
-    def _generator(self, batch_idx: int) -> torch.Generator:
+    def _generator(self, batch_idx: int) -> torch.Generator:  # validation: one per batch
         # CPU generator: the same corruption on any device and precision (see corruption.py).
         return torch.Generator().manual_seed(self.hparams.eval_seed * 100_003 + batch_idx)
 
     def validation_step(self, batch, batch_idx):
         positions = batch["positions"]
         loss, pred, target, c, in_loss, offset = self._corrupt_and_predict(positions, self._generator(batch_idx))
-        self.log("val/loss", loss, prog_bar=True, batch_size=len(positions))
+        self.log("val/loss", loss, prog_bar=True, batch_size=len(positions), sync_dist=True)  # every process's
         self.val_mpjpe(pred.float(), target.float(), in_loss)
         self.log("val/mpjpe_mm", self.val_mpjpe, prog_bar=True)
 
@@ -276,7 +276,7 @@ class XMAEModule(L.LightningModule):
             self.fill_policy = policy
         mpjpe = self.trainer.callback_metrics.get("val/mpjpe_mm")
         if mpjpe is not None:
-            self.log("hp_metric", mpjpe)
+            self.log("hp_metric", mpjpe, sync_dist=True)
         sample = getattr(self, "_figure_sample", None)
         if sample is not None:
             truth, given, observed, output = sample
@@ -307,9 +307,9 @@ class XMAEModule(L.LightningModule):
 
     def test_step(self, batch, batch_idx):
         positions = batch["positions"]
-        generator = self._generator(batch_idx)
-        for t in self._tasks:
-            c = t.corrupt(positions, self.hparams.window_fps, self.skeleton, generator)
+        for k, t in enumerate(self._tasks):
+            seeds = window_seeds(batch, batch_idx, k, self.hparams.eval_seed)
+            c = t.corrupt_windows(positions, self.hparams.window_fps, self.skeleton, seeds)
             scored = t.evaluated(c, positions)
             # the classical fills fill the missing tokens and leave the observed ones as given
             preds = candidate_fills(self._reconstruct, c.positions, c.observed, self.skeleton)
