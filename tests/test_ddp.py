@@ -68,3 +68,59 @@ def test_two_process_fit_and_test_give_the_one_process_table(tmp_path):
     a, b = (np.load(p)["positions"] for p in paths)
     assert a.shape == b.shape and a.shape[0] == 9
     np.testing.assert_allclose(a, b, atol=1e-5, equal_nan=True)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_sigterm_ends_a_two_process_fit_with_a_checkpoint(tmp_path):
+    """SIGTERM (a scheduler's time limit) to a 2-process fit: every process ends within 30 s,
+    exit 143, last.ckpt at the step reached (not the hang until the gloo timeout it once was)."""
+    import signal
+    import time
+
+    import torch
+
+    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
+    args = ["--config", "xmae", *TINY, *DATA, *QUIET, "--model.init_args.calibration_windows", "0"]
+    args += ["--experiment", "term", "--trainer.max_steps", "100000", "--trainer.val_check_interval", "4"]
+    ddp = ["--trainer.accelerator", "cpu", "--trainer.devices", "2", "--trainer.strategy", "ddp"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mocapfix", "fit", *args, *ddp],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    last = tmp_path / "checkpoints" / "term" / "last.ckpt"
+    deadline = time.time() + 240
+    while not last.exists() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.5)
+    assert last.exists(), proc.stderr.read()[-3000:] if proc.poll() is not None else "no checkpoint in 240 s"
+    time.sleep(2.0)  # training on past the first validation
+    proc.send_signal(signal.SIGTERM)
+    t0 = time.time()
+    try:
+        rc = proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        rc = None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = proc.stderr.read()
+    assert rc is not None, "still running 30 s after SIGTERM:\n" + err[-4000:]
+    assert rc == 143 and "stopped by SIGTERM" in err, err[-3000:]
+    stopped_s = time.time() - t0
+    print(f"2-process fit stopped {stopped_s:.1f} s after SIGTERM")
+    assert stopped_s < 30
+    step = torch.load(last, map_location="cpu", weights_only=True)["global_step"]
+    assert step > 4  # the step reached, past the validation's checkpoint
+    # and no process of the run is left
+    time.sleep(1.0)
+    left = []
+    for pid in os.listdir("/proc"):
+        try:
+            if pid.isdigit() and os.readlink(f"/proc/{pid}/cwd") == str(tmp_path):
+                left.append(pid)
+        except OSError:
+            pass
+    assert not left, left

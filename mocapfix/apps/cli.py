@@ -109,6 +109,7 @@ def _lightning_cli(args: list[str]):
     from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, ProgressBar, TQDMProgressBar
     from lightning.pytorch.cli import LightningCLI
     from lightning.pytorch.loggers import TensorBoardLogger
+    from lightning.pytorch.utilities.exceptions import SIGTERMException
 
     from mocapfix.data.datamodule import MotionDataModule
     from mocapfix.training.interrupt_checkpoint import CheckpointOnInterrupt
@@ -117,6 +118,16 @@ def _lightning_cli(args: list[str]):
     from mocapfix.training.rng_state import RNGStateInCheckpoint
 
     class MocapCLI(LightningCLI):
+        def _run_subcommand(self, subcommand: str) -> None:
+            try:
+                super()._run_subcommand(subcommand)
+            except RuntimeError as e:
+                # DDP after a SIGTERM: when another process stopped first, this one's next
+                # collective fails; that is the SIGTERM stop too (last.ckpt is written)
+                if self.trainer.received_sigterm:
+                    raise SIGTERMException() from e
+                raise
+
         def add_arguments_to_parser(self, parser):
             parser.add_argument(
                 "--experiment",
