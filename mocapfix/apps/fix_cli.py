@@ -1,7 +1,8 @@
 """`mocapfix fix INPUT... --ckpt CKPT`: clean motion files with a trained checkpoint.
 
 Per file: read (any format the data module reads), fix (mocapfix.fix), write positions in the
-input's layout (a BVH in the input's hierarchy for a rotation model), one report line. A bad
+input's layout (a BVH input comes back as a BVH in its own hierarchy: a rotation model's
+rotations, or a positions model's positions through inverse kinematics), one report line. A bad
 file is one error line and the others still run; the exit code is 1 when any file failed.
 Outputs are written to a temporary file and renamed: never half a file, never over the input,
 never over an existing file without --force.

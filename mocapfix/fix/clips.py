@@ -118,7 +118,7 @@ def fix_clips(
     joint_map: dict[str, str] | None = None,
 ) -> tuple[list[Clip], FixReport]:
     """Fix the clips of one file; each keeps its skeleton, frames and fps (positions only: no
-    rotations; a rotation model's clips go to fix_rotation_clips and keep their rotations).
+    rotations; a rotation model's clips go to _fix_rotations and keep their rotations).
     progress(done, total) is called after each batch of windows.
 
     With the fixer's fill policy (a checkpoint calibrated on its val split, evaluation/policy.py)

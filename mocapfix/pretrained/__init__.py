@@ -25,6 +25,12 @@ MODELS: dict[str, Pretrained] = {
         "joints (--mode infill|both)",
         "CC BY-NC 4.0 (trained on Bandai Namco's motion dataset): non-commercial use only",
     ),
+    "motion-dvae-bandai": Pretrained(
+        "motion_dvae_bandai.ckpt",
+        "Motion-DVAE denoiser (rotations state, width 256); Bandai Namco's 21-joint hierarchy, 30 fps; jitter "
+        "on BVH takes (--mode denoise)",
+        "CC BY-NC 4.0 (trained on Bandai Namco's motion dataset): non-commercial use only",
+    ),
 }
 
 
