@@ -193,15 +193,15 @@ def render(
 def _filmstrip(tracks: list[Track], limbs, fps: float, frames: np.ndarray, out: Path, n: int) -> Path:
     """One image: the scene at n frames across the span, STRIP_COLUMNS scenes to a row."""
     picks = frames[np.unique(np.linspace(0, len(frames) - 1, min(n, len(frames))).round().astype(int))]
-    images = []
+    scene, images = _Scene(tracks, limbs, fps, frames), []
+    title = scene.fig.suptitle(" ", fontsize=8)  # laid out with a title, then its text per frame
+    scene.fig.tight_layout()
     for f in picks:
-        scene = _Scene(tracks, limbs, fps, frames)
         scene.set_frame(int(f))
-        scene.fig.suptitle(f"t = {f / fps:.2f} s", fontsize=8)
-        scene.fig.tight_layout()
+        title.set_text(f"t = {f / fps:.2f} s")
         scene.fig.canvas.draw()
-        images.append(np.asarray(scene.fig.canvas.buffer_rgba())[..., :3])
-        plt.close(scene.fig)
+        images.append(np.array(scene.fig.canvas.buffer_rgba())[..., :3])  # a copy: the buffer is reused
+    plt.close(scene.fig)
     blank = np.full_like(images[0], 255)
     images += [blank] * (-len(images) % STRIP_COLUMNS)
     rows = [np.concatenate(images[i : i + STRIP_COLUMNS], axis=1) for i in range(0, len(images), STRIP_COLUMNS)]

@@ -188,10 +188,15 @@ def blend_windows(
     wsum = [np.zeros(len(nd)) for nd in need]
     by_model = [np.zeros(len(nd), dtype=bool) for nd in need]
 
+    weights = {}  # window length -> its blend weights
+
     def add(k: int, f: np.ndarray, values: np.ndarray) -> None:
         # f: (L,) frames, -1 at padding (weighs nothing); values: (L, D). A window's frames are distinct.
         real = f >= 0
-        w = blend_weights(len(f), max(1, int(round(len(f) * (1.0 - overlap)))))[real]
+        L = len(f)
+        if L not in weights:
+            weights[L] = blend_weights(L, max(1, int(round(L * (1.0 - overlap)))))
+        w = weights[L][real]
         acc[k][f[real]] += values[real] * w[:, None]
         wsum[k][f[real]] += w
 
