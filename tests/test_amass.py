@@ -60,8 +60,8 @@ def _model(num_joints, num_betas, hands, V=50, seed=0):
 def _amass(path, T, pose_dim, num_betas, gender="male", seed=1):
     rng = np.random.default_rng(seed)
     data = {
-        "poses": rng.normal(scale=0.5, size=(T, pose_dim)),
-        "trans": rng.normal(size=(T, 3)),
+        "poses": rng.normal(scale=0.5, size=pose_dim) + np.cumsum(rng.normal(scale=0.02, size=(T, pose_dim)), axis=0),
+        "trans": np.cumsum(rng.normal(scale=0.01, size=(T, 3)), axis=0),  # motion, not teleports (io/absurd.py)
         "betas": rng.normal(size=num_betas),
         "gender": np.array(gender),
         "mocap_framerate": np.array(120.0),

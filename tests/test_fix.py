@@ -715,8 +715,8 @@ def test_wrong_command_lines_are_usage_errors(tmp_path, ckpt, motion, capsys):
     (tmp_path / "afile").write_text("x")
     for extra, message in (
         (["--out-dir", tmp_path / "afile"], "is a file, not a folder"),
-        (["--fps", "0"], "--fps: must be a positive number"),
-        (["--fps", "nan"], "--fps: must be a positive number"),
+        (["--fps", "0"], "--fps: must be 1 to 10000 frames per second"),
+        (["--fps", "nan"], "--fps: must be 1 to 10000 frames per second"),
     ):
         with pytest.raises(SystemExit) as e:
             main(["fix", str(tmp_path / "a.npz"), "--ckpt", str(ckpt), *map(str, extra)])

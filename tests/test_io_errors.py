@@ -44,9 +44,9 @@ def test_positions_wrong_shape(tmp_path, shape):
     "fps,match",
     [
         (None, "no 'fps'"),
-        (0, "positive"),
-        (-30, "positive"),
-        (np.nan, "positive"),
+        (0, "outside 1-10000 fps"),
+        (-30, "outside 1-10000 fps"),
+        (np.nan, "outside 1-10000 fps"),
         (np.array([30, 60]), "one number"),
         ("thirty", "one number"),
     ],

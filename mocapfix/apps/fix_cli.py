@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
 import sys
 import threading
@@ -22,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError, shown
 from mocapfix.core.ik import ik_error_mm, inverse_kinematics
 from mocapfix.core.render import holes_map, render, tracks_for
 from mocapfix.fix import MODES, fix_clips, map_joints, rotation_clips
@@ -30,9 +31,10 @@ from mocapfix.fix.fixers import PRECISIONS, load_fixer
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
-from mocapfix.io.files import atomic_write
-from mocapfix.io.joint_names import read_joint_map
-from mocapfix.io.positions import load_npz, npz_array, write_clips, write_positions
+from mocapfix.io.files import atomic_write, claimed, publish
+from mocapfix.io.joint_names import check_joint_map, read_joint_map
+from mocapfix.io.npz import load_npz, npz_array
+from mocapfix.io.positions import write_clips, write_positions
 from mocapfix.pretrained import pretrained_path
 
 FIXED = ".fixed"  # default output: <stem>.fixed<ext> beside the input
@@ -177,27 +179,45 @@ def _one_line(path, e: BaseException) -> str:
     """MotionFileError reads "path: problem"; anything else gets the path and its type. A
     MotionFileError about another file (the body model) gets the input's path in front."""
     text = " ".join(str(e).split())
-    if text.startswith(str(path)):
+    if text.startswith(shown(path)):
         return text
     if isinstance(e, MotionFileError):
-        return text if Path(e.path).resolve() == Path(path).resolve() else f"{path}: {text}"
-    return f"{path}: {type(e).__name__}: {text}" if text else f"{path}: {type(e).__name__}"
+        return text if Path(e.path).resolve() == Path(path).resolve() else f"{shown(path)}: {text}"
+    return f"{shown(path)}: {type(e).__name__}: {text}" if text else f"{shown(path)}: {type(e).__name__}"
 
 
 def _num(v: float) -> str:
     return f"{v:.2f}" if math.isfinite(v) else "-"
 
 
-def _inputs(paths: list[str], source: str, err) -> tuple[list[tuple[Path, Path | None]], bool]:
+def _inputs(
+    paths: list[str], source: str, err, out_dir: str | None = None
+) -> tuple[list[tuple[Path, Path | None]], bool]:
     """(file, path relative to the folder it was found in, None for files given by name);
-    earlier outputs (*.fixed.*) inside folders are skipped."""
+    earlier outputs inside folders are skipped: *.fixed.* files, and the --out-dir folder when it
+    is inside an input folder (else every rerun would fix the last run's outputs again). A
+    folder that cannot be read is an error line; the files around it still run."""
     files, failed = [], False
+    skip = Path(out_dir).resolve() if out_dir else None
+
+    def unreadable(e: MotionFileError):
+        nonlocal failed
+        print(f"error: {' '.join(str(e).split())}", file=err, flush=True)
+        failed = True
+
     for p in paths:
         p = Path(p)
         if p.is_dir():
-            found = [f for f in list_motion_files(p, source) if not f.stem.endswith(FIXED)]
+            try:
+                listed = list_motion_files(p, source, on_error=unreadable)
+            except MotionFileError as e:
+                unreadable(e)
+                continue
+            found = [
+                f for f in listed if not f.stem.endswith(FIXED) and (skip is None or skip not in f.resolve().parents)
+            ]
             if not found:
-                print(f"error: {p}: no motion files in this folder", file=err)
+                print(f"error: {shown(p)}: no motion files in this folder", file=err)
                 failed = True
             files.extend((f, f.relative_to(p)) for f in found)
         else:
@@ -223,6 +243,7 @@ def fix_files(
     precision: str = "fp32",
     joint_map: dict[str, str] | None = None,
     render_gif: bool = False,
+    joint_map_path: str = "--joint-map",
     **read_options,
 ) -> int:
     """Fix every file; -> exit code (0 all written, 1 some failed). read_options go to read_motion;
@@ -234,13 +255,19 @@ def fix_files(
     except Exception as e:
         print(f"error: {_one_line(ckpt, e)}", file=err)
         return 1
+    try:
+        if joint_map:
+            check_joint_map(joint_map, fixer.skeleton, joint_map_path)
+    except MotionFileError as e:
+        print(f"error: {e}", file=err)
+        return 1
     if fixer.kind == "xmae" and fixer.policy is None:
         print(
             f"note: {ckpt} has no fill policy: the model fills every hole and replaces every token it is "
             "asked to (`mocapfix validate --config CFG --ckpt_path CKPT` calibrates one on the val split)",
             file=err,
         )
-    files, failed = _inputs(paths, source, err)
+    files, failed = _inputs(paths, source, err, out_dir)
     written: dict[Path, Path] = {}
     for path, rel in files:
         t0 = time.perf_counter()
@@ -254,27 +281,42 @@ def fix_files(
             )
             resolved = target.resolve()
             if resolved == path.resolve():
-                raise MotionFileError(path, f"output {target} is the input; fix never overwrites its input")
+                raise MotionFileError(path, f"output {shown(target)} is the input; fix never overwrites its input")
             if resolved in written:
-                raise MotionFileError(path, f"output {target} was already written for {written[resolved]}")
-            if target.exists() and not force:
-                raise MotionFileError(path, f"output {target} exists (use --force to overwrite)")
-            seconds = sum(c.duration_s for c in clips)
-            show = progress == "always" or (
-                progress == "auto" and (getattr(err, "isatty", lambda: False)() or seconds >= LONG_INPUT_S)
-            )
-            work = (
-                rotation_clips(path, clips, fixer.skeleton, source, joint_map, **read_options) if rotations else clips
-            )
-            progress_bar = Progress(str(path), show, err)
-            fixed, report = fix_clips(work, fixer, mode, overlap, batch_size, progress_bar, joint_map)
-            if target.suffix.lower() == ".bvh" and not rotations:
-                fixed, ik_mean, ik_max = onto_hierarchy(fixed, clips)
-                report.notes.append(
-                    f"BVH by inverse kinematics onto the input's skeleton: its bone lengths moved joints "
-                    f"{ik_mean:.1f} mm on average from the model's positions (max {ik_max:.1f} mm)"
+                first = shown(written[resolved])
+                raise MotionFileError(path, f"output {shown(target)} was already written for {first}")
+            with claimed(target, path):  # one run per output: a second one to the same -o fails here
+                if target.exists() and not force:
+                    raise MotionFileError(path, f"output {shown(target)} exists (use --force to overwrite)")
+                seconds = sum(c.duration_s for c in clips)
+                show = progress == "always" or (
+                    progress == "auto" and (getattr(err, "isatty", lambda: False)() or seconds >= LONG_INPUT_S)
                 )
-            write_output(target, fixed, clips, path)
+                work = (
+                    rotation_clips(path, clips, fixer.skeleton, source, joint_map, **read_options)
+                    if rotations
+                    else clips
+                )
+                progress_bar = Progress(shown(path), show, err)
+                fixed, report = fix_clips(work, fixer, mode, overlap, batch_size, progress_bar, joint_map)
+                if target.suffix.lower() == ".bvh" and not rotations:
+                    fixed, ik_mean, ik_max = onto_hierarchy(fixed, clips)
+                    report.notes.append(
+                        f"BVH by inverse kinematics onto the input's skeleton: its bone lengths moved joints "
+                        f"{ik_mean:.1f} mm on average from the model's positions (max {ik_max:.1f} mm)"
+                    )
+                # Written beside the target under a hidden name, then moved into place without
+                # overwriting (unless --force): a file that appeared meanwhile is never lost.
+                staged = target.with_name(f".{target.stem}.{os.getpid()}.partial{target.suffix}")
+                try:
+                    write_output(staged, fixed, clips, path)
+                    publish(staged, target, replace=force)
+                except FileExistsError:
+                    raise MotionFileError(
+                        path, f"output {shown(target)} appeared while fixing (another program?); kept, nothing written"
+                    ) from None
+                finally:
+                    staged.unlink(missing_ok=True)
             written[resolved] = path
             if render_gif:  # the first person: a preview, not a report of every clip
                 tracks = tracks_for(clips[0], [(target.name, fixed[0])])
@@ -298,6 +340,14 @@ def fix_files(
             notes.insert(0, note)
         if report.filled_by:
             notes.insert(0, "filled by " + ", ".join(f"{m} {n}" for m, n in sorted(report.filled_by.items())))
+        absurd = sum(int(c.meta.get("absurd_tokens", 0)) for c in clips)
+        if absurd:
+            joints = sorted({j for c in clips for j in c.meta.get("absurd_joints", [])})
+            notes.insert(
+                0,
+                f"{absurd} tokens no body could take (a jump faster than any body part, or out of reach) were "
+                f"treated as missing{': ' + ', '.join(joints) if joints else ''}",
+            )
         kind = "sequences" if clips[0].meta.get("format") == "h36m" else "person" if report.people == 1 else "people"
         if as_json:
             print(
@@ -324,7 +374,7 @@ def fix_files(
             )
         else:
             line = (
-                f"{path} -> {target}: {report.frames} frames, {report.people} {kind}, "
+                f"{shown(path)} -> {shown(target)}: {report.frames} frames, {report.people} {kind}, "
                 f"{report.filled} tokens filled, {report.replaced} replaced ({mode}, {fixer.kind}), "
                 f"limb sigma {_num(report.limb_sigma_before_mm)} -> {_num(report.limb_sigma_after_mm)} mm, "
                 f"{elapsed:.2f} s"
@@ -426,6 +476,7 @@ def main(argv: list[str] | None = None) -> int:
             precision=args.precision,
             joint_map=joint_map,
             render_gif=args.render,
+            joint_map_path=args.joint_map,
             unit=args.unit,
             up_axis=args.up_axis,
             fps=args.fps,

@@ -14,10 +14,10 @@ import sys
 
 import numpy as np
 
-from mocapfix.core.clip import Clip, body_limbs, limb_lengths
+from mocapfix.core.clip import Clip, body_limbs, limb_lengths, shown
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
-from mocapfix.io.joint_names import describe_mapping, read_joint_map
+from mocapfix.io.joint_names import check_joint_map, describe_mapping, read_joint_map
 
 _HIP_NAMES = ("hips", "hip", "pelvis")
 
@@ -152,9 +152,15 @@ def inspect_files(
     err = err or sys.stderr
     failed = False
     rows = []
+
+    def unreadable(e: Exception):
+        nonlocal failed
+        print(f"error: {_one_line(getattr(e, 'path', ''), e)}", file=err)
+        failed = True
+
     for p in paths:
-        try:
-            files = list_motion_files(p, source)
+        try:  # a subfolder that cannot be read is one error line; the files around it still run
+            files = list_motion_files(p, source, on_error=unreadable)
         except Exception as e:  # one bad argument must not stop the others
             print(f"error: {_one_line(p, e)}", file=err)
             failed = True
@@ -190,9 +196,9 @@ def inspect_files(
 def _one_line(path, e: Exception) -> str:
     """MotionFileError already reads "path: problem"; anything else gets the path and its type."""
     text = " ".join(str(e).split())
-    if text.startswith(str(path)):
+    if text.startswith(shown(path)):
         return text
-    return f"{path}: {type(e).__name__}: {text}" if text else f"{path}: {type(e).__name__}"
+    return f"{shown(path)}: {type(e).__name__}: {text}" if text else f"{shown(path)}: {type(e).__name__}"
 
 
 def main(argv=None) -> int:
@@ -217,6 +223,8 @@ def main(argv=None) -> int:
             model = load_fixer(pretrained_path(args.model) if args.model else args.ckpt).skeleton
             what = args.joint_map
             joint_map = read_joint_map(args.joint_map) if args.joint_map else None
+            if joint_map:
+                check_joint_map(joint_map, model, args.joint_map)
     except Exception as e:
         print(f"error: {_one_line(what, e)}", file=sys.stderr)
         return 1

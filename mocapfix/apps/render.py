@@ -5,12 +5,13 @@ front and side views, filled and replaced tokens in their own colours, a time ba
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.render import render, tracks_for
-from mocapfix.io import add_read_arguments, read_motion
+from mocapfix.io import add_read_arguments, frame_rate, read_motion
 
 
 def render_files(
@@ -49,11 +50,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start", type=float, default=0.0, help="seconds into the recording")
     ap.add_argument("--duration", type=float, default=None, help="seconds to draw (default: to the end)")
     ap.add_argument(
-        "--fps", type=float, default=None, help="the animation's frame rate (default: the recording's, <= 30)"
+        "--fps", type=frame_rate, default=None, help="the animation's frame rate (default: the recording's, <= 30)"
     )
     ap.add_argument("--person", type=int, default=0, help="which clip of a multi-person file")
     add_read_arguments(ap, fps=False)
     args = ap.parse_args(argv)
+    if not (math.isfinite(args.start) and args.start >= 0):
+        ap.error(f"--start must be seconds >= 0, got {args.start}")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        ap.error(f"--duration must be seconds > 0, got {args.duration}")
     try:
         out = render_files(
             args.input,

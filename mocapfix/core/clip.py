@@ -18,7 +18,33 @@ class MotionFileError(ValueError):
 
     def __init__(self, path, problem: str):
         self.path, self.problem = str(path), problem
-        super().__init__(f"{path}: {problem}")
+        super().__init__(f"{shown(path)}: {problem}")
+
+
+def shown(path) -> str:
+    """A path as messages print it: as it is, or escaped (quoted, \\n for a newline) when it holds
+    characters that would break a one-line message or fake another line."""
+    text = str(path)
+    return text if text.isprintable() else ascii(text)
+
+
+# Frame rates motion capture has: from a slow pose tracker to a high-speed camera. A rate outside
+# is a broken file (a Frame Time of 1e6 s would make resampling allocate gigabytes).
+MIN_FPS, MAX_FPS = 1.0, 10_000.0
+
+
+def check_frame_rate(path, fps: float, what: str = "the frame rate is") -> float:
+    """fps, or a MotionFileError naming the file and the value when it is not a number in
+    [MIN_FPS, MAX_FPS]."""
+    try:
+        value = float(fps)
+    except (TypeError, ValueError):
+        raise MotionFileError(path, f"{what} not a number: {fps!r}") from None
+    if not MIN_FPS <= value <= MAX_FPS:  # also NaN
+        raise MotionFileError(
+            path, f"{what} {value:g} fps, outside {MIN_FPS:g}-{MAX_FPS:g} fps (not a motion-capture frame rate)"
+        )
+    return value
 
 
 @dataclass

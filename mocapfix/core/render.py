@@ -76,7 +76,8 @@ def tracks_for(input_clip: Clip, fixed: list[tuple[str, Clip]]) -> list[Track]:
 
 def _span(num_frames: int, fps: float, start_s: float, duration_s: float | None, out_fps: float) -> np.ndarray:
     """The input frames drawn: from start_s for duration_s (to the end if None), at out_fps."""
-    t = np.arange(start_s, start_s + (duration_s if duration_s is not None else num_frames / fps), 1.0 / out_fps)
+    end = num_frames / fps if duration_s is None else min(start_s + duration_s, num_frames / fps)  # never past it
+    t = np.arange(start_s, end, 1.0 / out_fps)
     frames = np.unique(np.round(t * fps).astype(np.int64))
     frames = frames[(frames >= 0) & (frames < num_frames)]
     if len(frames) == 0:
@@ -176,6 +177,8 @@ def render(
         raise ValueError(f"{out}: .mp4 needs ffmpeg on the PATH (not found); write a .gif instead")
     out_fps = float(out_fps or min(fps, 30.0))
     frames = _span(len(tracks[0].positions), fps, start_s, duration_s, out_fps)
+    if not any(np.isfinite(t.positions[frames]).any() for t in tracks):
+        raise ValueError("no joint is observed in any frame drawn: nothing to draw")
     out.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".png":
         return _filmstrip(tracks, limbs, fps, frames, out, strip_frames)

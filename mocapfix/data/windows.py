@@ -17,7 +17,7 @@ import torch
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.io.positions import load_npz
+from mocapfix.io.npz import load_npz
 
 
 def complete_windows(batch: dict) -> torch.Tensor:

@@ -75,6 +75,15 @@ def map_joints(
 
 # --- fixing the clips of one file ---
 
+NOT_JUDGED = "observed tokens kept, not judged"
+
+
+def too_short(clip: Clip, fixer) -> bool:
+    """A clip shorter than the model's window gives the model too little motion to judge an
+    observed token against (mostly padding in view): denoise and both keep its observed tokens
+    and only fill its holes. (A 1-frame take once had its feet moved 0.8 m.)"""
+    return model_frames(clip.num_frames, clip.fps, fixer.fps) < fixer.window
+
 
 @dataclass
 class FixReport:
@@ -145,20 +154,32 @@ def fix_clips(
     estimates, first = _fix_positions(
         clips, fixer, "both", overlap, batch_size, progress, None, joint_map, fill_other_joints=False
     )
-    masked, suspects = [], 0
+    masked, suspects, seen = [], 0, []
     for c, e in zip(clips, estimates):
         idx = map_joints(c.skeleton, fixer.skeleton, c.source, joint_map, allow_missing=True)
+        seen.append(np.isfinite(c.positions[:, np.maximum(idx, 0)]).all(-1) & (idx >= 0))  # (T, Jm)
         idx = idx[idx >= 0]  # the model joints the recording has
         x = torch.from_numpy(c.positions[:, idx])
         obs = ~torch.isnan(x).any(-1)
         bad = suspect_tokens(policy, torch.from_numpy(e.positions[:, idx]), x, obs).numpy()  # (T, Jm)
+        if too_short(c, fixer):  # no evidence to judge a token against: kept (pass 1 said so)
+            bad[:] = False
         suspects += int(bad.sum())
         positions = c.positions.copy()
         positions[:, idx] = np.where(bad[..., None], np.nan, positions[:, idx])
         masked.append(c.replace(positions=positions))
     # Pass 2: the holes and the suspect tokens filled by the policy; the rest stays bit-identical.
     out, report = _fix_positions(
-        masked, fixer, "infill", overlap, batch_size, progress, policy, joint_map, fill_other_joints=mode != "denoise"
+        masked,
+        fixer,
+        "infill",
+        overlap,
+        batch_size,
+        progress,
+        policy,
+        joint_map,
+        fill_other_joints=mode != "denoise",
+        seen=seen,
     )
     report.filled, report.replaced = report.filled - suspects, suspects
     if mode == "denoise":  # holes of the input stay holes
@@ -175,6 +196,7 @@ def fix_clips(
         if policy.replace_threshold_m is not None
         else "no replace threshold: observed tokens kept",
     )
+    report.notes[:0] = [n for n in first.notes if n.endswith(NOT_JUDGED)]
     return out, report
 
 
@@ -188,10 +210,14 @@ def _fix_positions(
     policy: FillPolicy | None,
     joint_map: dict[str, str] | None = None,
     fill_other_joints: bool = True,
+    seen: list[np.ndarray] | None = None,
 ) -> tuple[list[Clip], FixReport]:
     """fix_clips for a positions model, one pass: the model's estimate merged by mode (infill with
     the fill policy where there is one); the holes of joints the model does not use filled too
-    (fill_other_joints, unless denoise)."""
+    (fill_other_joints, unless denoise). A clip shorter than the model's window keeps its
+    observed tokens in every mode (too_short). seen: (T, Jm) per clip, the tokens the recording
+    observed, when `clips` has some taken out (the policy's second pass): the report's "never
+    observed" is about the recording."""
     model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps
     source = clips[0].source or clips[0].name
     who = _who(clips)
@@ -263,15 +289,22 @@ def _fix_positions(
         else:
             new = est
         new = new.astype(np.float32)
-        if mode == "infill":
+        keep = mode == "infill" or too_short(c, fixer)
+        if keep:
             new[obs] = x_in[k][obs]  # bit-identical, whatever float64 did
+        if keep and mode != "infill":
+            notes.append(
+                f"{who(k)}{c.num_frames} frames, shorter than the model's window ({W} frames at {fps_m:g} fps): "
+                + NOT_JUDGED
+            )
         must = obs if mode == "denoise" else np.ones_like(obs)
         if not np.isfinite(new[must]).all():  # a bug, never data: do not write it
             raise MotionFileError(source, f"{who(k)}the estimate is not finite; nothing written")
         filled += int((~obs).sum()) if mode != "denoise" else 0
-        replaced += int(obs.sum()) if mode != "infill" else 0
+        replaced += int(obs.sum()) if not keep else 0
         present = index[k] >= 0
-        lost = [model.joint_names[j] for j in np.nonzero(~obs.any(0) & present)[0]]
+        observed = obs if seen is None else seen[k]
+        lost = [model.joint_names[j] for j in np.nonzero(~observed.any(0) & present)[0]]
         if lost:
             never[who(k) or ""] = lost
         if not present.all():
@@ -464,8 +497,8 @@ def _fix_rotations(
     `both` replace every frame. The model's joints must hang as in the model (the input may have
     more joints: they keep their rotations and move with their parents). Windows as for
     positions (resampled to the model's fps by slerp, windows of the model's length, stride
-    window * (1 - overlap)); a clip shorter than a window is one window of its own length (the
-    model's networks are recurrent). Overlapping windows are blended as RotationWindows says."""
+    window * (1 - overlap)); a clip shorter than a window is kept as it is (too_short: too little
+    motion to judge it by). Overlapping windows are blended as RotationWindows says."""
     model, fps_m = fixer.skeleton, fixer.fps
     source = clips[0].source or clips[0].name
     who = _who(clips)
@@ -500,23 +533,37 @@ def _fix_rotations(
         before = float(sigma_before.compute())
         return list(clips), FixReport(frames, people, 0, 0, before, before, 0, notes)
 
-    # Each clip at the model's fps; every frame needs the estimate.
+    # Each clip long enough to judge (too_short) at the model's fps; every frame needs the estimate.
+    judged = [k for k, c in enumerate(clips) if not too_short(c, fixer)]
+    for k in sorted(set(range(len(clips))) - set(judged)):
+        notes.append(
+            f"{who(k)}{clips[k].num_frames} frames, shorter than the model's window "
+            f"({fixer.window} frames at {fps_m:g} fps): {NOT_JUDGED}"
+        )
     rot_m, root_m = [], []
-    for k, (c, idx) in enumerate(zip(clips, index)):
-        K = model_frames(c.num_frames, c.fps, fps_m)
-        if K < 2:
-            raise MotionFileError(source, f"{who(k)}too short for the model: it needs 2 frames at {fps_m:g} fps")
-        r, t = resample_motion(c.rotations[:, idx], c.root_translation, c.fps, fps_m, K)
+    for k in judged:
+        c, idx = clips[k], index[k]
+        r, t = resample_motion(
+            c.rotations[:, idx], c.root_translation, c.fps, fps_m, model_frames(c.num_frames, c.fps, fps_m)
+        )
         rot_m.append(r)
         root_m.append(t)
-    windows = RotationWindows(fixer, rot_m, root_m, [c.offsets[idx] for c, idx in zip(clips, index)])
+    if not judged:
+        before = float(sigma_before.compute())
+        return list(clips), FixReport(frames, people, 0, 0, before, before, 0, notes)
+    windows = RotationWindows(fixer, rot_m, root_m, [clips[k].offsets[index[k]] for k in judged])
     need = [np.ones(len(r), dtype=bool) for r in rot_m]
     blended = blend_windows(windows, need, need, overlap, batch_size, progress)
+    tracks = dict(zip(judged, blended.tracks))
 
     out_clips, replaced = [], 0
     Jm = model.num_joints
     for k, (c, idx) in enumerate(zip(clips, index)):
-        track = torch.from_numpy(blended.tracks[k])  # (K, 4 Jm + 3)
+        if k not in tracks:
+            sigma_after.update(torch.from_numpy(c.positions[:, idx])[None])
+            out_clips.append(c)
+            continue
+        track = torch.from_numpy(tracks[k])  # (K, 4 Jm + 3)
         q = track[:, : 4 * Jm].reshape(-1, Jm, 4)
         rot = roma.unitquat_to_rotvec(q / q.norm(dim=-1, keepdim=True)).numpy()  # (K, Jm, 3)
         root = track[:, 4 * Jm :].numpy()  # (K, 3)

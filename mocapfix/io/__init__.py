@@ -10,24 +10,23 @@ from __future__ import annotations
 import argparse
 import inspect
 import logging
-import math
 import os
 from pathlib import Path
 
-from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.clip import MAX_FPS, MIN_FPS, Clip, MotionFileError, check_frame_rate
 
 log = logging.getLogger(__name__)
 SOURCES = ("auto", "bvh", "positions", "h36m", "amass")
 
 
-def _frame_rate(text: str) -> float:
+def frame_rate(text: str) -> float:
     """--fps: a wrong command line (exit 2), not a failure of every file read with it."""
     try:
         fps = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(fps) and fps > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number of frames per second, got {text}")
+    if not MIN_FPS <= fps <= MAX_FPS:
+        raise argparse.ArgumentTypeError(f"must be {MIN_FPS:g} to {MAX_FPS:g} frames per second, got {text}")
     return fps
 
 
@@ -42,7 +41,7 @@ def add_read_arguments(parser, fps: bool = True) -> None:
     )
     parser.add_argument("--up-axis", default="auto", help="override the file's up axis: z, y")
     if fps:
-        parser.add_argument("--fps", type=_frame_rate, default=None, help="frame rate for files that lack one")
+        parser.add_argument("--fps", type=frame_rate, default=None, help="frame rate for files that lack one")
     parser.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
 
 
@@ -84,7 +83,7 @@ def detect_source(path) -> str:
     if suffix == ".csv":
         return "positions"
     if suffix == ".npz":
-        from mocapfix.io.positions import load_npz
+        from mocapfix.io.npz import load_npz
 
         with load_npz(path) as data:
             keys = set(data.files)
@@ -129,6 +128,7 @@ def _checked(clip: Clip) -> Clip:
     from mocapfix.io.absurd import drop_absurd
     from mocapfix.io.conventions import stature_m, stature_warning
 
+    check_frame_rate(clip.source or clip.name, clip.fps)
     names, parents = clip.skeleton.joint_names, clip.skeleton.parents
     stature = stature_m(clip.positions, names, parents)
     clip = drop_absurd(clip, stature)
@@ -140,8 +140,10 @@ def _checked(clip: Clip) -> Clip:
     return clip
 
 
-def list_motion_files(path, source: str = "auto") -> list[Path]:
-    """A file -> [it]; a folder -> its motion files for `source` (recursive, sorted, by extension)."""
+def list_motion_files(path, source: str = "auto", on_error=None) -> list[Path]:
+    """A file -> [it]; a folder -> its motion files for `source` (recursive, sorted, by extension).
+    A subfolder that cannot be read is a MotionFileError, or on_error(that error) and the walk
+    goes on (fix and inspect report it and run the other files)."""
     path = Path(path)
     if source not in SOURCES:
         raise MotionFileError(path, f"unknown source type {source!r}; known: {', '.join(SOURCES)}")
@@ -152,7 +154,10 @@ def list_motion_files(path, source: str = "auto") -> list[Path]:
     exts = _EXTENSIONS[source]
 
     def unreadable(e: OSError):  # rglob would skip such a folder without a word
-        raise MotionFileError(e.filename or path, f"cannot read this folder ({e.strerror or type(e).__name__})")
+        error = MotionFileError(e.filename or path, f"cannot read this folder ({e.strerror or type(e).__name__})")
+        if on_error is None:
+            raise error
+        on_error(error)
 
     found = [Path(root) / name for root, _, names in os.walk(path, onerror=unreadable) for name in names]
     return sorted(

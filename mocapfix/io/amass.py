@@ -19,14 +19,14 @@ stdout.
 
 from __future__ import annotations
 
-import pickle
 from pathlib import Path
 
 import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.skeleton import PRESETS
-from mocapfix.io.positions import load_npz, npz_array
+from mocapfix.io.npz import load_npz, npz_array, npz_object
+from mocapfix.io.restricted_pickle import RefusedPickle, load_arrays
 
 NUM_BODY_JOINTS = 22
 # Standard AMASS split (sub-dataset folder names; newer releases renamed some: both listed).
@@ -77,9 +77,8 @@ def _npz_str(path: Path, data, key: str) -> str | None:
     try:
         return _str(data[key])
     except ValueError:
-        # Some AMASS releases pickled the gender string: an object array. Only this key is unpickled.
-        with load_npz(path, allow_pickle=True) as z:
-            return _str(npz_array(path, z, key))
+        # Some AMASS releases pickled the gender string: an object array, read without running it.
+        return _str(npz_object(path, key))
 
 
 def find_body_model(body_model_path, model_type: str, gender: str) -> Path:
@@ -107,23 +106,36 @@ def find_body_model(body_model_path, model_type: str, gender: str) -> Path:
     raise MotionFileError(root, f"no {T} model for gender {g!r} (looked for {', '.join(names)})")
 
 
-def load_body_model(model_file: Path) -> dict:
-    """SMPL-family model file (.pkl or .npz) -> numpy arrays v_template (V, 3), shapedirs (V, 3, B),
-    J_regressor (J, V), parents (J,)."""
+def read_model_arrays(model_file: Path, keys: tuple[str, ...]) -> dict:
+    """The arrays `keys` (those present) of an SMPL-family model file, .npz or .pkl, read without
+    running code from it (io/restricted_pickle.py): a model file is a dict of arrays, and one
+    that imports anything else (the chumpy objects of the official SMPL pickles, or a payload)
+    is a MotionFileError saying so."""
+    model_file = Path(model_file)
+    if model_file.suffix.lower() == ".npz":
+        with load_npz(model_file) as z:
+            present = [k for k in keys if k in z.files]
+        return {k: npz_object(model_file, k, encoding="latin1") for k in present}
     try:
-        if model_file.suffix.lower() == ".npz":
-            with np.load(model_file, allow_pickle=True) as z:
-                raw = {k: z[k] for k in ("v_template", "shapedirs", "J_regressor", "kintree_table") if k in z.files}
-        else:
-            with open(model_file, "rb") as f:
-                raw = pickle.load(f, encoding="latin1")  # the official SMPL pickles are python 2
-    except ModuleNotFoundError as e:
-        # The official .pkl files hold chumpy arrays; converting them to .npz avoids chumpy.
+        with open(model_file, "rb") as f:
+            raw = load_arrays(f, encoding="latin1")  # the official SMPL pickles are Python 2's
+    except RefusedPickle as e:
+        chumpy = "chumpy" in str(e)
+        hint = " (the official SMPL pickles hold chumpy arrays: convert the model to .npz)" if chumpy else ""
         raise MotionFileError(
-            model_file, f"unpickling needs the {e.name} package (pip install {e.name}, or convert the model to .npz)"
+            model_file, f"a pickle that imports {e}, not a dict of arrays: refused, nothing was run{hint}"
         ) from None
     except Exception as e:
         raise MotionFileError(model_file, f"not a readable body model ({type(e).__name__}: {e})") from None
+    if not isinstance(raw, dict):
+        raise MotionFileError(model_file, "not an SMPL-family model (not a dict of arrays)")
+    return {k: raw[k] for k in keys if k in raw}
+
+
+def load_body_model(model_file: Path) -> dict:
+    """SMPL-family model file (.pkl or .npz) -> numpy arrays v_template (V, 3), shapedirs (V, 3, B),
+    J_regressor (J, V), parents (J,)."""
+    raw = read_model_arrays(model_file, ("v_template", "shapedirs", "J_regressor", "kintree_table"))
     missing = [k for k in ("v_template", "shapedirs", "J_regressor", "kintree_table") if k not in raw]
     if missing:
         raise MotionFileError(model_file, f"not an SMPL-family model: no {', '.join(missing)}")

@@ -15,6 +15,7 @@ Conventions (the BVH ones, as Blender, MotionBuilder and the Bandai Namco data u
 
 from __future__ import annotations
 
+import logging
 import re
 import warnings
 from pathlib import Path
@@ -22,10 +23,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError, check_frame_rate
 from mocapfix.core.skeleton import Skeleton, guess_groups
 from mocapfix.io.conventions import guess_up_axis, metres_per_unit, resolve_unit
 from mocapfix.io.files import atomic_write
+
+log = logging.getLogger(__name__)
 
 # y-up -> z-up is a +90 degree rotation about x: (x, y, z) -> (x, -z, y). Right-handed (det +1),
 # so rotations stay rotations and left stays left (conventions.to_z_up as a matrix).
@@ -60,8 +63,10 @@ def read_bvh(
         a joint of it) is dropped without being named, unless keep_joints keeps it.
     """
     path = Path(path)
-    names, parents, offsets, channels, data, frame_time = _parse(path)
+    names, parents, offsets, channels, data, frame_time, encoding = _parse(path)
     T, J = data.shape[0], len(names)
+    if encoding != "utf-8":
+        log.warning("warning: %s: not UTF-8 text; joint names read as Latin-1 (%s)", path, ", ".join(names[:3]))
 
     with np.errstate(invalid="ignore", over="ignore"):  # non-finite channels: those joints are missing (below)
         local_r, local_t = _local_transforms(offsets, channels, data)
@@ -82,6 +87,8 @@ def read_bvh(
 
     skeleton = Skeleton(names, parents, {}, path.stem)
     meta = {"format": "bvh", "unit": unit.name, "unit_source": unit.how, "up_axis": up_axis, "frame_time": frame_time}
+    if encoding != "utf-8":
+        meta["encoding"] = encoding
     clip = Clip(positions, 1.0 / frame_time, skeleton, path.stem, str(path), meta=meta)
 
     finite = np.isfinite(data).all()
@@ -248,7 +255,7 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
     path, template = Path(path), Path(template)
     if not clip.has_rotations:
         raise MotionFileError(path, f"clip {clip.name!r} has no rotations; only rotation clips can be written as BVH")
-    names, parents, offsets, channels, data, frame_time = _parse(template)
+    names, parents, offsets, channels, data, frame_time, _ = _parse(template)
     T, J = data.shape[0], len(names)
     if clip.num_frames != T or abs(clip.fps * frame_time - 1.0) > 1e-4:
         raise MotionFileError(
@@ -319,10 +326,10 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
             f"cannot write the motion in {template.name}'s hierarchy: joint {names[worst]!r} "
             f"would be {np.nanmax(err):.3g} m off (its translation has no channels?)",
         )
-    hierarchy = _sections(template)[0]
+    hierarchy, _, _, encoding = _sections(template)
     body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in out.tolist())
     text = f"HIERARCHY{hierarchy}MOTION\nFrames: {T}\nFrame Time: {frame_time:.8g}\n{body}\n"
-    atomic_write(path, lambda f: f.write(text.encode()))
+    atomic_write(path, lambda f: f.write(text.encode(encoding)))  # joint names as the input spelled them
 
 
 # --- parsing ---
@@ -342,23 +349,41 @@ def _frame_rate(frame_time: str) -> float:
     return 1.0 / t
 
 
-def _sections(path: Path) -> tuple[str, str, int]:
-    """(hierarchy text, motion text, 0-based line of MOTION) or a MotionFileError."""
+SNIFF_BYTES = 1 << 16  # a BVH says HIERARCHY in its first lines
+
+
+def _text(path: Path) -> tuple[str, str]:
+    """The file's text and its encoding ("utf-8", or "latin-1" for bytes that are not UTF-8: every
+    byte is a Latin-1 character, so a joint name never turns into U+FFFD and is written back as
+    it was read). A file whose start is not a BVH's (binary, or no HIERARCHY line) is refused
+    from its first bytes, before the rest is read."""
     try:
-        text = path.read_text(errors="replace")
+        with open(path, "rb") as f:
+            head = f.read(SNIFF_BYTES)
+            if not head.strip():
+                raise MotionFileError(path, "empty file")
+            start = head[3:] if head.startswith(b"\xef\xbb\xbf") else head  # a UTF-8 byte order mark
+            if b"\0" in head or re.search(rb"^\s*HIERARCHY\b", start, re.M) is None:
+                raise MotionFileError(path, "not a BVH file (no HIERARCHY line at its start)")
+            raw = start + f.read()
     except FileNotFoundError:
         raise MotionFileError(path, "file not found") from None
     except OSError as e:  # a folder, no permission, ...
         raise MotionFileError(path, f"cannot read ({e.strerror or type(e).__name__})") from None
-    if not text.strip():
-        raise MotionFileError(path, "empty file")
+    try:
+        return raw.decode("utf-8"), "utf-8"
+    except UnicodeDecodeError:
+        return raw.decode("latin-1"), "latin-1"
+
+
+def _sections(path: Path) -> tuple[str, str, int, str]:
+    """(hierarchy text, motion text, 0-based line of MOTION, encoding) or a MotionFileError."""
+    text, encoding = _text(path)
     h = re.search(r"^\s*HIERARCHY\b", text, re.M)
-    if h is None:
-        raise MotionFileError(path, "no HIERARCHY section (not a BVH file?)")
     m = re.search(r"^\s*MOTION\b", text, re.M)
     if m is None or m.start() < h.start():
         raise MotionFileError(path, "no MOTION section after HIERARCHY")
-    return text[h.end() : m.start()], text[m.end() :], text.count("\n", 0, m.end())
+    return text[h.end() : m.start()], text[m.end() :], text.count("\n", 0, m.end()), encoding
 
 
 def _parse_hierarchy(path: Path, text: str):
@@ -370,7 +395,7 @@ def _parse_hierarchy(path: Path, text: str):
     pending = None  # joint or End Site declared, its "{" not yet seen
     col = 0
     for ln in lines:
-        word, _, rest = ln.partition(" ")
+        word, rest = (ln.split(None, 1) + [""])[:2]  # tabs or spaces after the keyword
         if word in ("ROOT", "JOINT"):
             if word == "ROOT" and names:
                 raise MotionFileError(path, "more than one ROOT (several skeletons in one file are not supported)")
@@ -441,12 +466,16 @@ def _parse_hierarchy(path: Path, text: str):
     missing = [n for n, o in zip(names, offsets) if o is None]
     if missing:
         raise MotionFileError(path, f"joint {missing[0]!r} has no OFFSET")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:  # joints are found by name (mapping, keep_joints, write_bvh_like): one must not stand for two
+        n = names.count(twice[0])
+        raise MotionFileError(path, f"joint name {twice[0]!r} is used by {n} joints; names must be unique")
     return names, parents, np.array(offsets, dtype=np.float64), channels, end_sites, col
 
 
 def _parse(path: Path):
     """-> names, parents, offsets (J, 3), channels, data (T, columns) float64, frame time (s)."""
-    hier, motion, motion_line = _sections(path)
+    hier, motion, motion_line, encoding = _sections(path)
     names, parents, offsets, channels, _, ncol = _parse_hierarchy(path, hier)
 
     mf = re.search(r"^\s*Frames\s*:\s*(\S+)", motion, re.M)
@@ -463,7 +492,7 @@ def _parse(path: Path):
         raise MotionFileError(path, f"Frames: {n_frames} (no motion)")
     if not (np.isfinite(frame_time) and frame_time > 0):
         raise MotionFileError(path, f"Frame Time must be positive, got {mt.group(1)}")
-    frame_time = 1.0 / _frame_rate(mt.group(1))
+    frame_time = 1.0 / check_frame_rate(path, _frame_rate(mt.group(1)), f"Frame Time {mt.group(1)} s is")
 
     # The frame rows start after whichever of the two header lines comes last; rows[0] is the rest
     # of that header line (normally empty). Line numbers in messages count from 1 in the file.
@@ -499,7 +528,7 @@ def _parse(path: Path):
                         path, f"line {first_line + i} (frame {nonempty.index(i)}): non-numeric value {tok[:20]!r}"
                     ) from None
         raise MotionFileError(path, "non-numeric frame values") from None
-    return names, parents, offsets, channels, data, frame_time
+    return names, parents, offsets, channels, data, frame_time, encoding
 
 
 def _local_transforms(offsets: np.ndarray, channels, data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

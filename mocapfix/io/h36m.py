@@ -1,6 +1,7 @@
 """Human3.6M in the VideoPose3D layout (data_3d_h36m.npz).
 
-The file holds one pickled dict under "positions_3d": {subject: {action: (T, 32, 3) float32}}.
+The file holds one pickled dict under "positions_3d": {subject: {action: (T, 32, 3) float32}},
+read without running the pickle (io/npz.py: npz_object builds containers and arrays only).
 VideoPose3D's prepare_data_h36m.py divides the D3_Positions by 1000 and keeps the mocap world
 frame, whose z axis is up: the positions are metres, z up already, at 50 Hz. We keep the 17
 joints everyone evaluates on (skeleton preset h36m17).
@@ -16,7 +17,7 @@ import numpy as np
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.skeleton import PRESETS
 from mocapfix.io.conventions import parse_unit
-from mocapfix.io.positions import load_npz, npz_array
+from mocapfix.io.npz import npz_object
 
 H36M_FPS = 50.0
 H36M_KEEP = [0, 1, 2, 3, 6, 7, 8, 12, 13, 14, 15, 17, 18, 19, 25, 26, 27]  # 32 -> 17 joints
@@ -34,15 +35,8 @@ def read_h36m(path, unit: str = "auto", groups=None) -> list[Clip]:
     groups: {group name: [joint names or indices]} replacing the preset's limb groups."""
     path = Path(path)
     unit = parse_unit(unit, path) or parse_unit("m", path, "VideoPose3D's convention")
-    # The dict is pickled: allow_pickle is needed (the file is the dataset's own format).
-    with load_npz(path, allow_pickle=True) as data:
-        if "positions_3d" not in data.files:
-            raise MotionFileError(
-                path,
-                f"no 'positions_3d' key (keys: {', '.join(data.files) or 'none'}); "
-                "expected VideoPose3D's data_3d_h36m.npz",
-            )
-        obj = npz_array(path, data, "positions_3d")
+    # The dict is pickled: read by the restricted unpickler (io/npz.py), never by np.load's.
+    obj = npz_object(path, "positions_3d")
     try:
         tree = obj.item()
     except ValueError:

@@ -194,14 +194,30 @@ def read_joint_map(path) -> dict[str, str]:
 
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except OSError as e:
         raise MotionFileError(path, f"cannot read the joint map ({e.strerror or e})") from None
+    except UnicodeDecodeError as e:
+        raise MotionFileError(path, f"the joint map is not UTF-8 text (byte {e.start})") from None
     except yaml.YAMLError as e:
         raise MotionFileError(path, f"not a YAML joint map ({' '.join(str(e).split())[:160]})") from None
     if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
         raise MotionFileError(path, "a joint map is `input name: model name` per line")
     return dict(data)
+
+
+def check_joint_map(joint_map: dict[str, str], model: Skeleton, path) -> None:
+    """A --joint-map names model joints on its right-hand side: one the model does not have is a
+    typo that would otherwise be ignored, so it is a MotionFileError naming the map file."""
+    from mocapfix.core.clip import MotionFileError
+
+    unknown = [v for v in joint_map.values() if v not in model.joint_names]
+    if unknown:
+        raise MotionFileError(
+            path,
+            f"maps onto {', '.join(repr(v) for v in unknown)}, not joints of the model "
+            f"({model.name}: {', '.join(model.joint_names)})",
+        )
 
 
 def describe_mapping(skeleton: Skeleton, model: Skeleton, joint_map: dict[str, str] | None = None) -> list[str]:

@@ -40,42 +40,15 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError, check_frame_rate
 from mocapfix.core.skeleton import PRESETS, Skeleton, guess_groups
 from mocapfix.io.conventions import from_z_up, guess_up_axis, parse_unit, resolve_unit, to_z_up
 from mocapfix.io.files import atomic_write
+from mocapfix.io.npz import load_npz, npz_array
+from mocapfix.io.npz import one_line as _one_line
 
 UP_AXES = ("z", "y")
 _SPECIAL_COLUMNS = ("person", "frame", "time")
-
-
-def load_npz(path: Path, allow_pickle: bool = False):
-    """np.load that turns every way an npz can be broken into one MotionFileError."""
-    try:
-        with open(path, "rb") as f:
-            magic = f.read(6)
-        if not magic.startswith((b"PK", b"\x93NUMPY")):  # else np.load tries pickle and blames allow_pickle
-            raise MotionFileError(path, "not an npz file (an .npz is a zip archive of .npy arrays)")
-        return np.load(path, allow_pickle=allow_pickle)
-    except FileNotFoundError:
-        raise MotionFileError(path, "no such file") from None
-    except MotionFileError:
-        raise
-    except Exception as e:  # BadZipFile, EOFError, OSError, ValueError, pickle errors ...
-        raise MotionFileError(path, f"not a readable npz file ({_one_line(e)})") from None
-
-
-def npz_array(path: Path, data, key: str) -> np.ndarray:
-    """data[key], where a truncated or corrupt member is a MotionFileError, not a zlib traceback."""
-    try:
-        return data[key]
-    except Exception as e:
-        raise MotionFileError(path, f"cannot read array {key!r} ({_one_line(e)})") from None
-
-
-def _one_line(e: Exception) -> str:
-    text = " ".join(str(e).split())
-    return f"{type(e).__name__}: {text}" if text else type(e).__name__
 
 
 # --- skeleton from what a file gives ---
@@ -124,13 +97,7 @@ def _resolve_up(path, up_opt, up_file, raw, skeleton) -> str:
 
 
 def _check_fps(path, fps) -> float:
-    try:
-        fps = float(fps)
-    except (TypeError, ValueError):
-        raise MotionFileError(path, f"fps must be a number, got {fps!r}") from None
-    if not np.isfinite(fps) or fps <= 0:
-        raise MotionFileError(path, f"fps must be positive, got {fps}")
-    return fps
+    return check_frame_rate(path, fps, "fps is")
 
 
 def _clips(
@@ -429,6 +396,8 @@ def read_positions_csv(
     if T > 10 * N + 1000:
         raise MotionFileError(path, f"frame numbers span {T} frames for only {N} rows")
     P = len(uniq)
+    if P * T > 10 * N + 1000:  # a table of people x frames mostly empty: never allocate it
+        raise MotionFileError(path, f"{P} people over {T} frames for only {N} rows (most of them missing)")
     key = person * T + (frame - first_frame)
     dup = np.nonzero(np.bincount(key, minlength=P * T) > 1)[0]
     if dup.size:

@@ -14,7 +14,6 @@ of the two models agree wherever the offsets are SMPL's rest-joint differences.
 
 from __future__ import annotations
 
-import pickle
 from pathlib import Path
 from typing import NamedTuple, Protocol
 
@@ -259,15 +258,9 @@ class SMPLBody(nn.Module):
 
 def _skinning_arrays(model_file: Path, V: int, J: int) -> dict:
     """posedirs (V, 3, 9 (J-1)) and weights (V, J): the arrays load_body_model leaves out."""
-    try:
-        if model_file.suffix.lower() == ".npz":
-            with np.load(model_file, allow_pickle=True) as z:
-                raw = {k: z[k] for k in ("posedirs", "weights") if k in z.files}
-        else:
-            with open(model_file, "rb") as fh:
-                raw = pickle.load(fh, encoding="latin1")
-    except Exception as e:  # load_body_model read this file a moment ago: only a race gets here
-        raise MotionFileError(model_file, f"not a readable body model ({type(e).__name__}: {e})") from None
+    from mocapfix.io.amass import read_model_arrays
+
+    raw = read_model_arrays(model_file, ("posedirs", "weights"))
     missing = [k for k in ("posedirs", "weights") if k not in raw]
     if missing:
         raise MotionFileError(model_file, f"no {', '.join(missing)}: marker vertices need a full SMPL model")
