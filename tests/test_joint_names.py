@@ -154,8 +154,8 @@ def test_fix_on_renamed_joints_matches_the_native_run(tmp_path, bandai_clip, cap
     args = ["inspect", str(tmp_path / "mixamo.npz"), "--ckpt", str(tmp_path / "m.ckpt")]
     assert main([*args, "--joint-map", str(tmp_path / "map.yaml")]) == 0
     out = capsys.readouterr().out
-    assert "Chest            <- mixamorig:Spine1 (body part)" in out
-    assert "UpperArm_L       <- mixamorig:LeftArm (body part)" in out
+    assert "Chest            <- mixamorig:Spine1 (body part, from the rig's structure)" in out
+    assert "UpperArm_L       <- mixamorig:LeftArm (body part, from the rig's structure)" in out
     assert "LowerArm_L       <- LeftBendy (joint map)" in out
     assert "not used by the model (kept as they are): " + ", ".join(FINGERS) in out
 

@@ -93,8 +93,10 @@ def test_named_units_win_within_a_quarter_of_the_estimate():
     names, parents = ["Hips", "LeftUpLeg", "LeftLeg", "LeftFoot"], [-1, 0, 1, 2]
     pos = np.array([[[0, 0, 80], [10, 0, 78], [10, 0, 42], [10, 0, 6]]], dtype=np.float64)
     assert resolve_unit("x", "auto", None, pos, names, parents).name == "cm"
-    odd = resolve_unit("x", "auto", None, pos * 0.01 / 0.0564, names, parents)
-    assert odd.name not in ("cm", "inch", "m", "mm") and odd.metres == pytest.approx(0.0564 * 0.82 / 0.72, rel=1e-3)
+    odd = resolve_unit("x", "auto", None, pos * 0.01 / 0.1, names, parents)  # decimetres: no named unit near
+    assert odd.name not in ("cm", "inch", "m", "mm", "asf") and odd.metres == pytest.approx(0.1 * 0.82 / 0.72, rel=1e-3)
+    # the CMU database's ASF unit (1/0.45 inch) is a named one: a CMU subject reads at it exactly
+    assert resolve_unit("x", "auto", None, pos * 0.01 / 0.0564, names, parents).name == "asf"
 
 
 def _with_absurd_values(clip, path, up):
@@ -141,7 +143,7 @@ def test_one_absurd_joint_in_a_positions_file(tmp_path):
 def test_inspect_counts_absurd_values_and_shows_how_the_unit_was_found(bandai_files, tmp_path, capsys):
     _with_absurd_values(_bandai(bandai_files, frames=60), tmp_path / "glitch.bvh", "y")
     clip = _bandai(bandai_files, frames=60)
-    write_bvh(tmp_path / "odd.bvh", clip.replace(meta={**clip.meta, "unit": "0.0564"}))
+    write_bvh(tmp_path / "odd.bvh", clip.replace(meta={**clip.meta, "unit": "0.1"}))
     assert inspect_files([str(tmp_path)], as_json=True) == 0
     rows = {r["file"].rsplit("/", 1)[-1]: r for r in map(json.loads, capsys.readouterr().out.splitlines())}
     assert rows["glitch.bvh"]["absurd_tokens"] == 2 * 21 and rows["glitch.bvh"]["up_axis"] == "y"

@@ -18,9 +18,16 @@ class Skeleton:
     parents: tuple[int, ...]  # parents[j] < j for every joint but the root (parents[0] == -1)
     groups: dict[str, tuple[int, ...]] = field(default_factory=dict)
     name: str = "custom"
+    # The body part each joint plays ("pelvis", "left_knee", ...; None: none), read from the rig's
+    # structure (io/body_structure.py) when the skeleton came from a file; () when not known. Not
+    # part of a skeleton's identity: two readings of one rig are the same skeleton.
+    labels: tuple[str | None, ...] = field(default=(), compare=False)
 
     def __post_init__(self):
         object.__setattr__(self, "joint_names", tuple(self.joint_names))
+        object.__setattr__(self, "labels", tuple(self.labels))
+        if self.labels and len(self.labels) != len(self.joint_names):
+            raise ValueError(f"skeleton {self.name!r}: {len(self.labels)} labels for {len(self.joint_names)} joints")
         object.__setattr__(self, "parents", tuple(int(p) for p in self.parents))
         object.__setattr__(self, "groups", {k: tuple(int(i) for i in v) for k, v in self.groups.items()})
         if len(self.joint_names) != len(self.parents):
@@ -79,27 +86,40 @@ class Skeleton:
                 "the kept joints must form one tree"
             )
         groups = {g: tuple(new_index[i] for i in idx if i in new_index) for g, idx in self.groups.items()}
-        return Skeleton(tuple(self.joint_names[j] for j in keep), tuple(parents), groups, self.name)
+        labels = tuple(self.labels[j] for j in keep) if self.labels else ()
+        return Skeleton(tuple(self.joint_names[j] for j in keep), tuple(parents), groups, self.name, labels)
 
     def with_groups(self, groups: dict[str, list[str] | list[int]]) -> Skeleton:
         """Replace the named groups; members given by joint name or index."""
         resolved = {
             g: tuple(self.index(m) if isinstance(m, str) else int(m) for m in members) for g, members in groups.items()
         }
-        return Skeleton(self.joint_names, self.parents, resolved, self.name)
+        return Skeleton(self.joint_names, self.parents, resolved, self.name, self.labels)
+
+    def with_labels(self, labels) -> Skeleton:
+        return Skeleton(self.joint_names, self.parents, self.groups, self.name, tuple(labels))
 
     def to_dict(self) -> dict:
         """Plain python values (lists, str, int): safe for checkpoints and JSON."""
-        return {
+        d = {
             "name": self.name,
             "joint_names": list(self.joint_names),
             "parents": list(self.parents),
             "groups": {k: list(v) for k, v in self.groups.items()},
         }
+        if self.labels:
+            d["labels"] = list(self.labels)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> Skeleton:
-        return cls(tuple(d["joint_names"]), tuple(d["parents"]), d.get("groups", {}), d.get("name", "custom"))
+        return cls(
+            tuple(d["joint_names"]),
+            tuple(d["parents"]),
+            d.get("groups", {}),
+            d.get("name", "custom"),
+            tuple(d.get("labels", ())),
+        )
 
 
 # --- name matching for skeletons read from files (BVH, positions with joint names) ---

@@ -128,7 +128,9 @@ def split_of(
 # 2: session 8 (BVH fps from the printed frame time, csv fps and times).
 # 3: session 9 (AMASS betas stored per frame were flattened: another body).
 # 4: units from the body (any metres per unit), absurd values as missing, helper roots left out.
-CACHE_VERSION = 4
+# 5: body parts from the rig's structure (skeleton labels), units from the legs (CMU: "asf"),
+#    excursions (jumps) as missing, root OFFSETs that hold the rest height.
+CACHE_VERSION = 5
 
 
 def cache_key(files: list[Path], options: dict) -> str:

@@ -13,7 +13,7 @@ import logging
 import os
 from pathlib import Path
 
-from mocapfix.core.clip import MAX_FPS, MIN_FPS, Clip, MotionFileError, check_frame_rate
+from mocapfix.core.clip import MAX_FPS, MIN_FPS, Clip, MotionFileError, check_frame_rate, shown
 
 log = logging.getLogger(__name__)
 SOURCES = ("auto", "bvh", "positions", "h36m", "amass")
@@ -126,14 +126,27 @@ def _checked(clip: Clip) -> Clip:
     """What every reader's clip goes through: absurd values made missing (io/absurd.py), the
     body's stature in meta, and a warning when that is not a human height (a wrong unit)."""
     from mocapfix.io.absurd import drop_absurd
+    from mocapfix.io.body_structure import body_structure
     from mocapfix.io.conventions import stature_m, stature_warning
 
     check_frame_rate(clip.source or clip.name, clip.fps)
     names, parents = clip.skeleton.joint_names, clip.skeleton.parents
-    stature = stature_m(clip.positions, names, parents)
+    if not clip.skeleton.labels:  # the BVH reader placed them already (it needs them for the unit)
+        structure = body_structure(parents, clip.positions, names)
+        if structure is not None:
+            clip = clip.replace(skeleton=clip.skeleton.with_labels(structure.labels))
+    stature = stature_m(clip.positions, names, parents, clip.skeleton.labels)
+    seen = int((~clip.missing_mask()).sum())
     clip = drop_absurd(clip, stature)
     clip.meta["stature_m"] = stature
     warning = stature_warning(stature, clip.meta, clip.source or clip.name)
+    lost = clip.meta.get("absurd_tokens", 0)
+    if seen and lost >= 0.5 * seen:  # data never silently becomes a hole
+        warning = (
+            f"{shown(clip.source or clip.name)}: {100 * lost / seen:.0f} % of the observed joint positions are "
+            f"beyond any body's reach at unit {clip.meta.get('unit', '?')} and were read as missing: "
+            "a wrong unit (--unit) or not a body?"
+        )
     if warning:
         clip.meta["warning"] = warning
         log.warning("warning: %s", warning)

@@ -24,7 +24,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocapfix.core.clip import Clip, MotionFileError, check_frame_rate
-from mocapfix.core.skeleton import Skeleton, guess_groups
+from mocapfix.core.skeleton import Skeleton
+from mocapfix.io.body_structure import body_structure, limb_groups
 from mocapfix.io.conventions import guess_up_axis, metres_per_unit, resolve_unit
 from mocapfix.io.files import atomic_write
 
@@ -72,8 +73,12 @@ def read_bvh(
         local_r, local_t = _local_transforms(offsets, channels, data)
         pos = _forward_kinematics(local_r, local_t, parents)  # (T, J, 3) file units, file axes
 
-    unit = resolve_unit(path, unit, None, pos, names, parents)
-    up_axis = guess_up_axis(pos, names, parents) if up_axis == "auto" else str(up_axis).lower()
+    # Which joint is which from the rig's structure (names only confirm): the unit and the up
+    # axis then come from the legs and the trunk, whatever the exporter called them.
+    structure = body_structure(parents, pos, names)
+    labels = structure.labels if structure is not None else None
+    unit = resolve_unit(path, unit, None, pos, names, parents, labels)
+    up_axis = guess_up_axis(pos, names, parents, labels) if up_axis == "auto" else str(up_axis).lower()
     if up_axis not in AXES:
         raise MotionFileError(path, f"unknown up axis {up_axis!r}; use 'y', 'z' or 'auto'")
     scale, C = unit.metres, AXES[up_axis]
@@ -85,7 +90,7 @@ def read_bvh(
         local_r = C @ local_r @ C.T
         local_t = scale * local_t @ C.T
 
-    skeleton = Skeleton(names, parents, {}, path.stem)
+    skeleton = Skeleton(names, parents, {}, path.stem, labels or ())
     meta = {"format": "bvh", "unit": unit.name, "unit_source": unit.how, "up_axis": up_axis, "frame_time": frame_time}
     if encoding != "utf-8":
         meta["encoding"] = encoding
@@ -149,11 +154,7 @@ def read_bvh(
         clip.meta["absurd_tokens"] = int(clip.missing_mask().sum())
     sk = clip.skeleton
     try:
-        sk = (
-            sk.with_groups(groups)
-            if groups is not None
-            else Skeleton(sk.joint_names, sk.parents, guess_groups(sk.joint_names, sk.parents), sk.name)
-        )
+        sk = sk.with_groups(groups) if groups is not None else sk.with_groups(limb_groups(sk))
     except (KeyError, ValueError) as e:
         raise MotionFileError(path, f"bad groups: {e}") from None
     return [clip.replace(skeleton=sk)]
@@ -284,6 +285,7 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
     # Global transforms of every template joint, parents first: the clip's where it has the
     # joint, the template's own local transform under its (new) parent otherwise.
     local_r, local_t = _local_transforms(offsets, channels, data)
+    base = _root_base(offsets, channels, data)  # the file's own reading of its root channels, kept
     G, P = np.empty_like(local_r), np.empty_like(local_t)  # (T, J, 3, 3), (T, J, 3)
     for j in range(J):
         p = parents[j]
@@ -313,7 +315,7 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
             out[:, col] = euler[:, i]
         for col, (axis, kind) in channels[j]:
             if kind == "position":
-                out[:, col] = trans[:, "xyz".index(axis)]
+                out[:, col] = trans[:, "xyz".index(axis)] - (base["xyz".index(axis)] if j == 0 else 0.0)
 
     # A clip joint whose translation the template has no channel for keeps the template's offset:
     # right only if the clip's bone is that long.
@@ -538,13 +540,33 @@ def _local_transforms(offsets: np.ndarray, channels, data: np.ndarray) -> tuple[
     T, J = data.shape[0], len(channels)
     local_t = np.broadcast_to(offsets, (T, J, 3)).copy()
     local_r = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy()
+    base = _root_base(offsets, channels, data)
     for j, chans in enumerate(channels):
         for col, (axis, kind) in chans:
             if kind == "position":
-                local_t[:, j, "xyz".index(axis)] = data[:, col]
+                local_t[:, j, "xyz".index(axis)] = data[:, col] + (base["xyz".index(axis)] if j == 0 else 0.0)
             else:
                 local_r[:, j] = local_r[:, j] @ _axis_rotation(axis, np.deg2rad(data[:, col]))
     return local_r, local_t
+
+
+def _root_base(offsets: np.ndarray, channels, data: np.ndarray) -> np.ndarray:
+    """(3,) what the root's position channels are added to. Exporters disagree: most write the
+    root's place itself in its channels (the OFFSET is the rest place, or zero: Blender, Bandai
+    Namco, CMU), some write a displacement from the OFFSET (Character Creator puts the rest hip
+    height there and centimetres of motion in the channels). The channels are displacements
+    when they stay nearer zero than the OFFSET along an axis whose OFFSET is not zero."""
+    base = np.zeros(3)
+    cols = {axis: col for col, (axis, kind) in channels[0] if kind == "position"}
+    for axis, col in cols.items():
+        k = "xyz".index(axis)
+        off = offsets[0, k]
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            typical = float(np.nanmedian(data[:, col]))
+        if off != 0.0 and np.isfinite(typical) and abs(typical) < 0.5 * abs(off):
+            base[k] = off
+    return base
 
 
 def _forward_kinematics(local_r: np.ndarray, local_t: np.ndarray, parents, with_rotations: bool = False):

@@ -24,7 +24,10 @@ import numpy as np
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.skeleton import guess_groups
 
-NAMED_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}  # metres per unit
+# metres per unit. "asf": the Acclaim ASF/AMC convention of the CMU database and every BVH
+# converted from it (":units length 0.45": a unit is 1/0.45 inch, 0.0564 m), the largest public
+# BVH collection: its subjects' bodies differ by +-5 %, the unit does not.
+NAMED_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "asf": 0.0254 / 0.45}
 _ALIASES = {
     "meter": "m",
     "metre": "m",
@@ -49,7 +52,7 @@ REFERENCE_STATURE_M = 1.70
 REFERENCE_LENGTH_M = {"leg": 0.82, "arm": 0.48}
 # A named unit within this factor of the body's estimate is the file's unit: people differ from
 # the standard adult by less (statures 1.36-2.13 m), named units differ from each other by more
-# (2.54 at the closest, cm and inch).
+# (2.2 at the closest, inch and asf).
 SNAP_FACTOR = 1.25
 HUMAN_STATURE_M = (1.2, 2.2)  # outside: a warning on every command that reads the file
 
@@ -115,9 +118,13 @@ def _bone_lengths(positions: np.ndarray, parents) -> np.ndarray:
     return length
 
 
-def limb_measures(positions: np.ndarray, joint_names, parents) -> dict[str, list[float]]:
+def limb_measures(positions: np.ndarray, joint_names, parents, labels=None) -> dict[str, list[float]]:
     """positions: (T, J, 3) in any unit -> {"leg": [...], "arm": [...]}: each side's length from
-    the limb's top joint (guess_groups) down to its ankle / wrist, along the bones."""
+    the hip joint down to the ankle (the shoulder to the wrist), along the bones. labels: the
+    body parts of the rig's structure (io/body_structure.py), else the joints are found by name
+    (guess_groups)."""
+    if labels:
+        return _labelled_limbs(positions, list(labels))
     bones = _bone_lengths(positions, parents)
     out: dict[str, list[float]] = {"leg": [], "arm": []}
     for group, members in guess_groups(joint_names, parents).items():
@@ -138,16 +145,33 @@ def limb_measures(positions: np.ndarray, joint_names, parents) -> dict[str, list
     return out
 
 
-def body_scale(positions: np.ndarray, joint_names, parents) -> tuple[float, str]:
+def _labelled_limbs(positions: np.ndarray, labels: list) -> dict[str, list[float]]:
+    out: dict[str, list[float]] = {"leg": [], "arm": []}
+    for kind, parts in (("leg", ("thigh", "knee", "ankle")), ("arm", ("upper_arm", "elbow", "wrist"))):
+        for side in ("left", "right"):
+            names = [f"{side}_{p}" for p in parts]
+            if all(n in labels for n in names):
+                idx = [labels.index(n) for n in names]
+                with np.errstate(invalid="ignore", over="ignore"), _quiet():
+                    seg = np.linalg.norm(np.diff(positions[:, idx], axis=1), axis=-1).sum(-1)  # (T,)
+                    length = float(np.nanmedian(np.where(np.isfinite(seg), seg, np.nan)))
+                if np.isfinite(length) and length > 0:
+                    out[kind].append(length)
+    return out
+
+
+def body_scale(positions: np.ndarray, joint_names, parents, labels=None) -> tuple[float, str]:
     """positions: (T, J, 3) in any unit -> (the standard adult's metres per unit of this body, how).
 
-    The median over the limbs found (legs and arms) of reference length / measured length.
-    Without named limbs, the two longest bones stand for the leg (thigh and shank are the longest
-    bones of a human). NaN when there are no bones to measure."""
-    limbs = limb_measures(positions, joint_names, parents)
-    ratios = [REFERENCE_LENGTH_M[kind] / v for kind, values in limbs.items() for v in values]
+    The median over the legs found of reference length / measured length (the arms where no leg
+    is found: legs vary less between people, and arms are where rigs differ, clavicles and
+    shoulder placement). Without any limb, the two longest bones stand for the leg (thigh and
+    shank are the longest bones of a human). NaN when there are no bones to measure."""
+    limbs = limb_measures(positions, joint_names, parents, labels)
+    kind = "leg" if limbs["leg"] else "arm"
+    ratios = [REFERENCE_LENGTH_M[kind] / v for v in limbs[kind]]
     if ratios:
-        return float(np.median(ratios)), f"{' and '.join(k for k, v in limbs.items() if v)} lengths"
+        return float(np.median(ratios)), f"{kind} lengths{' (rig structure)' if labels else ''}"
     bones = _bone_lengths(positions, parents)
     bones = np.sort(bones[np.isfinite(bones) & (bones > 0)])
     if bones.size < 2:
@@ -155,22 +179,22 @@ def body_scale(positions: np.ndarray, joint_names, parents) -> tuple[float, str]
     return float(REFERENCE_LENGTH_M["leg"] / bones[-2:].sum()), "two longest bones"
 
 
-def stature_m(positions: np.ndarray, joint_names, parents) -> float:
+def stature_m(positions: np.ndarray, joint_names, parents, labels=None) -> float:
     """positions: (T, J, 3) metres -> the body's height implied by its limbs (NaN: no bones)."""
-    scale, _ = body_scale(positions, joint_names, parents)
+    scale, _ = body_scale(positions, joint_names, parents, labels)
     return REFERENCE_STATURE_M / scale if scale > 0 else math.nan
 
 
-def resolve_unit(path, option, declared, raw: np.ndarray, joint_names, parents) -> Unit:
+def resolve_unit(path, option, declared, raw: np.ndarray, joint_names, parents, labels=None) -> Unit:
     """The unit of one file: the user's option, else what the file declares, else the body's.
 
-    raw: (..., T, J, 3) positions in the file's unit (any axes)."""
+    raw: (..., T, J, 3) positions in the file's unit (any axes); labels: body parts (body_scale)."""
     for value, where in ((option, "option"), (declared, "file")):
         unit = parse_unit(value, path, where)
         if unit is not None:
             return unit
     raw = np.asarray(raw, dtype=np.float64).reshape((-1,) + np.shape(raw)[-2:])
-    estimate, how = body_scale(raw, joint_names, parents)
+    estimate, how = body_scale(raw, joint_names, parents, labels)
     if not (math.isfinite(estimate) and estimate > 0):  # nothing to measure (every joint missing): no harm in m
         return Unit("m", 1.0, "auto: no bone seen, metres assumed")
     name = min(NAMED_UNITS, key=lambda n: abs(math.log(NAMED_UNITS[n] / estimate)))
@@ -230,16 +254,22 @@ def _find(names, pattern: str) -> int | None:
     return next((j for j, n in enumerate(names) if re.search(pattern, n, re.I)), None)
 
 
-def guess_up_axis(positions: np.ndarray, joint_names, parents) -> str:
+def guess_up_axis(positions: np.ndarray, joint_names, parents, labels=None) -> str:
     """positions: (..., T, J, 3) in the file's axes -> 'y' or 'z': the axis along which the head
     sits above the pelvis (or the pelvis above the feet) in the median frame; without such
-    names, the axis along which the body is tallest in the median frame."""
+    joints (labels from the rig's structure, else names), the axis along which the body is
+    tallest in the median frame."""
     pos = np.asarray(positions, dtype=np.float64).reshape((-1,) + np.shape(positions)[-2:])  # (T, J, 3)
     pos = np.where(np.isfinite(pos), pos, np.nan)
-    pelvis = pelvis_joint(parents)
-    head = _find(joint_names, r"head")
-    head = _find(joint_names, r"neck") if head is None else head
-    foot = _find(joint_names, r"foot|ankle|toe")
+    labels = list(labels) if labels else []
+    if "pelvis" in labels and ("head" in labels or "neck" in labels):
+        pelvis = labels.index("pelvis")
+        head, foot = labels.index("head" if "head" in labels else "neck"), None
+    else:
+        pelvis = pelvis_joint(parents)
+        head = _find(joint_names, r"head")
+        head = _find(joint_names, r"neck") if head is None else head
+        foot = _find(joint_names, r"foot|ankle|toe")
     with _quiet():
         if head is not None and head != pelvis:
             d = np.nanmedian(pos[:, head] - pos[:, pelvis], axis=0)

@@ -93,8 +93,28 @@ def side_and_word(name: str) -> tuple[str | None, str]:
 
 
 def joint_labels(skeleton: Skeleton) -> list[str | None]:
-    """One label per joint ("left_upper_arm", "pelvis", "spine_2of3", ...), None where the name
-    says nothing known (fingers, end sites, helpers)."""
+    """One label per joint ("left_upper_arm", "pelvis", "spine_2of3", ...), None for joints that
+    play no part (fingers, twist bones, helpers): the skeleton's labels from the rig's structure
+    (io/body_structure.py) where it has them, and the names' for parts the structure left out."""
+    by_name = name_labels(skeleton)
+    if not skeleton.labels:
+        return by_name
+    # A name in a known convention that says another part wins: the structure cannot see a joint
+    # that is not there (an arm without its wrist reads as clavicle, upper arm, forearm), a
+    # name can. Spine ranks stay the structure's; parts no name places stay the structure's.
+    labels = [n if n is not None and not n.startswith("spine_") else s for s, n in zip(skeleton.labels, by_name)]
+    for label in {x for x in labels if x is not None}:
+        holders = [j for j, x in enumerate(labels) if x == label]
+        if len(holders) > 1:  # one joint per part: the one whose name says it
+            keep = next((j for j in holders if by_name[j] == label), holders[0])
+            for j in holders:
+                if j != keep:
+                    labels[j] = None
+    return labels
+
+
+def name_labels(skeleton: Skeleton) -> list[str | None]:
+    """One label per joint from its name alone, None where the name says nothing known."""
     names = skeleton.joint_names
     split = [side_and_word(n) for n in names]
     words_by_side: dict[str | None, set[str]] = {}
@@ -238,7 +258,9 @@ def describe_mapping(skeleton: Skeleton, model: Skeleton, joint_map: dict[str, s
             if _strip_namespace(given).lower() == _strip_namespace(n).lower()
             else "nearest spine joint"
             if mine[found[n]] != theirs[model.index(n)]
-            else "body part"
+            else "body part, from the rig's structure"
+            if skeleton.labels and skeleton.labels[found[n]] == mine[found[n]]
+            else "body part, from its name"
         )
         lines.append(f"{n:<16} <- {given} ({how})")
     used = set(found.values())
