@@ -29,7 +29,7 @@ Labels are the vocabulary of io/joint_names.py ("pelvis", "spine_2of3", "neck", 
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -44,9 +44,6 @@ HEAD_END_FRACTION = 0.17  # a head leaf this far (x the leg) past its parent is 
 class BodyStructure:
     labels: list[str | None]  # one per joint
     up: np.ndarray  # (3,) unit vector, pelvis to chest, in the positions' axes
-    how: dict[int, str] = field(default_factory=dict)  # joint -> how it was placed, for inspect
-    leg_length: float = float("nan")  # median hip-to-ankle along the bones, the positions' unit
-    arm_length: float = float("nan")  # median shoulder-to-wrist
 
 
 def body_structure(parents, positions: np.ndarray, names=None) -> BodyStructure | None:
@@ -78,7 +75,6 @@ def body_structure(parents, positions: np.ndarray, names=None) -> BodyStructure 
     if pelvis == chest or chest not in tree.path(pelvis, head):
         return None
     labels: list[str | None] = [None] * J
-    how: dict[int, str] = {}
 
     limbs = {}
     for kind, (a, b) in (("leg", legs), ("arm", arms)):
@@ -94,25 +90,23 @@ def body_structure(parents, positions: np.ndarray, names=None) -> BodyStructure 
     up = _median_direction(pos[:, chest] - pos[:, pelvis])
     sides = _sides(pos, limbs, legs, arms, pelvis, chest, up, names)
 
-    for (kind, tip), parts in limbs.items():
+    for (_, tip), parts in limbs.items():
         for part, j in parts.items():
             labels[j] = f"{sides[tip]}_{part}"
-            how[j] = f"{kind} structure"
-    labels[pelvis], how[pelvis] = "pelvis", "where the legs meet the trunk"
+    labels[pelvis] = "pelvis"
     spine = [j for j in tree.path(pelvis, chest)[1:] if tree.bone[j] > SHARE_FRACTION * tree.diameter]
     for rank, j in enumerate(spine):
-        labels[j], how[j] = f"spine_{rank + 1}of{len(spine)}", "between pelvis and chest"
+        labels[j] = f"spine_{rank + 1}of{len(spine)}"
     leg_lengths = [_span(pos, p["thigh"], p["knee"], p["ankle"]) for (k, _), p in limbs.items() if k == "leg"]
-    arm_lengths = [_span(pos, p["upper_arm"], p["elbow"], p["wrist"]) for (k, _), p in limbs.items() if k == "arm"]
     raw_neck = tree.path(chest, head)[1:]
     neck_chain = _reduced(tree, raw_neck, pos)
     if raw_neck and neck_chain:
         neck = raw_neck[0]  # at the chest's place or above it: where the neck starts
-        labels[neck], how[neck] = "neck", "first joint past the chest"
+        labels[neck] = "neck"
         head_joint = _head_joint(tree, neck_chain, head, float(np.median(leg_lengths)), names)
         if head_joint != neck:
-            labels[head_joint], how[head_joint] = "head", "end of the head's branch"
-    return BodyStructure(labels, up, how, float(np.median(leg_lengths)), float(np.median(arm_lengths)))
+            labels[head_joint] = "head"
+    return BodyStructure(labels, up)
 
 
 class _Tree:
@@ -296,7 +290,7 @@ def _sides(pos, limbs, legs, arms, pelvis, chest, up, names) -> dict[int, str]:
         if said[0] is not None and said[1] is not None and said[0] != said[1]:
             sides.update(zip(pair, said))
             continue
-        if left is None:  # nothing to tell them apart by: the first is called left (reported)
+        if left is None:  # nothing to tell them apart by (no toes, no names): the first is called left
             sides.update({pair[0]: "left", pair[1]: "right"})
             continue
         lateral = [
