@@ -327,3 +327,55 @@ def test_fix_runs_on_cmu_takes_of_three_performers(cmu_files, tmp_path, capsys):
 @pytest.mark.slow
 def test_fix_runs_on_every_cmu_take(cmu_files, tmp_path, capsys):
     _fix_cmu(cmu_files, tmp_path, capsys)
+
+
+def test_one_fit_on_two_studios_and_rigs_maps_both_onto_one_body(tmp_path, bandai_files, cmu_files):
+    """Bandai Namco (21 joints, 30 fps, cm) and CMU (31 joints, 120 fps, ASF units) in one run:
+    --data.path [a, b] --data.body body21; the test split holds takes of both."""
+
+    from cli_utils import CONFIGS, QUIET, TINY, run_cli
+
+    from mocapfix.data.datamodule import MotionDataModule
+
+    bandai, cmu = tmp_path / "bandai", tmp_path / "cmu"
+    for folder, files in ((bandai, bandai_files[:6]), (cmu, [f for f in cmu_files if f.parent.name == "05"][:4])):
+        folder.mkdir()
+        for f in files:
+            (folder / f.name).symlink_to(f)
+    test_files = [bandai_files[0].name, "05_01.bvh"]
+    data = [
+        "--data.path",
+        f"[{bandai}, {cmu}]",
+        "--data.body",
+        "body21",
+        "--data.test_patterns",
+        f"[{', '.join(test_files)}]",
+        "--data.val_patterns",
+        f"[{bandai_files[1].name}, 05_02.bvh]",
+        "--data.batch_size",
+        "8",
+        "--data.eval_batch_size",
+        "64",
+        "--data.cache_dir",
+        "null",
+    ]
+    common = [
+        "--config",
+        CONFIGS / "xmae_cpu.yaml",
+        *TINY,
+        *QUIET,
+        *data,
+        "--experiment",
+        "two",
+        "--trainer.accelerator",
+        "cpu",
+    ]
+    assert run_cli(["fit", *common, "--trainer.max_steps", "4", "--trainer.val_check_interval", "4"], tmp_path) == 0
+    ckpt = tmp_path / "checkpoints" / "two" / "last.ckpt"
+    assert run_cli(["test", *common, "--ckpt_path", ckpt, "--trainer.limit_test_batches", "1"], tmp_path) == 0
+    assert list((tmp_path / "logs" / "two").rglob("eval.json"))
+    dm = MotionDataModule("bvh", [str(bandai), str(cmu)], body="body21", cache_dir=None, test_patterns=test_files)
+    dm.setup("test")
+    tested = {c.source.split("/")[-2] for c in dm.clips["test"]}
+    assert tested == {"bandai", "cmu"} and all(c.skeleton.name == "body21" for c in dm.clips["test"])
+    assert all(np.isfinite(c.positions).all() for c in dm.clips["test"])  # every body21 joint found in both rigs

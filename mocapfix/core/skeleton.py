@@ -220,7 +220,41 @@ _SMPL22_NAMES = (
 )
 _SMPL22_PARENTS = (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19)
 
+# The canonical body: the 21 joints the shipped models use, named as in Bandai Namco's rig (the
+# data they were trained on). Recordings of any rig are mapped onto it by body part to train
+# one model on several studios (data.body: body21).
+_BODY21_NAMES = (
+    "Hips",
+    "Spine",
+    "Chest",
+    "Neck",
+    "Head",
+    "Shoulder_L",
+    "UpperArm_L",
+    "LowerArm_L",
+    "Hand_L",
+    "Shoulder_R",
+    "UpperArm_R",
+    "LowerArm_R",
+    "Hand_R",
+    "UpperLeg_L",
+    "LowerLeg_L",
+    "Foot_L",
+    "Toes_L",
+    "UpperLeg_R",
+    "LowerLeg_R",
+    "Foot_R",
+    "Toes_R",
+)
+_BODY21_PARENTS = (-1, 0, 1, 2, 3, 2, 5, 6, 7, 2, 9, 10, 11, 0, 13, 14, 15, 0, 17, 18, 19)
+
 PRESETS = {
+    "body21": Skeleton(
+        _BODY21_NAMES,
+        _BODY21_PARENTS,
+        {"left_arm": (6, 7, 8), "right_arm": (10, 11, 12), "left_leg": (13, 14, 15, 16), "right_leg": (17, 18, 19, 20)},
+        "body21",
+    ),
     "h36m17": Skeleton(
         _H36M17_NAMES,
         _H36M17_PARENTS,

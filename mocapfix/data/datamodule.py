@@ -18,9 +18,10 @@ from lightning.pytorch.overrides.distributed import UnrepeatedDistributedSampler
 from torch.utils.data import DataLoader, Dataset
 
 from mocapfix.core.clip import Clip, MotionFileError, check_human_scale
-from mocapfix.core.skeleton import Skeleton
+from mocapfix.core.skeleton import Skeleton, preset
 from mocapfix.data.spec import DataSpec
 from mocapfix.data.windows import cache_key, load_clips, resample, save_clips, split_of, window_starts
+from mocapfix.io.joint_names import onto_skeleton
 
 log = logging.getLogger(__name__)
 
@@ -129,7 +130,8 @@ class MotionDataModule(L.LightningDataModule):
     def __init__(
         self,
         source: str = "synthetic",
-        path: str | None = None,
+        path: str | list[str] | None = None,
+        body: str | None = None,
         fps: float = 30.0,
         window_s: float = 1.0,
         stride_s: float = 0.5,
@@ -163,7 +165,11 @@ class MotionDataModule(L.LightningDataModule):
         Args:
             source: one of synthetic, bvh, positions, h36m, amass, or archive (an .npz of parsed
                 clips in the cache's format, e.g. to train on a machine without the raw files).
-            path: a file or a folder of files (not used by synthetic).
+            path: a file or a folder of files, or a list of them (not used by synthetic).
+            body: a skeleton preset (body21: the shipped models' 21 joints; smpl22, h36m17) that
+                every recording is mapped onto by body part (io/body_structure.py), so that folders
+                of different rigs (and frame rates) train one model; positions only. None: the
+                recordings' own skeleton, which must then be one.
             fps: every clip is resampled to this rate.
             window_s: window length in seconds; stride_s: step between training windows.
             eval_stride_s: step between val/test windows (default: window_s, no overlap).
@@ -183,6 +189,12 @@ class MotionDataModule(L.LightningDataModule):
             raise ValueError(f"data.source: unknown source type {source!r}; known: {', '.join(SOURCES)}")
         if source != "synthetic" and not path:
             raise ValueError(f"data.path: source {source!r} needs a file or folder path")
+        if body is not None:
+            from mocapfix.core.skeleton import preset
+
+            preset(body)  # a ValueError naming the known presets
+            if with_rotations:
+                raise ValueError(f"data.body {body}: a canonical body has joint positions only (with_rotations)")
         if not (0.0 <= val_fraction and 0.0 <= test_fraction and val_fraction + test_fraction <= 1.0):
             raise ValueError(
                 f"data.val_fraction {val_fraction} and data.test_fraction {test_fraction}: fractions "
@@ -199,10 +211,15 @@ class MotionDataModule(L.LightningDataModule):
 
     # --- loading ---
 
+    @property
+    def paths(self) -> list[str]:
+        path = self.hparams.path
+        return [str(p) for p in path] if isinstance(path, (list, tuple)) else [str(path)]
+
     def _files(self) -> list[Path]:
         from mocapfix.io import list_motion_files
 
-        return list_motion_files(self.hparams.path, self.hparams.source)
+        return [f for p in self.paths for f in list_motion_files(p, self.hparams.source)]
 
     def _read_all(self) -> list[Clip]:
         hp = self.hparams
@@ -248,7 +265,7 @@ class MotionDataModule(L.LightningDataModule):
         unknown = set(hp.drop_joints or ()) - {n for c in others for n in c.skeleton.joint_names}
         if unknown and others:
             raise MotionFileError(
-                hp.path,
+                ", ".join(self.paths),
                 f"drop_joints not in any file's skeleton: {sorted(unknown)} "
                 f"(joints: {', '.join(others[0].skeleton.joint_names)})",
             )
@@ -267,6 +284,8 @@ class MotionDataModule(L.LightningDataModule):
                     c = c.select_joints(keep)
                 except ValueError as e:  # the kept joints do not form one tree
                     raise MotionFileError(c.source, str(e)) from None
+            if hp.body:
+                c = onto_skeleton(c, preset(hp.body))
             if hp.groups:
                 c = c.replace(skeleton=c.skeleton.with_groups(hp.groups))
             out.append(resample(c, hp.fps))
@@ -278,7 +297,7 @@ class MotionDataModule(L.LightningDataModule):
                         c.source,
                         f"skeleton differs from {out[0].source}'s "
                         f"({c.skeleton.num_joints} vs {ref.num_joints} joints); "
-                        "use keep_joints / drop_joints to bring them to one skeleton",
+                        "use data.body body21 to map every rig onto one body, or keep_joints / drop_joints",
                     )
         return out
 
@@ -289,6 +308,7 @@ class MotionDataModule(L.LightningDataModule):
             k: hp[k]
             for k in (
                 "source",
+                "body",
                 "fps",
                 "drop_joints",
                 "keep_joints",
@@ -315,7 +335,7 @@ class MotionDataModule(L.LightningDataModule):
         t0 = time.perf_counter()
         clips = self._prepare(self._read_all())
         if not clips:
-            raise MotionFileError(hp.path, f"no {hp.source} clips found")
+            raise MotionFileError(", ".join(self.paths), f"no {hp.source} clips found")
         log.info("parsed %d clips in %.2f s", len(clips), time.perf_counter() - t0)
         if cache is not None:
             save_clips(cache, clips)

@@ -268,3 +268,30 @@ def describe_mapping(skeleton: Skeleton, model: Skeleton, joint_map: dict[str, s
     if extra:
         lines.append(f"not used by the model (kept as they are): {', '.join(extra)}")
     return lines
+
+
+def onto_skeleton(clip, target: Skeleton):
+    """A clip's positions on `target`'s joints, each found by match_joints (name, structure, name's
+    body part): the recording of any rig as the canonical body (core/skeleton.py: body21). A
+    target joint the recording lacks is missing in every frame; fewer than half found is a
+    MotionFileError naming them. Positions only: another rig's rotations are not the target's."""
+    import numpy as np
+
+    from mocapfix.core.clip import MotionFileError
+
+    found = match_joints(clip.skeleton, target)
+    missing = [n for n in target.joint_names if n not in found]
+    if 2 * len(found) < target.num_joints:
+        raise MotionFileError(
+            clip.source or clip.name,
+            f"maps {len(found)} of {target.name}'s {target.num_joints} joints (missing {', '.join(missing)}); "
+            "`mocapfix inspect FILE --model NAME` shows the mapping",
+        )
+    index = np.array([found.get(n, -1) for n in target.joint_names])
+    positions = np.where((index >= 0)[None, :, None], clip.positions[:, np.maximum(index, 0)], np.nan)
+    meta = {**clip.meta, "mapped_from": clip.skeleton.name}
+    if missing:
+        meta["absent_joints"] = missing
+    return clip.replace(
+        positions=positions, skeleton=target, rotations=None, root_translation=None, offsets=None, meta=meta
+    )
