@@ -342,3 +342,25 @@ def test_duplicate_joint_names_and_non_bvh_files_are_refused_from_their_start(tm
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     assert peak < 5e6
+
+
+@pytest.mark.parametrize("damage", ["missing channels", "a jump"])
+def test_a_bvh_whose_rotations_were_set_aside_comes_back_as_a_bvh(tmp_path, bandai, capsys, damage):
+    """Missing channel values (NaN) or a jump leave the take without exact rotations; fix still
+    writes a BVH (inverse kinematics from the file's own pose), holes filled, the rest as it was."""
+
+    def edit(rows):
+        if damage == "missing channels":
+            rows[40:55, 36:42] = np.nan  # Shoulder_L's channels: the left arm is missing for 0.5 s
+        else:
+            rows[40:45, HIPS_X] += 500.0  # cm: the body 5 m away for 5 frames
+
+    f = bvh_with(bandai, tmp_path / "take.bvh", edit=edit)
+    rc, out, err = run(["fix", f, "--model", "xmae-cpu-bandai", "-o", tmp_path / "out.bvh"], capsys)
+    assert rc == 0, err
+    [before], [after] = read_motion(f), read_bvh(tmp_path / "out.bvh")
+    assert np.isfinite(after.positions).all() and after.skeleton.joint_names == before.skeleton.joint_names
+    seen = np.isfinite(before.positions).all(-1)
+    assert 0 < (~seen).sum() and np.abs(after.positions[seen] - before.positions[seen]).max() < 1e-3  # 1 mm
+    truth = read_bvh(bandai)[0].positions
+    assert np.linalg.norm(after.positions - truth, axis=-1).max() < 0.5  # metres: filled, no jump kept

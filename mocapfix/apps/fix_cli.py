@@ -29,7 +29,7 @@ from mocapfix.core.render import holes_map, render, tracks_for
 from mocapfix.fix import MODES, fix_clips, map_joints, rotation_clips
 from mocapfix.fix.fixers import PRECISIONS, load_fixer
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
-from mocapfix.io.bvh import write_bvh_like
+from mocapfix.io.bvh import read_bvh, write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
 from mocapfix.io.files import atomic_write, claimed, publish
 from mocapfix.io.joint_names import check_joint_map, read_joint_map
@@ -44,7 +44,8 @@ LONG_INPUT_S = 600.0  # progress is shown for inputs this long even when stderr 
 def output_suffix(clips: list[Clip], path: Path, rotations: bool = False) -> str:
     """Positions files keep their extension; BVH stays BVH (a rotation model's rotations, or a
     positions model's positions put back on the input's hierarchy by inverse kinematics);
-    AMASS (rotations in, positions out) and Human3.6M become .npz."""
+    AMASS (rotations in, positions out) and Human3.6M become .npz. rotations: the output has
+    rotations to write (a rotation model, or a reference pose for inverse kinematics)."""
     fmt = clips[0].meta.get("format", "")
     if fmt == "bvh" and (rotations or clips[0].has_rotations):
         return ".bvh"
@@ -114,16 +115,39 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
     write_clips(target, clips)
 
 
-def onto_hierarchy(fixed: list[Clip], inputs: list[Clip]) -> tuple[list[Clip], float, float]:
+def _bvh_reference(path: Path, clips: list[Clip]) -> list[Clip] | None:
+    """For a BVH read without usable rotations (missing channels, or a jump that made positions
+    missing): the file again, its missing channel values interpolated per channel (Euler angles:
+    a pose to start from, not data), with the unit and axes it was read with; None where that
+    does not give the same joints with rotations."""
+    c = clips[0]
+    if c.meta.get("format") != "bvh" or len(clips) != 1:
+        return None
+    try:
+        [ref] = read_bvh(path, unit=c.meta["unit"], up_axis=c.meta["up_axis"], fill_missing_channels=True)
+    except (MotionFileError, KeyError):
+        return None
+    return [ref] if ref.has_rotations and ref.skeleton.joint_names == c.skeleton.joint_names else None
+
+
+FILLED_WEIGHT = 1e-3  # a filled joint's pull in the IK against an observed one's (core/ik.py)
+
+
+def onto_hierarchy(
+    fixed: list[Clip], inputs: list[Clip], observed: list[np.ndarray] | None = None
+) -> tuple[list[Clip], float, float]:
     """A positions model's fixed clips back on the input BVH's own skeleton (core/ik.py): each
-    clip gets rotations and root translation, and the positions their FK gives. -> the clips and
-    the mean and max distance (mm) the IK left between those positions and the model's."""
+    clip gets rotations and root translation, and the positions their FK gives. inputs: the
+    input's clips with rotations (the pose IK starts from); observed: (T, J) per clip, the
+    tokens the recording had, which filled ones never pull. -> the clips and the mean and max
+    distance (mm) the IK left between those positions and the model's."""
     out, means, worst = [], [], 0.0
-    for f, c in zip(fixed, inputs):
+    for k, (f, c) in enumerate(zip(fixed, inputs)):
         offsets, parents = torch.from_numpy(c.offsets), c.skeleton.parents
         target = torch.from_numpy(f.positions)
+        weights = None if observed is None else torch.from_numpy(np.where(observed[k], 1.0, FILLED_WEIGHT))
         rot, root = inverse_kinematics(
-            target, parents, offsets, torch.from_numpy(c.rotations), torch.from_numpy(c.root_translation)
+            target, parents, offsets, torch.from_numpy(c.rotations), torch.from_numpy(c.root_translation), weights
         )
         posed, mean, top = ik_error_mm(target, parents, offsets, rot, root)
         means.append(mean)
@@ -276,8 +300,16 @@ def fix_files(
             if not clips:
                 raise MotionFileError(path, "no motion in the file")
             rotations = getattr(fixer, "state", "positions") == "rotations"
+            # A BVH whose rotations were set aside (missing channels, a jump) still goes back as a
+            # BVH: the file re-read with its channels interpolated is the pose IK starts from.
+            reference = None if rotations or clips[0].has_rotations else _bvh_reference(path, clips)
             target = output_path(
-                path, clips, Path(out) if out else None, Path(out_dir) if out_dir else None, rel, rotations
+                path,
+                clips,
+                Path(out) if out else None,
+                Path(out_dir) if out_dir else None,
+                rel,
+                rotations or reference is not None,
             )
             resolved = target.resolve()
             if resolved == path.resolve():
@@ -300,7 +332,8 @@ def fix_files(
                 progress_bar = Progress(shown(path), show, err)
                 fixed, report = fix_clips(work, fixer, mode, overlap, batch_size, progress_bar, joint_map)
                 if target.suffix.lower() == ".bvh" and not rotations:
-                    fixed, ik_mean, ik_max = onto_hierarchy(fixed, clips)
+                    seen = [np.isfinite(c.positions).all(-1) for c in clips]  # (T, J) per clip
+                    fixed, ik_mean, ik_max = onto_hierarchy(fixed, reference or clips, seen)
                     report.notes.append(
                         f"BVH by inverse kinematics onto the input's skeleton: its bone lengths moved joints "
                         f"{ik_mean:.1f} mm on average from the model's positions (max {ik_max:.1f} mm)"
@@ -340,7 +373,7 @@ def fix_files(
             notes.insert(0, note)
         if report.filled_by:
             notes.insert(0, "filled by " + ", ".join(f"{m} {n}" for m, n in sorted(report.filled_by.items())))
-        absurd = sum(int(c.meta.get("absurd_tokens", 0)) for c in clips)
+        absurd = sum(int(c.meta.get("out_of_reach_tokens", 0)) for c in clips)
         if absurd:
             joints = sorted({j for c in clips for j in c.meta.get("absurd_joints", [])})
             notes.insert(

@@ -34,10 +34,12 @@ def _swing(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     return roma.rotvec_to_rotmat(axis * angle[..., None])
 
 
-def _kabsch(o: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
-    """o: (K, 3) bone offsets in the joint's frame, d: (T, K, 3) targets -> (T, 3, 3) R minimising
-    sum_k |R o_k - d_k|^2 (a proper rotation)."""
-    H = o.T.expand(d.shape[0], 3, -1) @ d  # (T, 3, 3) = sum_k o_k d_k^T
+def _kabsch(o: torch.Tensor, d: torch.Tensor, w: torch.Tensor | None = None) -> torch.Tensor:
+    """o: (K, 3) bone offsets in the joint's frame, d: (T, K, 3) targets, w: (T, K) weights ->
+    (T, 3, 3) R minimising sum_k w_k |R o_k - d_k|^2 (a proper rotation)."""
+    if w is not None:
+        d = w[..., None] * d
+    H = o.T.expand(d.shape[0], 3, -1) @ d  # (T, 3, 3) = sum_k w_k o_k d_k^T
     U, _, Vh = torch.linalg.svd(H)
     R = Vh.transpose(-1, -2) @ U.transpose(-1, -2)
     flip = torch.ones(d.shape[0], 3, dtype=d.dtype)
@@ -51,11 +53,14 @@ def inverse_kinematics(
     offsets: torch.Tensor,
     rotations: torch.Tensor,
     root_translation: torch.Tensor,
+    weights: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """positions: (T, J, 3) targets, metres (NaN: no target for that joint and frame); offsets
     (J, 3) the skeleton's bones; rotations (T, J, 3) local axis-angle and root_translation (T, 3):
     the input's motion (twist and fallback) -> local axis-angle (T, J, 3) and root translation
-    (T, 3) whose FK puts each joint as close to its target as the skeleton's bone lengths allow."""
+    (T, 3) whose FK puts each joint as close to its target as the skeleton's bone lengths allow.
+    weights: (T, J) how much each target counts where a joint with several children cannot meet
+    them all (observed joints 1, filled ones far less: a fill never pulls an observed joint)."""
     positions, offsets, rotations, root_translation = (
         t.double() for t in (positions, offsets, rotations, root_translation)
     )
@@ -86,7 +91,8 @@ def inverse_kinematics(
             if len(kids) > 1:  # every child with a target: the best rotation for all of them
                 every = ok.all(-1)
                 if every.any():
-                    rot = torch.where(every[:, None, None], _kabsch(offsets[kids], torch.nan_to_num(d)), rot)
+                    w = None if weights is None else weights[:, kids].double()
+                    rot = torch.where(every[:, None, None], _kabsch(offsets[kids], torch.nan_to_num(d), w), rot)
         glob_rot[j] = rot
         local[j] = rot if p < 0 else glob_rot[p].transpose(-1, -2) @ rot
     return roma.rotmat_to_rotvec(torch.stack(local, dim=1)), root

@@ -127,6 +127,7 @@ def drop_absurd(clip: Clip, stature_m: float) -> Clip:
     if not mask.any():
         return clip.replace(meta=meta)
     names = clip.skeleton.joint_names
+    meta["out_of_reach_tokens"] = meta.get("out_of_reach_tokens", 0) + int(mask.sum())
     meta["absurd_joints"] = sorted(
         set(meta.get("absurd_joints", [])) | {names[j] for j in np.nonzero(mask.any(0))[0]}, key=names.index
     )

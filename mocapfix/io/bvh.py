@@ -47,6 +47,7 @@ def read_bvh(
     groups: dict | None = None,
     keep_joints: list[str] | None = None,
     drop_joints: list[str] | None = None,
+    fill_missing_channels: bool = False,
 ) -> list[Clip]:
     """One BVH file -> [Clip] (a list, like every reader) in metres, z up.
 
@@ -62,9 +63,16 @@ def read_bvh(
         drop_joints=["joint_Root"] makes Hips the root and the rotations exact. A root like that
         (one child, a rotation that never changes: a helper that carries or holds the body, not
         a joint of it) is dropped without being named, unless keep_joints keeps it.
+    fill_missing_channels: non-finite channel values (missing data) interpolated over time per
+        channel first, so the clip has rotations everywhere (meta["filled_channels"] counts them):
+        the input's pose and twist for inverse kinematics to start from when a fixed clip goes
+        back into this file's hierarchy; not data.
     """
     path = Path(path)
     names, parents, offsets, channels, data, frame_time, encoding = _parse(path)
+    filled = 0
+    if fill_missing_channels and not np.isfinite(data).all():
+        data, filled = _interpolated(data), int((~np.isfinite(data)).sum())
     T, J = data.shape[0], len(names)
     if encoding != "utf-8":
         log.warning("warning: %s: not UTF-8 text; joint names read as Latin-1 (%s)", path, ", ".join(names[:3]))
@@ -94,6 +102,8 @@ def read_bvh(
     meta = {"format": "bvh", "unit": unit.name, "unit_source": unit.how, "up_axis": up_axis, "frame_time": frame_time}
     if encoding != "utf-8":
         meta["encoding"] = encoding
+    if filled:
+        meta["filled_channels"] = filled
     clip = Clip(positions, 1.0 / frame_time, skeleton, path.stem, str(path), meta=meta)
 
     finite = np.isfinite(data).all()
@@ -548,6 +558,18 @@ def _local_transforms(offsets: np.ndarray, channels, data: np.ndarray) -> tuple[
             else:
                 local_r[:, j] = local_r[:, j] @ _axis_rotation(axis, np.deg2rad(data[:, col]))
     return local_r, local_t
+
+
+def _interpolated(data: np.ndarray) -> np.ndarray:
+    """data: (T, C) channel values, non-finite = missing -> each column linearly interpolated over
+    the frames it has (held at the ends; a column with none: 0)."""
+    out = data.copy()
+    frames = np.arange(len(data))
+    for c in range(data.shape[1]):
+        ok = np.isfinite(data[:, c])
+        if not ok.all():
+            out[:, c] = np.interp(frames, frames[ok], data[ok, c]) if ok.any() else 0.0
+    return out
 
 
 def _root_base(offsets: np.ndarray, channels, data: np.ndarray) -> np.ndarray:
