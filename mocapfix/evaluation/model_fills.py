@@ -37,13 +37,17 @@ def calibrate(
     fps: float,
     gaps_s: tuple[float, ...],
     generator: torch.Generator | None,
+    cells: set[tuple[str, float]] | None = None,
 ) -> None:
     """Measure on clean windows positions (B, T, J, 3): the model's disagreement with the clean
-    tokens, and every candidate on the infill tasks (one side per limb: the policy has no side)."""
+    tokens, and every candidate on the infill tasks (one side per limb: the policy has no side);
+    cells: only these (part, gap) (the holes a recording has), None: all."""
     observed = ~torch.isnan(positions).any(-1)
     calibration.add_clean(reconstruct(positions, observed), positions, observed)
     for t in paper_tasks(skeleton, gaps_s, ()):
         if t.task != "infill" or t.part.startswith("right"):
+            continue
+        if cells is not None and (t.part.split("_")[-1], t.gap_s) not in cells:
             continue
         c = t.corrupt(positions, fps, skeleton, generator)
         fills = candidate_fills(reconstruct, c.positions, c.observed, skeleton)

@@ -35,6 +35,7 @@ from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill, limb_infill
 from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, policy_names, suspect_tokens
 from mocapfix.fix.fixers import Fixer, RotationFixer
+from mocapfix.fix.recording_policy import measure_policy
 from mocapfix.fix.windowing import blend_windows, model_frames, resample_frames, resample_motion, window_layout
 from mocapfix.io import read_motion
 from mocapfix.io.joint_names import match_joints
@@ -146,8 +147,18 @@ def fix_clips(
     if getattr(fixer, "state", "positions") == "rotations":
         return _fix_rotations(clips, fixer, mode, overlap, batch_size, progress, joint_map)
     policy: FillPolicy | None = getattr(fixer, "policy", None)
+    policy_note = None
+    # A calibrated model's holes are filled as the recording's own evidence says (a checkpoint
+    # without a policy keeps its documented behaviour: the model everywhere the mode says).
+    if fixer.kind == "xmae" and mode != "denoise" and policy is not None:
+        _, x_in, tracks = _model_view(clips, fixer, joint_map)
+        if mode == "both" or any(not np.isfinite(x).all() for x in x_in):  # else nothing to fill
+            policy, policy_note = measure_policy(fixer, tracks, policy, every_cell=mode == "both")
     if policy is None or mode == "infill":
-        return _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy, joint_map)
+        out, report = _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy, joint_map)
+        if policy_note:
+            report.notes.insert(0, policy_note)
+        return out, report
 
     # Pass 1: the model's estimate of every token; the observed tokens it disagrees with are suspect.
     # (only the model's joints of it are used: the other joints are left as they are)
@@ -196,7 +207,7 @@ def fix_clips(
         if policy.replace_threshold_m is not None
         else "no replace threshold: observed tokens kept",
     )
-    report.notes[:0] = [n for n in first.notes if n.endswith(NOT_JUDGED)]
+    report.notes[:0] = [n for n in first.notes if n.endswith(NOT_JUDGED)] + ([policy_note] if policy_note else [])
     return out, report
 
 
@@ -222,17 +233,7 @@ def _fix_positions(
     source = clips[0].source or clips[0].name
     who = _who(clips)
 
-    # Each clip at the model's joints and fps. Frames past the input's end are unobserved.
-    index, x_in, x_m = [], [], []
-    for i, c in enumerate(clips):
-        idx = map_joints(c.skeleton, model, source, joint_map, allow_missing=True)
-        # (T, Jm, 3); a model joint the recording lacks (-1) is missing in every frame
-        x = np.where((idx >= 0)[None, :, None], c.positions[:, np.maximum(idx, 0)], np.nan).astype(np.float32)
-        if not np.isfinite(x).all(-1).any():
-            raise MotionFileError(source, f"{who(i)}no data for any of the model's joints in any frame")
-        index.append(idx)
-        x_in.append(x)
-        x_m.append(resample_frames(x, c.fps, fps_m, model_frames(c.num_frames, c.fps, fps_m)))
+    index, x_in, x_m = _model_view(clips, fixer, joint_map)
 
     # Which model frames need an estimate: infill only uses it at missing tokens and at the
     # observed frames next to them (anchors); the other modes use it wherever there is data.
@@ -348,6 +349,26 @@ def _fix_positions(
         filled_by,
     )
     return out_clips, report
+
+
+def _model_view(
+    clips: list[Clip], fixer: Fixer, joint_map: dict[str, str] | None
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Each clip at the model's joints (index (Jm,) into the clip's, -1 where it lacks one), on the
+    clip's frames (T, Jm, 3) and at the model's fps (K, Jm, 3); a model joint the recording lacks
+    is missing in every frame, as are frames past the input's end."""
+    model, fps_m = fixer.skeleton, fixer.fps
+    source, who = clips[0].source or clips[0].name, _who(clips)
+    index, x_in, x_m = [], [], []
+    for i, c in enumerate(clips):
+        idx = map_joints(c.skeleton, model, source, joint_map, allow_missing=True)
+        x = np.where((idx >= 0)[None, :, None], c.positions[:, np.maximum(idx, 0)], np.nan).astype(np.float32)
+        if not np.isfinite(x).all(-1).any():
+            raise MotionFileError(source, f"{who(i)}no data for any of the model's joints in any frame")
+        index.append(idx)
+        x_in.append(x)
+        x_m.append(resample_frames(x, c.fps, fps_m, model_frames(c.num_frames, c.fps, fps_m)))
+    return index, x_in, x_m
 
 
 class PositionWindows:

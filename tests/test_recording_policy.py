@@ -1,0 +1,98 @@
+"""The fill policy is measured on the recording being fixed (fix/recording_policy.py): a model
+that its own val split believes in, and that is bad on this recording, does not fill its holes.
+Real motion (Bandai Namco takes); the model is the shipped one, or the shipped one broken."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from mocapfix.apps.main import main
+from mocapfix.evaluation.baselines import CLASSICAL
+from mocapfix.fix.recording_policy import complete_windows
+from mocapfix.io import read_motion
+from mocapfix.io.positions import write_positions
+from mocapfix.pretrained import pretrained_path
+
+
+@pytest.fixture(scope="module")
+def takes(bandai_files):
+    """Two Bandai takes of 8 s or more (a dance, a run), on the model's joints."""
+    long = [f for f in bandai_files if f.stat().st_size > 400_000][:2]
+    return [read_motion(f, drop_joints=["joint_Root"])[0] for f in long]
+
+
+@pytest.fixture(scope="module")
+def bad_model(tmp_path_factory):
+    """The shipped XMAE with its weights scrambled, and a val-split policy that says it wins every
+    cell: a model that believes in itself and is bad on every recording."""
+    ck = torch.load(pretrained_path("xmae-cpu-bandai"), map_location="cpu", weights_only=True)
+    g = torch.Generator().manual_seed(0)
+    ck["state_dict"] = {
+        k: v + 0.5 * torch.randn(v.shape, generator=g) if k.startswith("net.") and v.is_floating_point() else v
+        for k, v in ck["state_dict"].items()
+    }
+    for table in ck["fill_policy"]["error_mm"].values():
+        for method, errors in table.items():
+            table[method] = [0.1 if method == "xmae" else 100.0 for _ in errors]
+    path = tmp_path_factory.mktemp("bad") / "bad.ckpt"
+    torch.save(ck, path)
+    return path
+
+
+def _holes(clip, seconds=0.7):
+    """The take with full-body holes of `seconds` every 3 s; -> (holed positions, hole mask)."""
+    pos = clip.positions.copy()
+    T, n = len(pos), int(round(seconds * clip.fps))
+    holes = np.zeros(pos.shape[:2], dtype=bool)
+    for start in range(int(clip.fps), T - n - int(clip.fps), int(3 * clip.fps)):
+        holes[start : start + n] = True
+    pos[holes] = np.nan
+    return pos, holes
+
+
+def test_a_bad_model_that_believes_in_itself_never_fills_worse_than_the_spline(tmp_path, takes, bad_model, capsys):
+    def err(p, truth, holes):  # mm over the holes
+        return 1000 * np.linalg.norm(p[holes] - truth[holes], axis=-1).mean()
+
+    for i, clip in enumerate(takes):
+        holed, holes = _holes(clip)
+        f = tmp_path / f"take{i}.npz"
+        write_positions(f, holed, clip.fps, clip.skeleton)
+        capsys.readouterr()
+        assert main(["fix", str(f), "--ckpt", str(bad_model)]) == 0
+        out = capsys.readouterr().out
+        assert "fill policy measured on this recording" in out and "xmae" not in out.split("filled by")[1].split(";")[0]
+        [fixed] = read_motion(tmp_path / f"take{i}.fixed.npz")
+        x = torch.from_numpy(holed.astype(np.float64))[None]
+        spline = CLASSICAL["spline"](x, ~torch.isnan(x).any(-1), clip.skeleton.parents)[0].numpy()
+        ours, theirs = err(fixed.positions, clip.positions, holes), err(spline, clip.positions, holes)
+        assert ours <= theirs + 0.5, (ours, theirs)
+
+
+def test_the_bad_model_is_bad_where_its_own_policy_is_trusted(tmp_path, takes, bad_model):
+    """The check above means something: the broken model's own fill is far worse than the spline."""
+    from mocapfix.fix.fixers import load_fixer
+
+    fixer = load_fixer(str(bad_model))
+    clip = takes[0]
+    windows = torch.from_numpy(complete_windows([clip.positions], fixer.window)[:8])
+    observed = torch.ones(windows.shape[:3], dtype=torch.bool)
+    observed[:, 5:25] = False  # a 0.67-s full-body hole in each window
+    estimate = fixer.estimate(windows, observed)
+    spline = CLASSICAL["spline"](
+        torch.where(observed[..., None], windows, np.nan).double(), observed, clip.skeleton.parents
+    )
+    err = lambda p: float((p.float() - windows).norm(dim=-1)[~observed].mean())  # noqa: E731
+    assert err(estimate) > 3 * err(spline)
+
+
+def test_too_short_to_measure_falls_back_to_the_val_split_policy(tmp_path, takes, capsys):
+    clip = takes[0]
+    holed = clip.positions[:60].copy()  # 2 s: fewer complete windows than the measurement needs
+    holed[20:30] = np.nan
+    write_positions(tmp_path / "short.npz", holed, clip.fps, clip.skeleton)
+    capsys.readouterr()
+    assert main(["fix", str(tmp_path / "short.npz"), "--model", "xmae-cpu-bandai"]) == 0
+    assert "fill policy from the model's val split (the recording is too short to measure on" in capsys.readouterr().out
