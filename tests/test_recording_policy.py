@@ -10,7 +10,6 @@ import torch
 
 from mocapfix.apps.main import main
 from mocapfix.evaluation.baselines import CLASSICAL
-from mocapfix.fix.recording_policy import complete_windows
 from mocapfix.io import read_motion
 from mocapfix.io.positions import write_positions
 from mocapfix.pretrained import pretrained_path
@@ -77,22 +76,27 @@ def test_the_bad_model_is_bad_where_its_own_policy_is_trusted(tmp_path, takes, b
 
     fixer = load_fixer(str(bad_model))
     clip = takes[0]
-    windows = torch.from_numpy(complete_windows([clip.positions], fixer.window)[:8])
+    windows = torch.from_numpy(np.stack([clip.positions[s : s + fixer.window] for s in range(0, 240, 30)]))
     observed = torch.ones(windows.shape[:3], dtype=torch.bool)
     observed[:, 5:25] = False  # a 0.67-s full-body hole in each window
     estimate = fixer.estimate(windows, observed)
-    spline = CLASSICAL["spline"](
-        torch.where(observed[..., None], windows, np.nan).double(), observed, clip.skeleton.parents
-    )
+    holed = torch.where(observed[..., None], windows, np.nan).double()
+    spline = CLASSICAL["spline"](holed, observed, clip.skeleton.parents)
     err = lambda p: float((p.float() - windows).norm(dim=-1)[~observed].mean())  # noqa: E731
     assert err(estimate) > 3 * err(spline)
 
 
-def test_too_short_to_measure_falls_back_to_the_val_split_policy(tmp_path, takes, capsys):
+def test_too_little_to_measure_the_model_on_gets_the_classical_fills(tmp_path, takes, bad_model, capsys):
+    """A model must earn its place on the recording: where it cannot be measured there (no 2-s
+    stretch without a hole), the classical fills only, even for a model whose val split says it
+    wins every cell."""
     clip = takes[0]
-    holed = clip.positions[:60].copy()  # 2 s: fewer complete windows than the measurement needs
-    holed[20:30] = np.nan
-    write_positions(tmp_path / "short.npz", holed, clip.fps, clip.skeleton)
+    holed = clip.positions[:150].copy()  # 5 s with a 0.5-s hole every 0.8 s: no room for another
+    for start in range(5, 150, 24):
+        holed[start : start + 15] = np.nan
+    write_positions(tmp_path / "holey.npz", holed, clip.fps, clip.skeleton)
     capsys.readouterr()
-    assert main(["fix", str(tmp_path / "short.npz"), "--model", "xmae-cpu-bandai"]) == 0
-    assert "fill policy from the model's val split (the recording is too short to measure on" in capsys.readouterr().out
+    assert main(["fix", str(tmp_path / "holey.npz"), "--ckpt", str(bad_model)]) == 0
+    out = capsys.readouterr().out
+    assert "fill policy: classical fills only" in out
+    assert "xmae" not in out.split("filled by")[1].split(";")[0]

@@ -153,7 +153,9 @@ def fix_clips(
     if fixer.kind == "xmae" and mode != "denoise" and policy is not None:
         _, x_in, tracks = _model_view(clips, fixer, joint_map)
         if mode == "both" or any(not np.isfinite(x).all() for x in x_in):  # else nothing to fill
-            policy, policy_note = measure_policy(fixer, tracks, policy, every_cell=mode == "both")
+            policy, policy_note = measure_policy(
+                fixer, tracks, policy, _model_fill(fixer, overlap, batch_size), every_cell=mode == "both"
+            )
     if policy is None or mode == "infill":
         out, report = _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy, joint_map)
         if policy_note:
@@ -349,6 +351,19 @@ def _fix_positions(
         filled_by,
     )
     return out_clips, report
+
+
+def _model_fill(fixer: Fixer, overlap: float, batch_size: int):
+    """The model's fill of stretches as fix makes it (windows, blending, anchoring on the data; no
+    policy): positions (N, L, J, 3) at the model's joints and fps, observed (N, L, J) -> (N, L, J, 3)."""
+
+    def fill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+        holed = torch.where(observed[..., None], positions, torch.nan).numpy()
+        stretches = [Clip(p, fixer.fps, fixer.skeleton) for p in holed]
+        out, _ = _fix_positions(stretches, fixer, "infill", overlap, batch_size, None, None, fill_other_joints=False)
+        return torch.from_numpy(np.stack([c.positions for c in out]))
+
+    return fill
 
 
 def _model_view(
