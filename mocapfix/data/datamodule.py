@@ -189,6 +189,8 @@ class MotionDataModule(L.LightningDataModule):
             raise ValueError(f"data.source: unknown source type {source!r}; known: {', '.join(SOURCES)}")
         if source != "synthetic" and not path:
             raise ValueError(f"data.path: source {source!r} needs a file or folder path")
+        if source == "archive" and isinstance(path, (list, tuple)):
+            raise ValueError("data.path: source 'archive' reads one archive file, not a list")
         if body is not None:
             from mocapfix.core.skeleton import preset
 
