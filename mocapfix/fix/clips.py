@@ -147,17 +147,18 @@ def fix_clips(
     if getattr(fixer, "state", "positions") == "rotations":
         return _fix_rotations(clips, fixer, mode, overlap, batch_size, progress, joint_map)
     policy: FillPolicy | None = getattr(fixer, "policy", None)
-    policy_note = None
+    policy_note, view = None, None
     # A calibrated model's holes are filled as the recording's own evidence says (a checkpoint
     # without a policy keeps its documented behaviour: the model everywhere the mode says).
     if fixer.kind == "xmae" and mode != "denoise" and policy is not None:
-        _, x_in, tracks = _model_view(clips, fixer, joint_map)
+        view = _model_view(clips, fixer, joint_map)
+        _, x_in, tracks = view
         if mode == "both" or any(not np.isfinite(x).all() for x in x_in):  # else nothing to fill
             policy, policy_note = measure_policy(
                 fixer, tracks, policy, _model_fill(fixer, overlap, batch_size), every_cell=mode == "both"
             )
     if policy is None or mode == "infill":
-        out, report = _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy, joint_map)
+        out, report = _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy, joint_map, view=view)
         if policy_note:
             report.notes.insert(0, policy_note)
         return out, report
@@ -165,7 +166,7 @@ def fix_clips(
     # Pass 1: the model's estimate of every token; the observed tokens it disagrees with are suspect.
     # (only the model's joints of it are used: the other joints are left as they are)
     estimates, first = _fix_positions(
-        clips, fixer, "both", overlap, batch_size, progress, None, joint_map, fill_other_joints=False
+        clips, fixer, "both", overlap, batch_size, progress, None, joint_map, fill_other_joints=False, view=view
     )
     masked, suspects, seen = [], 0, []
     for c, e in zip(clips, estimates):
@@ -224,18 +225,19 @@ def _fix_positions(
     joint_map: dict[str, str] | None = None,
     fill_other_joints: bool = True,
     seen: list[np.ndarray] | None = None,
+    view: tuple | None = None,
 ) -> tuple[list[Clip], FixReport]:
     """fix_clips for a positions model, one pass: the model's estimate merged by mode (infill with
     the fill policy where there is one); the holes of joints the model does not use filled too
     (fill_other_joints, unless denoise). A clip shorter than the model's window keeps its
     observed tokens in every mode (too_short). seen: (T, Jm) per clip, the tokens the recording
     observed, when `clips` has some taken out (the policy's second pass): the report's "never
-    observed" is about the recording."""
+    observed" is about the recording. view: _model_view(clips, ...) when the caller has it."""
     model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps
     source = clips[0].source or clips[0].name
     who = _who(clips)
 
-    index, x_in, x_m = _model_view(clips, fixer, joint_map)
+    index, x_in, x_m = view if view is not None else _model_view(clips, fixer, joint_map)
 
     # Which model frames need an estimate: infill only uses it at missing tokens and at the
     # observed frames next to them (anchors); the other modes use it wherever there is data.

@@ -97,7 +97,7 @@ def body_structure(parents, positions: np.ndarray, names=None) -> BodyStructure 
     spine = [j for j in tree.path(pelvis, chest)[1:] if tree.bone[j] > SHARE_FRACTION * tree.diameter]
     for rank, j in enumerate(spine):
         labels[j] = f"spine_{rank + 1}of{len(spine)}"
-    leg_lengths = [_span(pos, p["thigh"], p["knee"], p["ankle"]) for (k, _), p in limbs.items() if k == "leg"]
+    leg_lengths = [path_length(pos, p["thigh"], p["knee"], p["ankle"]) for (k, _), p in limbs.items() if k == "leg"]
     raw_neck = tree.path(chest, head)[1:]
     neck_chain = _reduced(tree, raw_neck, pos)
     if raw_neck and neck_chain:
@@ -252,12 +252,14 @@ def _limb_parts(tree: _Tree, chain: list[int], kind: str) -> dict[str, int] | No
     return parts
 
 
-def _span(pos: np.ndarray, *joints: int) -> float:
-    """The median over frames of the length of the polyline through joints."""
+def path_length(pos: np.ndarray, *joints: int) -> float:
+    """pos: (T, J, 3) -> the median over frames of the length of the polyline through joints
+    (NaN frames left out; NaN when there are none)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        seg = np.linalg.norm(np.diff(pos[:, list(joints)], axis=1), axis=-1).sum(-1)  # (T,)
-        return float(np.nanmedian(seg))
+        with np.errstate(invalid="ignore", over="ignore"):
+            seg = np.linalg.norm(np.diff(pos[:, list(joints)], axis=1), axis=-1).sum(-1)  # (T,)
+        return float(np.nanmedian(np.where(np.isfinite(seg), seg, np.nan)))
 
 
 def _median_direction(v: np.ndarray) -> np.ndarray:
@@ -293,9 +295,7 @@ def _sides(pos, limbs, legs, arms, pelvis, chest, up, names) -> dict[int, str]:
         if left is None:  # nothing to tell them apart by (no toes, no names): the first is called left
             sides.update({pair[0]: "left", pair[1]: "right"})
             continue
-        lateral = [
-            np.nanmedian((pos[:, limbs[(kind, tip)][top]] - pos[:, centre]) @ left) if pos.size else 0.0 for tip in pair
-        ]
+        lateral = [np.nanmedian((pos[:, limbs[(kind, tip)][top]] - pos[:, centre]) @ left) for tip in pair]
         first_left = lateral[0] > lateral[1]
         sides.update({pair[0]: "left" if first_left else "right", pair[1]: "right" if first_left else "left"})
     return sides

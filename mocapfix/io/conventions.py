@@ -146,15 +146,14 @@ def limb_measures(positions: np.ndarray, joint_names, parents, labels=None) -> d
 
 
 def _labelled_limbs(positions: np.ndarray, labels: list) -> dict[str, list[float]]:
+    from mocapfix.io.body_structure import path_length
+
     out: dict[str, list[float]] = {"leg": [], "arm": []}
     for kind, parts in (("leg", ("thigh", "knee", "ankle")), ("arm", ("upper_arm", "elbow", "wrist"))):
         for side in ("left", "right"):
             names = [f"{side}_{p}" for p in parts]
             if all(n in labels for n in names):
-                idx = [labels.index(n) for n in names]
-                with np.errstate(invalid="ignore", over="ignore"), _quiet():
-                    seg = np.linalg.norm(np.diff(positions[:, idx], axis=1), axis=-1).sum(-1)  # (T,)
-                    length = float(np.nanmedian(np.where(np.isfinite(seg), seg, np.nan)))
+                length = path_length(positions, *(labels.index(n) for n in names))
                 if np.isfinite(length) and length > 0:
                     out[kind].append(length)
     return out
