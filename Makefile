@@ -4,6 +4,8 @@ VENV ?= .venv
 # The CPU build is enough for the demo and the tests; override for CUDA, e.g. TORCH=torch.
 TORCH ?= torch==2.13.0
 PY := $(VENV)/bin/python
+# Test processes (pytest-xdist): the suite's subprocess and training tests use a core each.
+TEST_JOBS ?= 2
 
 .PHONY: demo test test-all lint format venv clean
 
@@ -22,7 +24,7 @@ demo: $(VENV)/.installed
 # The everyday suite: lint and format check (ruff, settings in pyproject.toml), then the tests;
 # tests marked slow (minutes of CPU training) run with `make test-all`. `make format` fixes both.
 test: $(VENV)/.installed lint
-	$(PY) -m pytest -q -ra -m "not slow"
+	$(PY) -m pytest -q -ra -m "not slow" -n $(TEST_JOBS)
 
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check mocapfix tests bench
@@ -33,7 +35,7 @@ format: $(VENV)/.installed
 	$(VENV)/bin/ruff format mocapfix tests bench
 
 test-all: $(VENV)/.installed
-	$(PY) -m pytest -q -ra
+	$(PY) -m pytest -q -ra -n $(TEST_JOBS)
 
 clean:
 	rm -rf $(VENV) .cache

@@ -1,7 +1,8 @@
 """`fix` on performers a model never saw: the CMU sample (another studio, rig and frame rate than
 Bandai Namco's), holes of the full body, the left arm or the left leg of 0.1-0.9 s, 4 per take,
 in every take of 8 s or more. MPJPE (mm) over the hidden tokens of what `fix --mode infill`
-outputs, beside every classical fill on the same whole take (Lerp, cubic spline, PCHIP, the
+outputs (its fill policy measured over the folder's takes, as `fix FOLDER` does; and over each
+file alone, as `fix FILE` does), beside every classical fill on the same whole take (Lerp, cubic spline, PCHIP, the
 limb fill), on the shipped model's 21 joints (each take mapped onto them, io/body_structure.py).
 
     python bench/fix_strangers_cmu.py --model xmae-cpu-bandai
@@ -19,7 +20,7 @@ from common import describe, pick_device, print_table, write_result
 
 from mocapfix.core.skeleton import preset  # noqa: E402
 from mocapfix.evaluation.baselines import CLASSICAL  # noqa: E402
-from mocapfix.fix import fix_clips  # noqa: E402
+from mocapfix.fix import fix_clips, measure_recordings  # noqa: E402
 from mocapfix.fix.fixers import load_fixer  # noqa: E402
 from mocapfix.io import list_motion_files, read_motion  # noqa: E402
 from mocapfix.io.joint_names import onto_skeleton  # noqa: E402
@@ -63,14 +64,24 @@ def main(argv=None) -> int:
     sums: dict[tuple[str, float, str], list[float]] = {}
     for part, group in PARTS.items():
         for gap in GAPS_S:
+            holed_takes, hiddens = [], []
             for clip in takes:
                 truth = clip.positions.astype(np.float64)
                 hidden = holes(clip.num_frames, clip.fps, gap, body.groups.get(group), body.num_joints)
                 hidden &= np.isfinite(truth).all(-1)
-                holed = np.where(hidden[..., None], np.nan, truth).astype(np.float32)
-                (fixed,), _ = fix_clips([clip.replace(positions=holed)], fixer, "infill")
+                hiddens.append(hidden)
+                holed_takes.append(
+                    clip.replace(positions=np.where(hidden[..., None], np.nan, truth).astype(np.float32))
+                )
+            # the folder's policy: what `mocapfix fix FOLDER` measures over the takes it is given
+            folder = measure_recordings([[c] for c in holed_takes], fixer, "infill")
+            for clip, holed_clip, hidden in zip(takes, holed_takes, hiddens):
+                truth = clip.positions.astype(np.float64)
+                holed = holed_clip.positions
+                (fixed,), _ = fix_clips([holed_clip], fixer, "infill", measured=folder)
+                (alone,), _ = fix_clips([holed_clip], fixer, "infill")
                 x = torch.from_numpy(holed.astype(np.float64))[None]
-                outputs = {"fix": fixed.positions.astype(np.float64)}
+                outputs = {"fix": fixed.positions.astype(np.float64), "fix (file alone)": alone.positions}
                 for name, fill in CLASSICAL.items():
                     outputs[name] = fill(x, ~torch.isnan(x).any(-1), body.parents)[0].numpy()
                 for name, out in outputs.items():
@@ -80,7 +91,7 @@ def main(argv=None) -> int:
                     s[1] += int(err.size)
     rows = []
     for part in PARTS:
-        for name in ["fix", *CLASSICAL]:
+        for name in ["fix", "fix (file alone)", *CLASSICAL]:
             row = {"part": part, "method": name}
             for gap in GAPS_S:
                 s = sums[(part, gap, name)]

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 BANDAI_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"
+CMU_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu-sample"
 
 
 @pytest.fixture(scope="session")
@@ -25,4 +26,14 @@ def bandai_files(bandai_dir: Path) -> list[Path]:
     files = sorted(bandai_dir.rglob("*.bvh"))
     if not files:
         pytest.skip(f"no .bvh files under {bandai_dir}")
+    return files
+
+
+@pytest.fixture(scope="session")
+def cmu_files() -> list[Path]:
+    """The CMU sample's BVH takes (70, five subjects in folders 05-09, 120 fps, ASF units): a
+    second studio, rig and frame rate; tests that need them skip without them."""
+    files = sorted(CMU_DIR.rglob("*.bvh"))
+    if not files:
+        pytest.skip(f"CMU sample not found at {CMU_DIR} (expected ../shared/data/cmu-sample beside the repository)")
     return files

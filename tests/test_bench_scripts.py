@@ -308,6 +308,7 @@ def test_fix_speed(tmp_path):
     assert [x["case"] for x in r["rows"]] == ["denoise", "infill-gaps"] and r["rows"][0]["windows"] >= 2
 
 
+@pytest.mark.slow
 def test_fix_bandai(tmp_path, bandai_dir):
     """The issue-5 scoring on Bandai's test split, with an untrained tiny model for Bandai's joints."""
     from mocapfix.data.datamodule import MotionDataModule
@@ -368,6 +369,7 @@ def test_fix_policy_bandai(tmp_path, bandai_dir):
     assert 500 <= rows["displaced arm tokens"]["before_mm"] <= 1000
 
 
+@pytest.mark.slow
 def test_fix_overlap_bandai(tmp_path, bandai_dir):
     """The overlap table with the shipped model on two test clips: the first row is its own
     baseline, fewer windows at a smaller overlap, and errors of a working model (the clean clips
@@ -430,6 +432,7 @@ def test_shrink_checkpoint_keeps_weights_and_hparams(tmp_path):
     assert "fill_policy" in small and "optimizer_states" not in small
 
 
+@pytest.mark.slow
 def test_fast_path_accuracy_runs_fit_and_test_per_seed(tmp_path):
     """Plumbing only (the plain path, two seeds of two steps, tiny model): each run's eval.json
     comes back and the table compares paths by case."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ import torch
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.skeleton import preset
 from mocapfix.data.datamodule import MotionDataModule
-from mocapfix.data.windows import resample, split_of
+from mocapfix.data.windows import resample, split_groups, split_of
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
 
@@ -57,6 +58,35 @@ def test_split_by_file_no_leak_and_deterministic(tmp_path):
     batch = next(iter(dm.train_dataloader()))
     assert batch["positions"].shape == (4, 30, 17, 3)
     assert batch["positions"].dtype == torch.float32
+
+
+def test_split_by_folder_keeps_each_performer_in_one_split(tmp_path):
+    """Folders are performers (CMU's subject folders): val and test hold people training never
+    saw, whole; a pattern still forces a file; too few folders for three splits is one line."""
+    for person in ("p1", "p2", "p3", "p4", "p5"):
+        (tmp_path / person).mkdir()
+        _positions_folder(tmp_path / person, n_files=3)
+    dm = MotionDataModule(
+        source="positions",
+        path=str(tmp_path),
+        fps=30,
+        val_fraction=0.2,
+        test_fraction=0.2,
+        split_by="folder",
+        cache_dir=None,
+        train_patterns=["*/p3/take_00.npz"],
+    )
+    dm.setup("fit")
+    where = {}  # folder -> the splits its files went to
+    for split, clips in dm.clips.items():
+        for c in clips:
+            if not c.source.endswith("p3/take_00.npz"):
+                where.setdefault(Path(c.source).parent.name, set()).add(split)
+    assert all(len(s) == 1 for s in where.values()), where
+    assert sorted(s for v in where.values() for s in v) == ["test", "train", "train", "train", "val"]
+    assert any(c.source.endswith("p3/take_00.npz") for c in dm.clips["train"])
+    with pytest.raises(ValueError, match="2 folders cannot give"):
+        split_groups(["a", "b"], 0.2, 0.2, 0)
 
 
 def test_patterns_override_hash():

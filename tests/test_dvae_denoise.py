@@ -367,6 +367,7 @@ def test_positions_state_runs_both_stages_on_position_noise(tmp_path):
     )
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not (shutil.which("cc") or shutil.which("gcc")), reason="torch.compile on CPU needs a C compiler")
 def test_compiled_denoiser_estimates_as_the_eager_one(prior_ckpt):
     eager, batch = _tiny_denoiser(prior_ckpt)

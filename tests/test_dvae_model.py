@@ -284,6 +284,7 @@ def test_estimate_is_in_the_world_frame_and_starts_at_the_observed_pose():
     assert world > 1e-3  # an untrained decoder: the comparison is not between zeros
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not (shutil.which("cc") or shutil.which("gcc")), reason="torch.compile on CPU needs a C compiler")
 def test_compiled_prior_gives_the_eager_elbo_and_gradients_and_the_same_checkpoint_names():
     batch, skel = _batch()

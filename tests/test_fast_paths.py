@@ -135,6 +135,7 @@ def test_compile_flag_keeps_checkpoint_names():
     compiled.load_state_dict(eager.state_dict())  # a checkpoint of either loads into the other
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not (shutil.which("cc") or shutil.which("gcc")), reason="torch.compile on CPU needs a C compiler")
 @pytest.mark.parametrize("mode", ["default", "reduce-overhead"])
 def test_compiled_training_step_matches_eager(mode):

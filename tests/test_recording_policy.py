@@ -98,5 +98,62 @@ def test_too_little_to_measure_the_model_on_gets_the_classical_fills(tmp_path, t
     capsys.readouterr()
     assert main(["fix", str(tmp_path / "holey.npz"), "--ckpt", str(bad_model)]) == 0
     out = capsys.readouterr().out
-    assert "fill policy: classical fills only" in out
+    assert "classical fills only" in out
     assert "xmae" not in out.split("filled by")[1].split(";")[0]
+
+
+def test_holes_are_cut_only_where_there_is_data_around_them():
+    from mocapfix.fix.recording_policy import cut_holes
+
+    observed = np.ones((120, 4), dtype=bool)
+    observed[40:52] = False  # the recording's own hole
+    observed[90:, 3] = False
+    hidden = cut_holes(observed, [[0, 1], [2, 3]], frames=6, budget=8, margin=3)
+    assert hidden[:, :2].any() and hidden[:, 2:].any()  # both options, in turn
+    assert not (hidden & ~observed).any()
+    starts = np.nonzero(np.diff(hidden.any(-1).astype(int), prepend=0) == 1)[0]
+    assert 2 <= len(starts) <= 8
+    for s in starts:
+        joints = hidden[s]
+        around = np.r_[s - 3 : s, s + 6 : s + 9]
+        assert (hidden[s : s + 6] == joints).all()  # one hole: its joints for its 6 frames
+        assert observed[np.ix_(around, joints)].all() and not hidden[around].any()
+
+
+def test_the_classical_fills_are_ranked_on_the_take_itself():
+    """A take whose joints move on cubics: the spline fills its holes exactly, Lerp does not; the
+    val split's ranking (here: Lerp first) is not what the take says."""
+    from mocapfix.core.skeleton import preset
+    from mocapfix.fix.recording_policy import measure_classical
+
+    body = preset("body21")
+    t = np.linspace(0, 4, 120)[:, None, None]
+    rng = np.random.default_rng(0)
+    a, b, c = (rng.normal(size=(1, body.num_joints, 3)) * s for s in (0.3, 0.1, 0.02))
+    x = (a * t + b * t**2 + c * t**3).astype(np.float64)
+    x[50:60] = np.nan
+    table, holes = measure_classical([(x, 30.0)], body, (0.3, 0.5), {("full", 0.5), ("arm", 0.3)})
+    assert holes >= 4
+    full = {m: e[1] for m, e in table.error_mm["full"].items()}
+    assert full["spline"] < 0.01 * full["lerp"] and full["lerp"] > 1.0
+    assert np.isfinite(table.error_mm["arm"]["spline"][0])  # (arm, 0.3 s) was asked for
+    assert not np.isfinite(table.error_mm["full"]["spline"][0])  # (full, 0.3 s) was not asked for
+
+
+def test_a_folder_is_measured_once_over_its_files(tmp_path, takes, capsys):
+    folder = tmp_path / "takes"
+    folder.mkdir()
+    for i, clip in enumerate(takes):
+        holed, _ = _holes(clip, 0.5)
+        write_positions(folder / f"take{i}.npz", holed, clip.fps, clip.skeleton)
+    capsys.readouterr()
+    assert main(["fix", str(folder), "--model", "xmae-cpu-bandai"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[0].startswith(f"fill policy measured on the {len(takes)} files of this run")
+    assert len(lines) == 1 + len(takes)
+    assert all("fill policy measured over this run's files (above)" in line for line in lines[1:])
+    for i, clip in enumerate(takes):
+        [fixed] = read_motion(folder / f"take{i}.fixed.npz")
+        holed, holes = _holes(clip, 0.5)
+        assert np.isfinite(fixed.positions).all()
+        assert np.array_equal(fixed.positions[~holes], holed[~holes])

@@ -258,15 +258,6 @@ def test_every_rig_maps_all_21_joints_and_reads_at_its_true_size(tmp_path, sourc
     assert clip.meta["unit"] == "cm" and clip.meta["up_axis"] == "y"
 
 
-@pytest.fixture(scope="module")
-def cmu_files() -> list[Path]:
-    root = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu-sample"
-    files = sorted(root.rglob("*.bvh"))
-    if not files:
-        pytest.skip(f"CMU sample not found at {root}")
-    return files
-
-
 def test_every_cmu_take_maps_all_21_joints_at_the_asf_unit(cmu_files, model):
     for f in cmu_files:
         [clip] = read_motion(f)
@@ -312,7 +303,7 @@ def _fix_cmu(files, tmp_path, capsys):
     capsys.readouterr()
     rc = main(["fix", *map(str, files), "--model", "xmae-cpu-bandai", "--out-dir", str(tmp_path)])
     out = capsys.readouterr()
-    assert rc == 0 and out.out.count("\n") == len(files), out.err
+    assert rc == 0 and sum(" -> " in line for line in out.out.splitlines()) == len(files), out.err
     for f in files:  # a BVH back (or positions where a jump left the take without usable rotations)
         assert (tmp_path / f"{f.stem}.bvh").exists() or (tmp_path / f"{f.stem}.npz").exists()
 

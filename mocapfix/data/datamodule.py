@@ -20,7 +20,16 @@ from torch.utils.data import DataLoader, Dataset
 from mocapfix.core.clip import Clip, MotionFileError, check_human_scale
 from mocapfix.core.skeleton import Skeleton, preset
 from mocapfix.data.spec import DataSpec
-from mocapfix.data.windows import cache_key, load_clips, resample, save_clips, split_of, window_starts
+from mocapfix.data.windows import (
+    cache_key,
+    load_clips,
+    pattern_split,
+    resample,
+    save_clips,
+    split_groups,
+    split_of,
+    window_starts,
+)
 from mocapfix.io.joint_names import onto_skeleton
 
 log = logging.getLogger(__name__)
@@ -145,6 +154,7 @@ class MotionDataModule(L.LightningDataModule):
         val_fraction: float = 0.1,
         test_fraction: float = 0.1,
         split_seed: int = 0,
+        split_by: str = "file",
         train_patterns: list[str] | None = None,
         val_patterns: list[str] | None = None,
         test_patterns: list[str] | None = None,
@@ -177,6 +187,10 @@ class MotionDataModule(L.LightningDataModule):
             groups: named joint groups {left_arm: [names], ...} overriding the name-matching guess.
             unit, up_axis: for BVH / positions files ("auto" guesses).
             val_fraction, test_fraction, split_seed: the hash split by file name.
+            split_by: "file", or "folder": each file's folder is one performer or session (CMU's
+                subject folders) and whole folders go to one split, so the val split, the fill
+                policy calibrated on it and best-*.ckpt judge the model on people it never trained
+                on (fractions of the folders then).
             *_patterns: fnmatch patterns on file names that force a file into a split.
             with_rotations: also deliver rotations / root translation / offsets (rotation data only).
             max_missing_fraction: windows with more missing tokens are skipped in training.
@@ -197,6 +211,8 @@ class MotionDataModule(L.LightningDataModule):
             preset(body)  # a ValueError naming the known presets
             if with_rotations:
                 raise ValueError(f"data.body {body}: a canonical body has joint positions only (with_rotations)")
+        if split_by not in ("file", "folder"):
+            raise ValueError(f"data.split_by: 'file' or 'folder', got {split_by!r}")
         if not (0.0 <= val_fraction and 0.0 <= test_fraction and val_fraction + test_fraction <= 1.0):
             raise ValueError(
                 f"data.val_fraction {val_fraction} and data.test_fraction {test_fraction}: fractions "
@@ -358,10 +374,20 @@ class MotionDataModule(L.LightningDataModule):
         patterns = {"train": hp.train_patterns, "val": hp.val_patterns, "test": hp.test_patterns}
         self.clips = {s: [] for s in SPLITS}
         official = False
+        by_folder = None
+        if hp.split_by == "folder":
+            by_folder = split_groups(
+                [_folder(c) for c in clips if c.meta.get("split") not in SPLITS],
+                hp.val_fraction,
+                hp.test_fraction,
+                hp.split_seed,
+            )
         for c in clips:
             if c.meta.get("split") in SPLITS:  # an official split (Human3.6M subjects, AMASS sub-datasets)
                 self.clips[c.meta["split"]].append(c)
                 official = True
+            elif by_folder is not None:
+                self.clips[pattern_split(c.source, patterns) or by_folder[_folder(c)]].append(c)  # patterns win
             else:
                 self.clips[split_of(c.source, hp.val_fraction, hp.test_fraction, hp.split_seed, patterns)].append(c)
         if official and not self.clips["val"]:
@@ -484,3 +510,9 @@ class MotionDataModule(L.LightningDataModule):
 
     def predict_dataloader(self) -> DataLoader:
         return self._loader("test", shuffle=False)
+
+
+def _folder(clip: Clip) -> str:
+    """The name of the folder a clip's file is in (one performer or session under split_by
+    folder; the name, not the path, so a split does not depend on where the data lies)."""
+    return Path(clip.source).parent.name if clip.source else ""

@@ -108,17 +108,44 @@ def split_of(
     Patterns (fnmatch on the file name, then on the full path) win; otherwise a seeded hash of
     the file name decides, stable across machines and runs (crc32, not python's hash()).
     """
+    forced = pattern_split(source, patterns)
+    if forced is not None:
+        return forced
     name = Path(source).name
-    for split in ("test", "val", "train"):
-        for pat in (patterns or {}).get(split, []) or []:
-            if fnmatch.fnmatch(name, pat) or fnmatch.fnmatch(source, pat):
-                return split
     u = zlib.crc32(f"{seed}:{name}".encode()) / 2**32
     if u < test_fraction:
         return "test"
     if u < test_fraction + val_fraction:
         return "val"
     return "train"
+
+
+def pattern_split(source: str, patterns: dict[str, list[str]] | None) -> str | None:
+    """The split a file's name (or full path) is forced into by an fnmatch pattern, else None."""
+    name = Path(source).name
+    for split in ("test", "val", "train"):
+        for pat in (patterns or {}).get(split, []) or []:
+            if fnmatch.fnmatch(name, pat) or fnmatch.fnmatch(source, pat):
+                return split
+    return None
+
+
+def split_groups(groups: list[str], val_fraction: float, test_fraction: float, seed: int) -> dict[str, str]:
+    """Each group (a performer's or session's folder) -> 'train' | 'val' | 'test', whole groups to
+    one split, so that val and test hold performers training never saw. With a handful of groups
+    a hash of each would often leave a split empty: the groups are ranked by a seeded hash
+    instead, and the first round(fraction * n) of them (at least one for a fraction above 0) are
+    test, the next val; at least one is left to train on."""
+    names = sorted(set(groups), key=lambda g: zlib.crc32(f"{seed}:{g}".encode()))
+    n = len(names)
+    n_test = max(1, round(test_fraction * n)) if test_fraction > 0 else 0
+    n_val = max(1, round(val_fraction * n)) if val_fraction > 0 else 0
+    if n_test + n_val >= n:
+        raise ValueError(
+            f"data.split_by folder: {n} folders cannot give a test ({n_test}), a val ({n_val}) and a "
+            "training split; give more folders of performers, or split_by: file"
+        )
+    return {g: "test" if i < n_test else "val" if i < n_test + n_val else "train" for i, g in enumerate(names)}
 
 
 # --- cache: parsed, joint-selected, resampled clips as one npz ---

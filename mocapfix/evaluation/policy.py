@@ -193,6 +193,37 @@ def suspect_tokens(
     return observed & far
 
 
+def excursions(residual: torch.Tensor, observed: torch.Tensor, min_step_m: float, max_frames: int) -> torch.Tensor:
+    """The tokens of one take that jumped away and came back: (T, J) bool.
+
+    residual: (T, J, 3) the data minus the model's estimate; observed: (T, J) bool. The estimate
+    moves as the body does, so a frame-to-frame step of the residual is the data's own jump; an
+    excursion is a step of more than min_step_m answered, within max_frames, by a step back of
+    about the same vector (the two sum to less than half of the first): the frames between are
+    where the joint was away. A model that disagrees with a stranger's motion does so smoothly,
+    and a jumped joint in a plausible pose (its arm rotated with it) fools the model's
+    disagreement mid-jump but not its edges: on the 70 CMU takes with the shipped Bandai model,
+    0.06 % of the clean tokens are in excursions (2.7 % are beyond the replace threshold) and
+    99.6 % of the tokens of arms displaced 0.5-1 m for 0.5 s; on Bandai's test takes 0.2 % and
+    98.9 %. A run at the take's first or last frame has one edge: nothing shows it came back
+    (CMU's takes start with a bind pose a metre from the next frame: the take's, kept)."""
+    step = residual[1:] - residual[:-1]  # (T-1, J, 3): into frame t+1
+    size = torch.where(observed[1:] & observed[:-1], step.norm(dim=-1), 0.0)  # (T-1, J)
+    out = torch.zeros_like(observed)
+    for j in torch.nonzero((size > min_step_m).any(0)).flatten().tolist():
+        jumps = torch.nonzero(size[:, j] > min_step_m).flatten().tolist()
+        done = -1
+        for a in jumps:
+            if a <= done:
+                continue
+            for b in (b for b in jumps if a < b <= a + max_frames):
+                if float((step[a, j] + step[b, j]).norm()) < 0.5 * float(size[a, j]):
+                    out[a + 1 : b + 1, j] = True
+                    done = b
+                    break
+    return out
+
+
 class Calibration:
     """Accumulates, over validation batches, each method's error per (part, gap) on infill tasks
     and the model's disagreement with clean observed tokens -> FillPolicy."""

@@ -6,7 +6,7 @@ at the model's fps, blended back (windowing.py), merged with the input by mode (
     fixed, report = fix_clips(clips, fixer, mode="infill")
 """
 
-from mocapfix.fix.clips import MODES, FixReport, fix_clips, map_joints, rotation_clips
+from mocapfix.fix.clips import MODES, FixReport, fix_clips, map_joints, measure_recordings, rotation_clips
 from mocapfix.fix.fixers import load_fixer
 
-__all__ = ["MODES", "FixReport", "fix_clips", "load_fixer", "map_joints", "rotation_clips"]
+__all__ = ["MODES", "FixReport", "fix_clips", "load_fixer", "map_joints", "measure_recordings", "rotation_clips"]

@@ -33,7 +33,7 @@ from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill, limb_infill
 from mocapfix.evaluation.metrics import LimbSigma
-from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, policy_names, suspect_tokens
+from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, excursions, policy_names
 from mocapfix.fix.fixers import Fixer, RotationFixer
 from mocapfix.fix.recording_policy import measure_policy
 from mocapfix.fix.windowing import blend_windows, model_frames, resample_frames, resample_motion, window_layout
@@ -77,6 +77,12 @@ def map_joints(
 # --- fixing the clips of one file ---
 
 NOT_JUDGED = "observed tokens kept, not judged"
+# --mode both / denoise replace the observed tokens of a joint that jumped away from the model's
+# estimate by more than JUMP_STEP x the checkpoint's replace threshold (0.15 m for the shipped
+# XMAE) and back within MAX_REPLACED_S (evaluation/policy.py: excursions). Every other observed
+# token is kept as recorded: a model that disagrees with an unusual motion does not move it.
+JUMP_STEP = 2 / 3
+MAX_REPLACED_S = 2.0
 
 
 def too_short(clip: Clip, fixer) -> bool:
@@ -126,10 +132,12 @@ def fix_clips(
     batch_size: int = 64,
     progress: Callable[[int, int], None] | None = None,
     joint_map: dict[str, str] | None = None,
+    measured: tuple[FillPolicy | None, str | None] | None = None,
 ) -> tuple[list[Clip], FixReport]:
     """Fix the clips of one file; each keeps its skeleton, frames and fps (positions only: no
     rotations; a rotation model's clips go to _fix_rotations and keep their rotations).
-    progress(done, total) is called after each batch of windows.
+    progress(done, total) is called after each batch of windows. measured: (policy, note) from
+    measure_recordings over several files (a folder's takes) instead of this file's own.
 
     With the fixer's fill policy (a checkpoint calibrated on its val split, evaluation/policy.py)
     each hole is filled by the method that was best for holes of its length and part, and in
@@ -152,11 +160,10 @@ def fix_clips(
     # without a policy keeps its documented behaviour: the model everywhere the mode says).
     if fixer.kind == "xmae" and mode != "denoise" and policy is not None:
         view = _model_view(clips, fixer, joint_map)
-        _, x_in, tracks = view
-        if mode == "both" or any(not np.isfinite(x).all() for x in x_in):  # else nothing to fill
-            policy, policy_note = measure_policy(
-                fixer, tracks, policy, _model_fill(fixer, overlap, batch_size), every_cell=mode == "both"
-            )
+        if measured is not None:
+            policy, policy_note = measured
+        elif mode == "both" or any(not np.isfinite(x).all() for x in view[1]):  # else nothing to fill
+            policy, policy_note = _measure(fixer, [view], [clips], mode, overlap, batch_size)
     if policy is None or mode == "infill":
         out, report = _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy, joint_map, view=view)
         if policy_note:
@@ -168,20 +175,26 @@ def fix_clips(
     estimates, first = _fix_positions(
         clips, fixer, "both", overlap, batch_size, progress, None, joint_map, fill_other_joints=False, view=view
     )
-    masked, suspects, seen = [], 0, []
+    masked, suspects, seen, replaced = [], 0, [], []
     for c, e in zip(clips, estimates):
         idx = map_joints(c.skeleton, fixer.skeleton, c.source, joint_map, allow_missing=True)
         seen.append(np.isfinite(c.positions[:, np.maximum(idx, 0)]).all(-1) & (idx >= 0))  # (T, Jm)
         idx = idx[idx >= 0]  # the model joints the recording has
         x = torch.from_numpy(c.positions[:, idx])
         obs = ~torch.isnan(x).any(-1)
-        bad = suspect_tokens(policy, torch.from_numpy(e.positions[:, idx]), x, obs).numpy()  # (T, Jm)
+        if policy.replace_threshold_m is None:
+            bad = np.zeros(obs.shape, dtype=bool)
+        else:  # (T, Jm) the tokens that jumped away from the estimate and back
+            residual = torch.nan_to_num(x - torch.from_numpy(e.positions[:, idx]))
+            step = JUMP_STEP * policy.replace_threshold_m
+            bad = excursions(residual, obs, step, round(MAX_REPLACED_S * c.fps)).numpy()
         if too_short(c, fixer):  # no evidence to judge a token against: kept (pass 1 said so)
             bad[:] = False
         suspects += int(bad.sum())
         positions = c.positions.copy()
         positions[:, idx] = np.where(bad[..., None], np.nan, positions[:, idx])
         masked.append(c.replace(positions=positions))
+        replaced.append((idx, bad))
     # Pass 2: the holes and the suspect tokens filled by the policy; the rest stays bit-identical.
     out, report = _fix_positions(
         masked,
@@ -196,6 +209,7 @@ def fix_clips(
         seen=seen,
     )
     report.filled, report.replaced = report.filled - suspects, suspects
+    out = [_carry_passengers(o, c, idx, bad) for o, c, (idx, bad) in zip(out, clips, replaced)]
     if mode == "denoise":  # holes of the input stay holes
         out = [
             o.replace(positions=np.where(np.isnan(c.positions), np.nan, o.positions).astype(np.float32))
@@ -206,12 +220,48 @@ def fix_clips(
     report.limb_sigma_before_mm = first.limb_sigma_before_mm
     report.notes.insert(
         0,
-        f"replaced where the model disagreed by more than {1000 * policy.replace_threshold_m:.0f} mm"
+        f"replaced where a joint jumped more than {1000 * JUMP_STEP * policy.replace_threshold_m:.0f} mm away from "
+        f"the model's estimate and back within {MAX_REPLACED_S:g} s"
         if policy.replace_threshold_m is not None
         else "no replace threshold: observed tokens kept",
     )
     report.notes[:0] = [n for n in first.notes if n.endswith(NOT_JUDGED)] + ([policy_note] if policy_note else [])
     return out, report
+
+
+def measure_recordings(
+    recordings: list[list[Clip]],
+    fixer: Fixer,
+    mode: str = "infill",
+    overlap: float = 0.5,
+    batch_size: int = 64,
+    joint_map: dict[str, str] | None = None,
+) -> tuple[FillPolicy | None, str | None]:
+    """The fill policy of several recordings measured together (the takes of one folder: one
+    performer or session, whose holes alone are too few to rank the fills by; recording_policy.py)
+    -> (policy, a line for the report); pass it to fix_clips(measured=...). (None, None) for a
+    checkpoint without a policy, a rotations model or denoise. A recording the model's joints
+    cannot be found in is left out (fixing it says why)."""
+    if fixer.kind != "xmae" or mode == "denoise" or getattr(fixer, "policy", None) is None:
+        return None, None
+    views, mapped = [], []
+    for clips in recordings:
+        try:
+            views.append(_model_view(clips, fixer, joint_map))
+            mapped.append(clips)
+        except MotionFileError:
+            continue
+    if not views:
+        return None, None
+    return _measure(fixer, views, mapped, mode, overlap, batch_size)
+
+
+def _measure(fixer, views, recordings, mode, overlap, batch_size):
+    tracks = [x for v in views for x in v[2]]  # (K, Jm, 3) per clip, the model's fps
+    takes = [(x, c.fps) for v, clips in zip(views, recordings) for x, c in zip(v[1], clips)]  # the input's fps
+    return measure_policy(
+        fixer, tracks, takes, fixer.policy, _model_fill(fixer, overlap, batch_size), every_cell=mode == "both"
+    )
 
 
 def _fix_positions(
@@ -410,6 +460,27 @@ class PositionWindows:
             x = torch.from_numpy(self.x_m[k]).double()[None]  # (1, K, Jm, 3)
             self._lerp[k] = lerp_infill(x, ~torch.isnan(x).any(-1))[0].flatten(1).numpy()
         return self._lerp[k]
+
+
+def _carry_passengers(fixed: Clip, clip: Clip, model_joints: np.ndarray, replaced: np.ndarray) -> Clip:
+    """The joints the model does not use (fingers, toes, twist bones) move with the nearest model
+    joint above them where that one was replaced: a hand that jumped and was put back brings its
+    fingers. model_joints: (Jm,) the clip's index of each model joint; replaced: (T, Jm)."""
+    if not replaced.any():
+        return fixed
+    parents, positions = clip.skeleton.parents, fixed.positions.copy()
+    column = {int(j): k for k, j in enumerate(model_joints)}
+    for j in range(clip.skeleton.num_joints):
+        if j in column:
+            continue
+        a = parents[j]
+        while a >= 0 and a not in column:
+            a = parents[a]
+        if a < 0:
+            continue
+        moved = replaced[:, column[a]] & np.isfinite(clip.positions[:, j]).all(-1)  # (T,)
+        positions[moved, j] = clip.positions[moved, j] + fixed.positions[moved, a] - clip.positions[moved, a]
+    return fixed.replace(positions=positions)
 
 
 def _fill_other_joints(positions: np.ndarray, model_joints: np.ndarray, skeleton: Skeleton) -> tuple[np.ndarray, int]:
