@@ -234,7 +234,7 @@ class OracleFixer:
 
 
 def test_fix_with_a_policy_replaces_only_what_the_model_disagrees_with_and_fills_by_it():
-    clip = generate_clips(1, 4.0, fps=30, seed=11)[0]
+    clip = generate_clips(1, 10.0, fps=30, seed=11)[0]  # room to measure the model on (recording_policy.py)
     clean = Clip(clip.positions, clip.fps, clip.skeleton, "clean", meta={"format": "positions-npz"})
     table = {"xmae": [5.0, 5.0], "spline": [1.0, 50.0]}
     fixer = OracleFixer(clean.positions, FillPolicy([0.1, 0.5], {p: table for p in ("full", "arm", "leg")}, 0.1))
@@ -249,13 +249,31 @@ def test_fix_with_a_policy_replaces_only_what_the_model_disagrees_with_and_fills
     untouched = np.ones(clean.positions.shape[:2], dtype=bool)
     untouched[40:55, 20] = False
     assert np.array_equal(out[0].positions[untouched], clean.positions[untouched])
-    # infill: the table says the model for long holes, but a model must earn its place on the
-    # recording (fix/recording_policy.py): 4 s with these holes have one complete 2-s stretch, too
-    # little to measure it on, so classical fills (as measured on the take) fill them
+    # infill: the table says the model for long holes, and a model must earn its place on the
+    # recording (fix/recording_policy.py): holes cut into these 10 s, the oracle model fills them
+    # exactly, so it fills the recording's holes
     holed = clean.positions.copy()
     holed[60:63] = np.nan
     holed[70:95, 21] = np.nan
     out, report = fix_clips([clean.replace(positions=holed)], fixer, "infill")
     assert np.isfinite(out[0].positions).all() and report.filled == 22 * 3 + 25
-    assert "xmae" not in report.filled_by and sum(report.filled_by.values()) == 22 * 3 + 25
-    assert any("classical fills only" in n for n in report.notes)
+    assert report.filled_by == {"xmae": 22 * 3 + 25}
+    assert any(n.startswith("fill policy measured on this recording") for n in report.notes)
+
+
+def test_a_preferred_fill_is_kept_over_near_ties_and_survives_the_checkpoint():
+    table = {"limb": [10.0, 10.0], "pchip": [9.7, 8.0], "limb+pchip": [9.6, 9.9], "xmae": [9.9, 7.0]}
+    policy = FillPolicy([0.3, 0.9], {"full": table}, preferred=("limb", 0.95))
+    assert policy.best("full", 0.3) == "limb"  # 3-4 % better is a near-tie: the limb fill
+    plain = FillPolicy([0.3, 0.9], {"full": {m: e for m, e in table.items() if m != "xmae"}})
+    assert plain.best("full", 0.3) == "limb+pchip"  # without a preference, the lowest
+    # 20 % better wins; the model still has to beat the classical choice by MODEL_MARGIN
+    assert (
+        FillPolicy(
+            [0.3, 0.9], {"full": {m: e for m, e in table.items() if m != "xmae"}}, preferred=("limb", 0.95)
+        ).best("full", 0.9)
+        == "pchip"
+    )
+    assert policy.best("full", 0.9) == "xmae"
+    assert FillPolicy.from_dict(policy.to_dict()).preferred == ("limb", 0.95)
+    assert FillPolicy.from_dict({"gaps_s": [0.3], "error_mm": {"full": {"limb": [1.0]}}}).preferred is None

@@ -87,9 +87,9 @@ def test_the_bad_model_is_bad_where_its_own_policy_is_trusted(tmp_path, takes, b
 
 
 def test_too_little_to_measure_the_model_on_gets_the_classical_fills(tmp_path, takes, bad_model, capsys):
-    """A model must earn its place on the recording: where it cannot be measured there (no 2-s
-    stretch without a hole), the classical fills only, even for a model whose val split says it
-    wins every cell."""
+    """A model must earn its place on the recording: where it cannot be measured there (too few
+    places to cut a hole of the kind with data around it), the classical fills only, even for a
+    model whose val split says it wins every cell."""
     clip = takes[0]
     holed = clip.positions[:150].copy()  # 5 s with a 0.5-s hole every 0.8 s: no room for another
     for start in range(5, 150, 24):
@@ -124,7 +124,7 @@ def test_the_classical_fills_are_ranked_on_the_take_itself():
     """A take whose joints move on cubics: the spline fills its holes exactly, Lerp does not; the
     val split's ranking (here: Lerp first) is not what the take says."""
     from mocapfix.core.skeleton import preset
-    from mocapfix.fix.recording_policy import measure_classical
+    from mocapfix.fix.recording_policy import measure_on_takes
 
     body = preset("body21")
     t = np.linspace(0, 4, 120)[:, None, None]
@@ -132,8 +132,8 @@ def test_the_classical_fills_are_ranked_on_the_take_itself():
     a, b, c = (rng.normal(size=(1, body.num_joints, 3)) * s for s in (0.3, 0.1, 0.02))
     x = (a * t + b * t**2 + c * t**3).astype(np.float64)
     x[50:60] = np.nan
-    table, holes = measure_classical([(x, 30.0)], body, (0.3, 0.5), {("full", 0.5), ("arm", 0.3)})
-    assert holes >= 4
+    table, holes = measure_on_takes([(x, 30.0)], body, (0.3, 0.5), {("full", 0.5), ("arm", 0.3)})
+    assert holes[("full", 0.5)] >= 4 and set(holes) == {("full", 0.5), ("arm", 0.3)}
     full = {m: e[1] for m, e in table.error_mm["full"].items()}
     assert full["spline"] < 0.01 * full["lerp"] and full["lerp"] > 1.0
     assert np.isfinite(table.error_mm["arm"]["spline"][0])  # (arm, 0.3 s) was asked for

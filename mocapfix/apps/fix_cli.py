@@ -436,7 +436,7 @@ POOLED_FILES = 32  # files of a run its fill policy is measured over (evenly spr
 
 def _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read_options):
     """A run of several files (a folder of one performer or session): the fill policy measured
-    over their holes and stretches together (fix/clips.py: measure_recordings), as each file
+    over their holes together (fix/clips.py: measure_recordings), as each file
     alone has too few holes to rank the fills by (on 14 CMU takes, fix with each file's own
     policy was 1-4 mm above the best classical fill at 0.5-0.9 s; pooled, within 0.5 mm but one
     cell). None for a single file (it measures its own) or where no policy applies. A file that

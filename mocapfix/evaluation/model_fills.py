@@ -64,7 +64,10 @@ def policy_output(
     skeleton: Skeleton,
 ) -> torch.Tensor:
     """What `fix --mode both` outputs for windows: the suspect observed tokens taken out, then every
-    hole filled by the method the policy names. fills: candidate_fills(..., positions, observed)."""
+    hole filled by the method the policy names. fills: candidate_fills(..., positions, observed).
+    Suspect here is beyond the replace threshold (the paper's displacement task scatters single
+    tokens over 1-s windows); fix on whole recordings replaces only excursions, a jump away from
+    the estimate and back (evaluation/policy.py: excursions), which leaves smooth disagreement alone."""
     suspect = suspect_tokens(policy, fills["xmae"], positions, observed)
     keep = observed & ~suspect
     if suspect.any():  # other holes: fill again

@@ -57,12 +57,16 @@ class FillPolicy:
     replace_threshold_m: float | None = None  # None: never replace an observed token
     windows: int = 0  # val windows it was measured on
     notes: list[str] = field(default_factory=list)
+    # (method, margin): this classical fill unless another classical candidate's error is below
+    # margin x its error (near-ties rank differently on other holes); None: the lowest error
+    preferred: tuple[str, float] | None = None
 
     def best(self, part: str, gap_s: float) -> str:
         """The method with the lowest error for holes of this part, at the measured length nearest
         gap_s; a blend of classical fills only where it beats the best single one by BLEND_MARGIN,
         the model (or a blend with it) only where it beats the best classical fill by MODEL_MARGIN
-        (in doubt, the fill whose behaviour a user knows)."""
+        (in doubt, the fill whose behaviour a user knows); the preferred classical fill, where one
+        is set, unless another classical candidate beats it by its margin."""
         table = self.error_mm.get(part) or self.error_mm["full"]
         i = min(range(len(self.gaps_s)), key=lambda k: abs(self.gaps_s[k] - gap_s))
         singles = [m for m in table if not is_learned(m) and BLEND not in m]
@@ -71,6 +75,10 @@ class FillPolicy:
         blend = min(mixed, key=lambda m: table[m][i]) if mixed else None
         if best is None or (blend is not None and table[blend][i] < BLEND_MARGIN * table[best][i]):
             best = blend
+        if self.preferred is not None and self.preferred[0] in table:
+            keep, margin = self.preferred
+            if best is None or table[best][i] >= margin * table[keep][i]:
+                best = keep
         model = min((m for m in table if is_learned(m)), key=lambda m: table[m][i], default=None)
         if best is None or (model is not None and table[model][i] < MODEL_MARGIN * table[best][i]):
             return model
@@ -106,6 +114,7 @@ class FillPolicy:
             "replace_threshold_m": self.replace_threshold_m,
             "windows": self.windows,
             "notes": list(self.notes),
+            "preferred": list(self.preferred) if self.preferred else None,
         }
 
     @classmethod
@@ -116,6 +125,7 @@ class FillPolicy:
             d.get("replace_threshold_m"),
             int(d.get("windows", 0)),
             list(d.get("notes", [])),
+            (str(d["preferred"][0]), float(d["preferred"][1])) if d.get("preferred") else None,
         )
 
 

@@ -139,12 +139,12 @@ def fix_clips(
     progress(done, total) is called after each batch of windows. measured: (policy, note) from
     measure_recordings over several files (a folder's takes) instead of this file's own.
 
-    With the fixer's fill policy (a checkpoint calibrated on its val split, evaluation/policy.py)
-    each hole is filled by the method that was best for holes of its length and part, and in
-    denoise / both an observed token is replaced only where the model disagrees with it by more
-    than it does with clean data: such tokens are taken out and filled like holes (the model's
-    estimate with the wrong value in view is pulled towards it). Without a policy the model's
-    estimate is used everywhere the mode says."""
+    With the fixer's fill policy (calibrated on its val split, evaluation/policy.py, and measured
+    again on the recording, recording_policy.py) each hole is filled by the method that was best
+    for holes of its length and part, and in denoise / both an observed token is replaced only
+    where its joint jumped away from the model's estimate and back (excursions, JUMP_STEP): such
+    tokens are taken out and filled like holes (the model's estimate with the wrong value in view
+    is pulled towards it). Without a policy the model's estimate is used everywhere the mode says."""
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if not 0.0 <= overlap < 1.0:
@@ -158,11 +158,13 @@ def fix_clips(
     policy_note, view = None, None
     # A calibrated model's holes are filled as the recording's own evidence says (a checkpoint
     # without a policy keeps its documented behaviour: the model everywhere the mode says).
-    if fixer.kind == "xmae" and mode != "denoise" and policy is not None:
+    # In denoise and both the holes are known after the first pass (the input's and the jumps
+    # taken out): the policy is measured then, for those kinds of hole only.
+    if fixer.kind == "xmae" and policy is not None:
         view = _model_view(clips, fixer, joint_map)
-        if measured is not None:
+        if measured is not None and mode != "denoise":
             policy, policy_note = measured
-        elif mode == "both" or any(not np.isfinite(x).all() for x in view[1]):  # else nothing to fill
+        elif mode == "infill" and any(not np.isfinite(x).all() for x in view[1]):  # else nothing to fill
             policy, policy_note = _measure(fixer, [view], [clips], mode, overlap, batch_size)
     if policy is None or mode == "infill":
         out, report = _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy, joint_map, view=view)
@@ -195,6 +197,10 @@ def fix_clips(
         positions[:, idx] = np.where(bad[..., None], np.nan, positions[:, idx])
         masked.append(c.replace(positions=positions))
         replaced.append((idx, bad))
+    if fixer.kind == "xmae" and policy_note is None and (measured is None or mode == "denoise"):
+        masked_view = _model_view(masked, fixer, joint_map)
+        if any(not np.isfinite(x).all() for x in masked_view[1]):  # holes or jumps to fill
+            policy, policy_note = _measure(fixer, [masked_view], [masked], "infill", overlap, batch_size)
     # Pass 2: the holes and the suspect tokens filled by the policy; the rest stays bit-identical.
     out, report = _fix_positions(
         masked,
@@ -406,14 +412,13 @@ def _fix_positions(
 
 
 def _model_fill(fixer: Fixer, overlap: float, batch_size: int):
-    """The model's fill of stretches as fix makes it (windows, blending, anchoring on the data; no
-    policy): positions (N, L, J, 3) at the model's joints and fps, observed (N, L, J) -> (N, L, J, 3)."""
+    """The model's fill of a take as fix makes it (windows, blending, anchoring on the data; no
+    policy): x (T, J, 3) at the model's joints and the take's fps, NaN = missing -> (T, J, 3)."""
 
-    def fill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
-        holed = torch.where(observed[..., None], positions, torch.nan).numpy()
-        stretches = [Clip(p, fixer.fps, fixer.skeleton) for p in holed]
-        out, _ = _fix_positions(stretches, fixer, "infill", overlap, batch_size, None, None, fill_other_joints=False)
-        return torch.from_numpy(np.stack([c.positions for c in out]))
+    def fill(x: np.ndarray, fps: float) -> np.ndarray:
+        take = Clip(x.astype(np.float32), fps, fixer.skeleton)
+        out, _ = _fix_positions([take], fixer, "infill", overlap, batch_size, None, None, fill_other_joints=False)
+        return out[0].positions
 
     return fill
 

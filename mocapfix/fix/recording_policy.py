@@ -5,14 +5,15 @@ policy calibrated there (evaluation/policy.py) believes the model where it has l
 not human motion: a paper-sized XMAE trained on 70 CMU takes beat the classical fills on its val
 split and was 2.5x worse than a cubic spline on other performers. The recording itself is the
 only evidence about the recording: holes of the kinds it has (body part and length) are cut into
-its own complete stretches (2 s in which every model joint is observed), the model and every
-classical fill fill them as fix does, and the policy is the one those errors give (calibrate, as
-training does on its val split). Where the recording has too few complete stretches to measure
-on, the model has not earned its place there: the classical fills only.
-The classical fills need no window: they are measured on the whole recording (holes cut where the
-part is observed, filled with the take's own context), as fix fills them. A val split of 1-s
-windows ranks them otherwise: with 0.05 s of context a linear fill wins 0.9-s full-body holes,
-on whole CMU takes it is the worst of the four (a quarter worse than the limb fill).
+it where the part is observed, the model and every classical fill fill them exactly as fix fills
+the recording's own holes (the model through its windows, blended and anchored on the data; the
+classical fills with the take's whole context), and the policy is the one those errors give.
+A kind of hole with too few places to cut it gets the classical fills only: the model has not
+earned its place there. The val split ranks the classical fills otherwise (1-s windows leave
+0.05 s of context around a 0.9-s hole, and Lerp wins there; on whole CMU takes it is the worst
+of the four, 94 mm against the limb fill's 68), and the model against them (the stretches of an
+earlier version, 2 s with 0.5 s of context, let a model win cells it lost on the take's holes,
+where the classical fills had seconds of context).
 """
 
 from __future__ import annotations
@@ -21,43 +22,35 @@ import numpy as np
 import torch
 
 from mocapfix.evaluation.baselines import CLASSICAL
-from mocapfix.evaluation.model_fills import calibrate
-from mocapfix.evaluation.policy import PARTS, Calibration, FillPolicy, hole_frames, is_learned, token_parts
+from mocapfix.evaluation.policy import (
+    PARTS,
+    Calibration,
+    FillPolicy,
+    hole_frames,
+    is_learned,
+    token_parts,
+)
 
-MAX_WINDOWS = 32  # the budget: complete stretches measured on per file (a model pass per kind of hole)
-# Holes are cut into stretches of this length, and every fill is made as fix makes it (the model
-# through its windows, blended and anchored; the classical fills from the stretch's context): in
-# a 1-s window a 0.9-s hole leaves the classical fills 1.5 frames of context each side, so they
-# lose there and win on a whole take (measured on CMU takes: the window-sized policy chose the
-# model for 0.9-s arm holes, 15 mm worse than the limb fill; 2-s stretches chose the limb fill).
-STRETCH_S = 2.0
-MIN_WINDOWS = 4  # fewer: too little to measure the model on, the classical fills only
-HOLES_PER_CELL = 64  # the budget of holes cut into the recording per (part, gap) for the classical fills
+HOLES_PER_CELL = 64  # the budget of holes cut into the recording per (part, gap): a model pass each kind
+MIN_HOLES = 8  # fewer places to cut a kind of hole: too little to measure the model on, classical fills only
 # A hole is cut only where its joints are observed this long on both sides. Cut right next to
 # one of the recording's own holes, it is a hole twice as long for the classical fills, and the
 # fills that need the least context win (measured on CMU takes with 0.7-s holes: with a frame of
 # context each side the mean of the limb fill and PCHIP came out 3 % ahead of the limb fill,
 # and was 2 % behind it on the recording's holes; with 0.1 s the limb fill ranked first, as there).
 CONTEXT_S = 0.1
-
-
-def complete_windows(tracks: list[np.ndarray], window: int, max_windows: int = MAX_WINDOWS) -> np.ndarray:
-    """tracks: per clip (K, J, 3) at the model's fps, NaN = missing -> (N, window, J, 3) stretches
-    in which every joint is observed, half a stretch apart, N <= max_windows spread evenly over all."""
-    found = []
-    for x in tracks:
-        complete = np.isfinite(x).all(axis=(1, 2))  # (K,)
-        run = np.convolve(complete.astype(np.int64), np.ones(window, dtype=np.int64), mode="valid")  # (K-W+1,)
-        s = 0
-        while s < len(run):
-            if run[s] == window:
-                found.append(x[s : s + window])
-                s += max(1, window // 2)
-            else:
-                s += 1
-    if len(found) > max_windows:
-        found = [found[i] for i in np.linspace(0, len(found) - 1, max_windows).round().astype(int)]
-    return np.stack(found) if found else np.zeros((0, window) + tracks[0].shape[1:], dtype=np.float32)
+# The classical fill kept unless another classical candidate measures PREFERRED_MARGIN better:
+# the limb fill (bone lengths kept, the parent followed) was the best classical fill in 14 of 15
+# cells on CMU takes (PCHIP by 0.01 mm at 0.1 s) and at 0.3-0.9 s on Bandai, while the ranking
+# of near-ties changes from one set of holes to another (a blend measured 3 % ahead on the cut
+# holes was 9 % behind on the take's own 0.5-s leg holes). A fill much better here still wins.
+PREFERRED = "limb"
+PREFERRED_MARGIN = 0.95
+# Fewer holes of a kind than this (one short take): the preferred fill only among the classical
+# ones. Within one take the motion differs from place to place: on 14 CMU takes, each measured
+# alone on its 10-20 cut holes, PCHIP came out 20 % ahead of the limb fill in one take and was
+# twice as bad on that take's own 0.5-s leg holes; over a folder's takes the ranking held.
+TRUSTED_HOLES = 40
 
 
 def hole_kinds(tracks: list[np.ndarray], skeleton, fps: float, gaps_s) -> set[tuple[str, float]]:
@@ -99,16 +92,19 @@ def cut_holes(observed: np.ndarray, options: list[list[int]], frames: int, budge
     return hidden
 
 
-def measure_classical(takes: list[tuple[np.ndarray, float]], skeleton, gaps_s, cells=None) -> tuple[FillPolicy, int]:
-    """takes: (x (T, J, 3) NaN = missing, fps) per clip, at the model's joints and the input's fps
-    -> (every classical fill and blend of two, by part and gap, over holes cut into the takes and
-    filled with each take's own context; inf where no hole fitted, the holes cut). cells: only
-    these (part, gap), None: all."""
+def measure_on_takes(
+    takes: list[tuple[np.ndarray, float]], skeleton, gaps_s, cells=None, model_fill=None
+) -> tuple[FillPolicy | None, dict[tuple[str, float], int]]:
+    """takes: (x (T, J, 3) NaN = missing, fps) per clip, at the model's joints and the input's fps;
+    model_fill(x, fps) -> (T, J, 3) the model's fill as fix makes it (None: classical fills only)
+    -> (every fill and the mean of every two, by part and gap, over holes cut into the takes,
+    inf where none could be cut; the holes cut per (part, gap)). cells: only these (part, gap),
+    None: all."""
     calibration = Calibration(gaps_s)
     options = {"full": [list(range(skeleton.num_joints))]}
     for group, members in sorted(skeleton.groups.items()):
         options.setdefault(group.split("_")[-1], []).append(list(members))
-    cut = 0
+    cut: dict[tuple[str, float], int] = {}
     for part in PARTS:
         for gap in gaps_s:
             if part not in options or (cells is not None and (part, gap) not in cells):
@@ -124,11 +120,14 @@ def measure_classical(takes: list[tuple[np.ndarray, float]], skeleton, gaps_s, c
                 )
                 if not hidden.any():
                     continue
-                cut += int((np.diff(hidden.any(-1).astype(np.int64), prepend=0) == 1).sum())
+                n = int((np.diff(hidden.any(-1).astype(np.int64), prepend=0) == 1).sum())
+                cut[(part, gap)] = cut.get((part, gap), 0) + n
                 truth = torch.from_numpy(x.astype(np.float64))[None]
                 holed = truth.masked_fill(torch.from_numpy(hidden)[None, ..., None], float("nan"))
                 obs = torch.from_numpy(observed & ~hidden)[None]
                 fills = {name: fill(holed, obs, skeleton.parents) for name, fill in CLASSICAL.items()}
+                if model_fill is not None:
+                    fills["xmae"] = torch.from_numpy(model_fill(holed[0].numpy(), fps)).double()[None]
                 calibration.add_fills(part, gap, fills, truth, torch.from_numpy(hidden)[None])
     return calibration.compute(), cut
 
@@ -140,67 +139,63 @@ def measure_policy(
     fallback: FillPolicy | None,
     model_fill,
     every_cell: bool = False,
-    seed: int = 0,
 ) -> tuple[FillPolicy | None, str | None]:
     """The fill policy of this recording for a positions fixer (.skeleton, .fps); tracks: its clips
-    at the model's joints and fps; takes: (x, fps) the same at the input's fps; model_fill(
-    positions (N, L, J, 3), observed (N, L, J)) -> the model's fill as fix makes it.
-    -> (policy, a line for the report).
-    Only the kinds of hole the recording has are measured (every_cell: all, for --mode both,
-    whose replaced tokens make holes of any kind); the others keep the fallback's numbers. The
-    model on complete stretches, the classical fills on the whole takes (measure_classical);
-    the classical fills only where fewer than MIN_WINDOWS complete stretches exist. Nothing is
-    measured for a checkpoint without a policy (its model fills every hole, as documented)."""
+    at the model's joints and fps (the kinds of hole it has, as apply_fill_policy reads them);
+    takes: (x, fps) the same at the input's fps; model_fill(x, fps) -> the model's fill as fix
+    makes it. -> (policy, a line for the report).
+    Only the kinds of hole the recording has are measured (every_cell: all, for a run's policy in
+    --mode both, whose jumps make holes of any kind); the others keep the fallback's numbers, the
+    classical ones only where nothing of the recording could be measured. A kind with fewer than
+    MIN_HOLES cut holes gets the classical fills only, one with fewer than TRUSTED_HOLES the
+    preferred classical fill (and the model where it earned its place). Nothing is measured for
+    a checkpoint without a policy (its model fills every hole, as documented)."""
     if fallback is None:
         return None, None
     gaps = tuple(fallback.gaps_s)
     cells = None if every_cell else hole_kinds(tracks, fixer.skeleton, fixer.fps, gaps)
     if cells is not None and not cells:  # no hole to fill
         return fallback, None
-    windows = complete_windows(tracks, int(round(STRETCH_S * fixer.fps)))
-    on_stretches = None
-    if len(windows) >= MIN_WINDOWS:
-        calibration = Calibration(gaps)
-        positions = torch.from_numpy(windows.astype(np.float32))
-        calibrate(
-            calibration,
-            model_fill,
-            positions,
-            fixer.skeleton,
-            fixer.fps,
-            gaps,
-            torch.Generator().manual_seed(seed),
-            cells,
-        )
-        on_stretches = calibration.compute()
-    on_takes, holes = measure_classical(takes, fixer.skeleton, gaps, cells)
+    measured, cut = measure_on_takes(takes, fixer.skeleton, gaps, cells, model_fill)
+    asked = sorted(cells) if cells is not None else [(p, g) for p in PARTS for g in gaps]
+    earned = {cell for cell in asked if cut.get(cell, 0) >= MIN_HOLES}
 
-    # Per method and cell, the most relevant measurement there is: a model's on the stretches, a
-    # classical fill's on the whole takes, else on the stretches; the val split's where neither.
-    # Without stretches the model has not earned its place: its candidates are left out.
-    policy = fallback if on_stretches is not None else _classical_only(fallback)
-    tables = {part: {m: list(e) for m, e in t.items()} for part, t in policy.error_mm.items()}
+    # Per method and cell: what the recording measured, else the val split's number; the model's
+    # candidates only in cells with MIN_HOLES holes measured.
+    base = fallback if earned else _classical_only(fallback)
+    tables = {part: {m: list(e) for m, e in t.items()} for part, t in base.error_mm.items()}
+    for part, here in (measured.error_mm if measured is not None else {}).items():
+        for method, errors in here.items():  # fills the checkpoint's policy did not measure (older ones)
+            tables.setdefault(part, {}).setdefault(method, list(errors))
     for part, table in tables.items():
+        here = measured.error_mm.get(part, {}) if measured is not None else {}
         for method, errors in table.items():
-            sources = [on_stretches] if is_learned(method) else [on_takes, on_stretches]
-            for i in range(len(gaps)):
-                for measured in sources:
-                    e = measured.error_mm.get(part, {}).get(method) if measured is not None else None
-                    if e is not None and np.isfinite(e[i]):
-                        errors[i] = e[i]
-                        break
-    # the replace threshold (--mode both) stays the val split's: the recording's own observed tokens
-    # include the jumps it is meant to find
-    out = FillPolicy(gaps, tables, fallback.replace_threshold_m, fallback.windows, ["measured on the recording"])
-    measured = sorted(cells) if cells is not None else [(p, g) for p in tables for g in gaps]
-    chosen = ", ".join(f"{p} {g:g}s {out.best(p, g)}" for p, g in measured)
-    evidence = (
-        f"the model on {len(windows)} complete {STRETCH_S:g}-s stretches, "
-        if on_stretches is not None
-        else f"classical fills only: {len(windows)} complete {STRETCH_S:g}-s stretches to measure the model "
-        f"on, {MIN_WINDOWS} needed; "
-    ) + f"the classical fills on {holes} holes cut into it"
-    return out, f"fill policy measured on this recording ({evidence}): {chosen}"
+            for i, g in enumerate(gaps):
+                if is_learned(method) and (part, g) in asked and (part, g) not in earned:
+                    errors[i] = float("inf")
+                elif (
+                    not is_learned(method)
+                    and method != PREFERRED
+                    and PREFERRED in table
+                    and 0 < cut.get((part, g), 0) < TRUSTED_HOLES
+                ):
+                    errors[i] = float("inf")  # too few holes to overrule the preferred fill
+                elif method in here and np.isfinite(here[method][i]):
+                    errors[i] = here[method][i]
+    out = FillPolicy(
+        gaps,
+        tables,
+        fallback.replace_threshold_m,
+        fallback.windows,
+        ["measured on the recording"],
+        (PREFERRED, PREFERRED_MARGIN),
+    )
+    chosen = ", ".join(f"{p} {g:g}s {out.best(p, g)}" for p, g in asked if (p, g) in cut)
+    holes = sum(cut.values())
+    evidence = f"{holes} holes cut into it" + (
+        "" if earned else f"; classical fills only: fewer than {MIN_HOLES} holes of a kind"
+    )
+    return out, f"fill policy measured on this recording ({evidence}): {chosen or 'nothing could be cut'}"
 
 
 def _classical_only(policy: FillPolicy) -> FillPolicy:
