@@ -162,7 +162,7 @@ def fix_clips(
     # taken out): the policy is measured then, for those kinds of hole only.
     if fixer.kind == "xmae" and policy is not None:
         view = _model_view(clips, fixer, joint_map)
-        if measured is not None and mode != "denoise":
+        if measured is not None and measured[1] and mode != "denoise":  # the run's (it measured something)
             policy, policy_note = measured
         elif mode == "infill" and any(not np.isfinite(x).all() for x in view[1]):  # else nothing to fill
             policy, policy_note = _measure(fixer, [view], [clips], mode, overlap, batch_size)
@@ -197,7 +197,7 @@ def fix_clips(
         positions[:, idx] = np.where(bad[..., None], np.nan, positions[:, idx])
         masked.append(c.replace(positions=positions))
         replaced.append((idx, bad))
-    if fixer.kind == "xmae" and policy_note is None and (measured is None or mode == "denoise"):
+    if fixer.kind == "xmae" and policy_note is None:
         masked_view = _model_view(masked, fixer, joint_map)
         if any(not np.isfinite(x).all() for x in masked_view[1]):  # holes or jumps to fill
             policy, policy_note = _measure(fixer, [masked_view], [masked], "infill", overlap, batch_size)
