@@ -263,6 +263,7 @@ def measure_recordings(
 
 
 def _measure(fixer, views, recordings, mode, overlap, batch_size):
+    """measure_policy over recordings and their _model_view()s (index, x_in, x_m) -> (policy, note)."""
     tracks = [x for v in views for x in v[2]]  # (K, Jm, 3) per clip, the model's fps
     takes = [(x, c.fps) for v, clips in zip(views, recordings) for x, c in zip(v[1], clips)]  # the input's fps
     return measure_policy(
