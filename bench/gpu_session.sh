@@ -13,6 +13,8 @@
 #   bash bench/gpu_session.sh tune           # issue 6: the kernel-time levers: attention backends, max-autotune
 #   bash bench/gpu_session.sh gpu-tests      # the tests marked gpu (CUDA paths: CUDA graphs, bf16, resume across devices)
 #   bash bench/gpu_session.sh accuracy       # issue 6: XMAE test tables, fast path vs plain path, two seeds each
+#   bash bench/gpu_session.sh many           # issue 31: XMAE across studios (configs/xmae_many.yaml), paper
+#                                            # sizes on the GPU and the cpu preset on 8 of its CPU cores at once
 #
 # A run longer than one call: the machine keeps checkpoints/ while it stays warm (~30 s between
 # calls), so back-to-back calls with RESUME=1 continue last.ckpt. MAX_TIME / PRIOR_TIME count the
@@ -24,7 +26,8 @@
 # Needs, carried as git-ignored folders (the GPU image has torch and lightning but not these):
 #   .whl/          wheels: roma omegaconf antlr4-python3-runtime jsonargparse docstring-parser typeshed-client,
 #                  pytest pluggy iniconfig pygments (for gpu-tests)
-#   .device_data/  bandai_pos30.npz and bandai_rot30.npz (parsed Bandai), ref_xmae.py (../shared does not travel)
+#   .device_data/  bandai_pos30.npz and bandai_rot30.npz (parsed Bandai), ref_xmae.py (../shared does not travel);
+#                  corpus_body21.npz for `many`: bench/build_corpus.py (docs/data.md), a compact archive
 # Make both here first: `PYTHON=.venv/bin/python bash bench/gpu_session.sh prepare` (then carry [".whl", ".device_data"]).
 # STEPS / MAX_TIME (xmae), PRIOR_TIME / DENOISE_TIME (dvae) trim the runs to the call's 10 minutes.
 # Results land in $OUT (the device tool brings them back): eval tables, bench JSON, a small checkpoint.
@@ -132,6 +135,43 @@ accuracy)
   $PY bench/fast_path_accuracy.py --device "${DEVICE:-cuda}" --steps "${STEPS:-3000}" --seeds "${SEEDS:-0,1}" --jobs 2 \
     --data-source archive --data-path .device_data/bandai_pos30.npz --workdir /tmp/fast_path_accuracy \
     --json-out "$OUT/fast_path_accuracy-cuda.json" "${EXTRA_ARGS[@]}" 2>&1 | tail -n 20
+  ;;
+many)
+  # Issue 31: one run across studios (Bandai Namco minus the shared subset's val/test files, CMU
+  # subjects 35-39, ReActIdle), validated on performers held out (CMU 39, ReActIdle 014 and 015),
+  # which also calibrate the fill policy. The paper-sized model trains on the GPU (bf16, compiled)
+  # while the cpu preset trains on 8 of the machine's CPU cores: they share no device.
+  MANY=(--data.source archive --data.path .device_data/corpus_body21.npz --data.cache_dir null
+    --data.split_by file --data.val_fraction 0 --data.test_fraction 0
+    --data.val_patterns '["*/cmu39/*", "*/reactidle014/*", "*/reactidle015/*"]'
+    --data.source_weights '{"*/bandai*": 0.6, "*/reactidle*": 0.25, "*/cmu*": 0.15}'
+    --trainer.enable_progress_bar false "${EXTRA_ARGS[@]}")
+  OMP_NUM_THREADS=8 $PY -m mocapfix fit --config configs/xmae_many.yaml --experiment xmae_many_cpu "${MANY[@]}" \
+    --model.init_args.preset cpu --model.init_args.lr 1e-3 --model.init_args.warmup_steps 300 \
+    --trainer.accelerator cpu --trainer.precision 32-true --data.batches_on_device false --data.batch_size 64 \
+    --trainer.max_steps "${CPU_STEPS:-4000}" --model.init_args.total_steps "${CPU_STEPS:-4000}" \
+    --trainer.val_check_interval 2000 --trainer.max_time "${MAX_TIME:-00:00:07:00}" > "$OUT/many_cpu_fit.txt" 2>&1 &
+  CPU_PID=$!
+  $PY -m mocapfix fit --config configs/xmae_many.yaml --experiment xmae_many "${MANY[@]}" "${FIT_ARGS[@]}" \
+    --model.init_args.compile_model "${COMPILE:-true}" --trainer.max_steps "${STEPS:-9000}" \
+    --model.init_args.total_steps "${STEPS:-9000}" --trainer.max_time "${MAX_TIME:-00:00:07:00}" 2>&1 \
+    | tee "$OUT/many_fit.txt" | grep -v -e Warning -e warn | tail -n 25
+  if [ ! -f checkpoints/xmae_many/last.ckpt ]; then  # compiling failed: the rest of the call eager
+    echo "compiled run left no checkpoint; eager for ${RETRY_TIME:-00:00:04:30}"
+    $PY -m mocapfix fit --config configs/xmae_many.yaml --experiment xmae_many "${MANY[@]}" "${FIT_ARGS[@]}" \
+      --trainer.max_steps 5000 --model.init_args.total_steps 5000 --trainer.max_time "${RETRY_TIME:-00:00:04:30}" \
+      2>&1 | tee "$OUT/many_fit_eager.txt" | grep -v -e Warning -e warn | tail -n 25
+  fi
+  wait "$CPU_PID" || echo "cpu-preset run failed: $(tail -n 5 "$OUT/many_cpu_fit.txt")"
+  tail -n 5 "$OUT/many_cpu_fit.txt"
+  for run in xmae_many xmae_many_cpu; do
+    BEST=$(ls checkpoints/$run/best-*.ckpt 2>/dev/null | head -1 || true)
+    [ -n "$BEST" ] || BEST=checkpoints/$run/last.ckpt
+    [ -f "$BEST" ] && $PY bench/shrink_checkpoint.py "$BEST" "$OUT/$run.ckpt" && echo "$run: $BEST"
+    cp checkpoints/$run/last.ckpt "$OUT/${run}_last_full.ckpt" 2>/dev/null || true  # to go on training (adapt)
+  done
+  rm -f "$OUT/xmae_many_last_full.ckpt"  # the paper-sized run's optimiser state is too large to bring back
+  tar czf "$OUT/many_logs.tgz" logs/xmae_many logs/xmae_many_cpu
   ;;
 dvae-speed)
   # a few minutes: is the prior's step faster compiled? (decides COMPILE=1 for dvae-prior)

@@ -7,6 +7,7 @@ batch already is.
 
 from __future__ import annotations
 
+import fnmatch
 import logging
 import time
 from pathlib import Path
@@ -15,7 +16,7 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.overrides.distributed import UnrepeatedDistributedSampler
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, WeightedRandomSampler
 
 from mocapfix.core.clip import Clip, MotionFileError, check_human_scale
 from mocapfix.core.skeleton import Skeleton, preset
@@ -63,14 +64,15 @@ class WindowDataset(Dataset):
             torch.from_numpy(np.concatenate(clip_index)) if clip_index else torch.zeros(0, dtype=torch.long)
         )
         self.clip_names = [c.name for c in clips]
+        self.weights: torch.Tensor | None = None  # (len,) how often each window is drawn in training
 
     def __len__(self) -> int:
         return len(self.starts)
 
     def to(self, device: torch.device) -> WindowDataset:
         """The same windows with every tensor on `device` (in place; returns self)."""
-        for name in ("positions", "rotations", "root_translation", "offsets", "starts", "clip_index"):
-            if hasattr(self, name):
+        for name in ("positions", "rotations", "root_translation", "offsets", "starts", "clip_index", "weights"):
+            if getattr(self, name, None) is not None:
                 setattr(self, name, getattr(self, name).to(device))
         return self
 
@@ -124,7 +126,10 @@ class DeviceBatches:
     def __iter__(self):
         # the same permutation on every rank: seeded by the epoch, not by the rank's RNG state
         g = torch.Generator(device=self.device).manual_seed(torch.initial_seed() + self.epoch)
-        order = torch.randperm(len(self.dataset), generator=g, device=self.device)
+        if self.dataset.weights is not None:  # an epoch's worth of windows drawn by weight
+            order = torch.multinomial(self.dataset.weights, len(self.dataset), replacement=True, generator=g)
+        else:
+            order = torch.randperm(len(self.dataset), generator=g, device=self.device)
         order = order[self.rank :: self.world_size][: len(self.dataset) // self.world_size]  # equal share per rank
         for i in range(len(self)):
             yield self.dataset.__getitems__(order[i * self.batch_size : (i + 1) * self.batch_size])
@@ -163,6 +168,8 @@ class MotionDataModule(L.LightningDataModule):
         synthetic_seed: int = 0,
         with_rotations: bool = False,
         max_missing_fraction: float = 0.5,
+        tempo_factors: list[float] | None = None,
+        source_weights: dict[str, float] | None = None,
         batch_size: int = 128,
         eval_batch_size: int | None = None,
         num_workers: int = 0,
@@ -194,6 +201,13 @@ class MotionDataModule(L.LightningDataModule):
             *_patterns: fnmatch patterns on file names that force a file into a split.
             with_rotations: also deliver rotations / root translation / offsets (rotation data only).
             max_missing_fraction: windows with more missing tokens are skipped in training.
+            tempo_factors: the training split also holds each clip played this many times faster
+                (e.g. [0.8, 1.25]: slower and faster performers; 1 is always there).
+            source_weights: {fnmatch pattern on a file's path: weight}: the training windows of
+                the files each pattern matches are drawn, together, in proportion to its weight
+                (the first matching pattern counts; files that match none share a weight of 1).
+                E.g. {"*/bandai*": 1, "*/cmu*": 1}: half the batches' windows from each studio
+                whatever their sizes. None: every window equally often.
             cache_dir: where parsed clips are cached (None: no cache).
             batches_on_device: keep the training windows on the training device and cut batches
                 there (DeviceBatches: for GPUs, where the loader would otherwise be the bottleneck).
@@ -218,6 +232,12 @@ class MotionDataModule(L.LightningDataModule):
                 f"data.val_fraction {val_fraction} and data.test_fraction {test_fraction}: fractions "
                 "of the files, together at most 1 (the rest is the training split)"
             )
+        for f in tempo_factors or ():
+            if not 0.25 <= f <= 4.0:
+                raise ValueError(f"data.tempo_factors: {f} is not a tempo (0.25 to 4 times the recorded speed)")
+        for pattern, w in (source_weights or {}).items():
+            if not w > 0:
+                raise ValueError(f"data.source_weights: {pattern!r} has weight {w}; weights must be positive")
         self.save_hyperparameters()
         self.skeleton: Skeleton | None = None
         self.clips: dict[str, list[Clip]] = {}
@@ -393,6 +413,13 @@ class MotionDataModule(L.LightningDataModule):
         if official and not self.clips["val"]:
             # Human3.6M's standard split has no validation part: the field validates on S9/S11.
             self.clips["val"] = self.clips["test"]
+        tempos = [f for f in (hp.get("tempo_factors") or ()) if f != 1.0]
+        if tempos:  # each training clip also played faster and slower: resampled, then read at fps
+            self.clips["train"] = self.clips["train"] + [
+                resample(c, hp.fps / f).replace(fps=float(hp.fps), name=f"{c.name}@{f:g}x")
+                for f in tempos
+                for c in self.clips["train"]
+            ]
         eval_stride = hp.eval_stride_s or hp.window_s
         for s in SPLITS:
             stride = hp.stride_s if s == "train" else eval_stride
@@ -401,6 +428,8 @@ class MotionDataModule(L.LightningDataModule):
             )
             if s == "train" and len(ds):
                 self._drop_mostly_missing(ds)
+                if hp.get("source_weights"):
+                    ds.weights = source_window_weights(self.clips[s], ds.clip_index, hp.source_weights)
             self.datasets[s] = ds
             self._name_idle_clips(self.clips[s], ds, s)
         log.info("windows: %s", {s: len(d) for s, d in self.datasets.items()})
@@ -476,6 +505,9 @@ class MotionDataModule(L.LightningDataModule):
             )
         bs = hp.batch_size if split == "train" else (hp.eval_batch_size or hp.batch_size)
         sampler = None
+        if shuffle and ds.weights is not None:
+            sampler = WeightedRandomSampler(ds.weights.cpu().double(), len(ds), replacement=True)
+            shuffle = False
         t = self.trainer
         if split != "train" and t is not None and t.world_size > 1:
             # every window once over the processes: Lightning's DistributedSampler would pad an
@@ -510,6 +542,23 @@ class MotionDataModule(L.LightningDataModule):
 
     def predict_dataloader(self) -> DataLoader:
         return self._loader("test", shuffle=False)
+
+
+def source_window_weights(clips: list[Clip], clip_index: torch.Tensor, weights: dict[str, float]) -> torch.Tensor:
+    """(windows,) sampling weights: each pattern's share split evenly over its files' windows.
+    clip_index: (windows,) each window's clip."""
+    group_of = []  # each clip's pattern (or None: matched none)
+    for c in clips:
+        path = c.source or c.name
+        group_of.append(next((p for p in weights if fnmatch.fnmatch(path, p)), None))
+    groups = torch.tensor([list(weights).index(g) if g is not None else len(weights) for g in group_of])
+    share = torch.tensor([*weights.values(), 1.0], dtype=torch.float64)  # the unmatched share 1
+    window_group = groups[clip_index.cpu()]
+    count = torch.bincount(window_group, minlength=len(share)).double()
+    for pattern, n in zip(weights, count.tolist()):
+        if n == 0:
+            log.warning("warning: data.source_weights: no training window comes from a file matching %r", pattern)
+    return (share / count.clamp_min(1))[window_group].float()
 
 
 def _folder(clip: Clip) -> str:

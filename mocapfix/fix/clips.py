@@ -267,7 +267,7 @@ def _measure(fixer, views, recordings, mode, overlap, batch_size):
     tracks = [x for v in views for x in v[2]]  # (K, Jm, 3) per clip, the model's fps
     takes = [(x, c.fps) for v, clips in zip(views, recordings) for x, c in zip(v[1], clips)]  # the input's fps
     return measure_policy(
-        fixer, tracks, takes, fixer.policy, _model_fill(fixer, overlap, batch_size), every_cell=mode == "both"
+        fixer, tracks, takes, fixer.policy, model_fill(fixer, overlap, batch_size), every_cell=mode == "both"
     )
 
 
@@ -412,7 +412,7 @@ def _fix_positions(
     return out_clips, report
 
 
-def _model_fill(fixer: Fixer, overlap: float, batch_size: int):
+def model_fill(fixer: Fixer, overlap: float, batch_size: int):
     """The model's fill of a take as fix makes it (windows, blending, anchoring on the data; no
     policy): x (T, J, 3) at the model's joints and the take's fps, NaN = missing -> (T, J, 3)."""
 

@@ -15,6 +15,7 @@ import torch
 import torch.nn as nn
 
 from mocapfix.core.skeleton import Skeleton
+from mocapfix.data.augment import BodyAugment, BodyAugmenter
 from mocapfix.data.corruption import check_training_corruption, uniform_like, xmae_training_input
 from mocapfix.data.spec import DataSpec
 from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill
@@ -58,6 +59,10 @@ class XMAEModule(L.LightningModule):
         gap_ratio: float = 0.0,
         fixed_kept_count: bool = True,
         rotate_augment: bool = True,
+        stature_range: float = 0.0,
+        limb_range: float = 0.0,
+        mirror_prob: float = 0.0,
+        joint_shift_m: float = 0.0,
         compile_model: bool = False,
         compile_mode: str = "default",
         lr: float = 3e-4,
@@ -70,6 +75,7 @@ class XMAEModule(L.LightningModule):
         eval_seed: int = 0,
         calibration_windows: int = 256,
         figure_every_n_val: int = 1,
+        init_weights: str | None = None,
         skeleton: dict | None = None,
         window_fps: float | None = None,
         window_frames: int | None = None,
@@ -91,6 +97,12 @@ class XMAEModule(L.LightningModule):
             fixed_kept_count: every sample keeps the same number of tokens, known from mask_ratio
                 without reading the batch (no host-device sync); only samples short of data are padded.
             rotate_augment: random rotation about z after normalisation.
+            stature_range, limb_range, mirror_prob, joint_shift_m: not in the paper: each training
+                window played by another body (data/augment.py): every bone scaled by a factor in
+                [1 - stature_range, 1 + stature_range], arms / legs / spine each by one in
+                [1 - limb_range, 1 + limb_range] on top, left and right swapped with probability
+                mirror_prob, each joint moved by a constant offset within joint_shift_m metres.
+                What a model trained on a few performers needs to fill a stranger's take.
             compile_model: torch.compile the network (faster GPU steps after a minute of compiling;
                 checkpoints are the same either way).
             compile_mode: torch.compile's mode. "reduce-overhead" replays the network's forward and
@@ -105,12 +117,18 @@ class XMAEModule(L.LightningModule):
                 XMAE against the classical fills per hole length and part (left limbs), and XMAE's
                 disagreement with clean tokens: the fill policy saved in each checkpoint
                 (evaluation/policy.py). 0: no policy.
+            init_weights: a checkpoint file or a shipped model's name (`mocapfix models`) whose
+                network training starts from: its sizes and weights (every size setting above is
+                then the checkpoint's) and its fill policy until the first validation. For
+                fine-tuning on your own takes (`mocapfix adapt`); the data must give the
+                checkpoint's joints and window (data.body body21 for the shipped models).
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
         """
         super().__init__()
         if compile_mode not in COMPILE_MODES:
             raise ValueError(f"compile_mode must be one of {COMPILE_MODES}, got {compile_mode!r}")
         check_training_corruption(mask_ratio, displace_ratio, clean_loss_ratio, max_displacement_m)
+        BodyAugment(stature_range, limb_range, mirror_prob, joint_shift_m).check()
         # the network's sizes (num_joints and num_frames come from the data, at setup)
         self.sizes = preset_sizes(
             preset,
@@ -125,9 +143,18 @@ class XMAEModule(L.LightningModule):
             position_unit_m=position_unit_m,
             fill_input=fill_input,
         )
+        self._init_state: dict | None = None
+        self.fill_policy: FillPolicy | None = None  # from the last validation, or the checkpoint
+        if init_weights:
+            start = _starting_checkpoint(init_weights)
+            config = dict(start["model"]["config"])
+            self.sizes = {k: v for k, v in config.items() if k not in ("num_joints", "num_frames")}
+            self._init_state = {k[4:]: v for k, v in start["state_dict"].items() if k.startswith("net.")}
+            self._init_window = {k: start["hyper_parameters"][k] for k in ("skeleton", "window_fps", "window_frames")}
+            if "fill_policy" in start:
+                self.fill_policy = FillPolicy.from_dict(start["fill_policy"])
         self.save_hyperparameters()
         self.net: XMAE | None = None
-        self.fill_policy: FillPolicy | None = None  # from the last validation, or the checkpoint
         self._calibration: Calibration | None = None  # the running validation's measurements
         if skeleton is not None and window_frames is not None:
             self._build()
@@ -144,6 +171,9 @@ class XMAEModule(L.LightningModule):
         if hp.get("compile_model"):
             # in place: parameter names (and so checkpoints) stay as without it
             self.net.compile(mode=hp.get("compile_mode", "default"))
+        # hp.get: checkpoints from before the body augmentations have none
+        augment = BodyAugment(*(hp.get(k, 0.0) for k in ("stature_range", "limb_range", "mirror_prob", "joint_shift_m")))
+        self.body_augment = BodyAugmenter(self.skeleton, augment) if augment.active else None
         self.val_mpjpe = MPJPE()
         self.val_gap = nn.ModuleDict({"xmae": MPJPE(), "lerp": MPJPE()})
 
@@ -155,8 +185,13 @@ class XMAEModule(L.LightningModule):
         network from a checkpoint must fit the data."""
         skeleton, fps, frames = data.skeleton.to_dict(), data.fps, data.window_frames
         if self.net is None:
+            if self._init_state is not None:
+                require_same_window(self._init_window, data, f"{self.hparams.init_weights} was built for")
             self.hparams.update(skeleton=skeleton, window_fps=fps, window_frames=frames)
             self._build()
+            if self._init_state is not None:
+                self.net.load_state_dict({k: v.float() for k, v in self._init_state.items()})
+                self._init_state = None
         else:
             require_same_window(self.hparams, data, "this model was built for")
 
@@ -211,7 +246,10 @@ class XMAEModule(L.LightningModule):
         if self.hparams.get("compile_model") and self.hparams.get("compile_mode") in CUDA_GRAPH_MODES:
             # each step's graph outputs may overwrite the last step's: tell the graph trees a new step began
             torch.compiler.cudagraph_mark_step_begin()
-        loss, *_ = self._corrupt_and_predict(batch["positions"])
+        positions = batch["positions"]
+        if self.body_augment is not None:
+            positions = self.body_augment(positions)
+        loss, *_ = self._corrupt_and_predict(positions)
         self.log("train/loss", loss, prog_bar=True)
         return loss
 
@@ -346,3 +384,18 @@ class XMAEModule(L.LightningModule):
         observed = ~torch.isnan(positions).any(-1)
         out = xmae_reconstruct(self.net, positions, observed)
         return torch.where(observed[..., None], positions, out)
+
+
+def _starting_checkpoint(name_or_path: str) -> dict:
+    """init_weights: a checkpoint file, or a shipped model by name -> the checkpoint, which must
+    hold an XMAE. Read with weights_only (plain values): a checkpoint runs no code."""
+    from pathlib import Path
+
+    from mocapfix.fix.fixers import read_checkpoint
+    from mocapfix.pretrained import MODELS, pretrained_path
+
+    path = pretrained_path(name_or_path) if name_or_path in MODELS and not Path(name_or_path).exists() else name_or_path
+    ckpt = read_checkpoint(path)
+    if (ckpt.get("model") or {}).get("kind") != "xmae":
+        raise ValueError(f"model.init_weights {name_or_path}: not an XMAE checkpoint")
+    return ckpt
