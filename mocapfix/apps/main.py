@@ -2,6 +2,7 @@
 
 fit | validate | test | predict   apps/cli.py (LightningCLI, configs by name)
 fix                               apps/fix_cli.py
+adapt                             apps/adapt.py
 inspect                           apps/inspect.py
 demo                              apps/demo.py
 models                            the shipped models (mocapfix/pretrained)
@@ -55,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
             "       mocapfix inspect FILE... [--json]\n"
             "       mocapfix fix INPUT... --ckpt CKPT|--model NAME [-o OUT|--out-dir DIR] [--mode MODE]\n"
             "       mocapfix inspect FILE... --ckpt CKPT|--model NAME  (how the file's joints map onto the model's)\n"
+            "       mocapfix adapt FOLDER... --model NAME|--ckpt CKPT [--minutes M] [-o OUT.ckpt]  (fine-tune on your takes)\n"
             "       mocapfix render INPUT [FIXED...] -o OUT.gif|mp4|png [--start S] [--duration S]\n"
             "       mocapfix models\n"
             "       mocapfix demo\n"
@@ -72,6 +74,10 @@ def main(argv: list[str] | None = None) -> int:
         from mocapfix.apps.fix_cli import main as fix_main
 
         return fix_main(argv[1:])
+    if command == "adapt":
+        from mocapfix.apps.adapt import main as adapt_main
+
+        return adapt_main(argv[1:])
     if command == "render":
         from mocapfix.apps.render import main as render_main
 
@@ -90,8 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     if command in LIGHTNING_COMMANDS:
         return run_lightning(command, argv)
     print(
-        f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect, fix, render, models "
-        "or demo",
+        f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect, fix, adapt, render, "
+        "models or demo",
         file=sys.stderr,
     )
     return 2

@@ -155,4 +155,3 @@ class BodyAugmenter(torch.nn.Module):
         root = torch.cat([centre + (root[..., :2] - centre) * ground, root[..., 2:] * ground], dim=-1)
         out = root[:, :, None] + torch.einsum("ja,btac->btjc", chain, bones)
         return torch.where(lost[..., None] | torch.isnan(x).any(-1, keepdim=True), torch.nan, out)
-

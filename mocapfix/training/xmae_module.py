@@ -172,7 +172,8 @@ class XMAEModule(L.LightningModule):
             # in place: parameter names (and so checkpoints) stay as without it
             self.net.compile(mode=hp.get("compile_mode", "default"))
         # hp.get: checkpoints from before the body augmentations have none
-        augment = BodyAugment(*(hp.get(k, 0.0) for k in ("stature_range", "limb_range", "mirror_prob", "joint_shift_m")))
+        names = ("stature_range", "limb_range", "mirror_prob", "joint_shift_m")
+        augment = BodyAugment(*(hp.get(k, 0.0) for k in names))
         self.body_augment = BodyAugmenter(self.skeleton, augment) if augment.active else None
         self.val_mpjpe = MPJPE()
         self.val_gap = nn.ModuleDict({"xmae": MPJPE(), "lerp": MPJPE()})

@@ -1,0 +1,158 @@
+"""`mocapfix adapt FOLDER... --model NAME`: fine-tune an XMAE on your own takes, a few CPU minutes.
+
+A model trained on other people's motion learns their proportions and their rig's joint
+placement. Adapting continues its training objective (masking and displacing tokens, XMAE
+section 3) on the observed tokens of your recordings: no labels and no clean data needed, the
+holes in your takes are never read. The adapted model is saved (weights only) and reused with
+`mocapfix fix INPUT --ckpt ADAPTED`; `fix` still measures on each recording whether it beats the
+classical fills there (docs/fix.md), so adapting can only help where it helped.
+
+    mocapfix adapt takes/ --model xmae-many --minutes 5 -o my-studio.ckpt
+    mocapfix fix takes/ --ckpt my-studio.ckpt --out-dir fixed/
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import torch
+
+from mocapfix.core.clip import MotionFileError, shown
+from mocapfix.core.skeleton import preset
+from mocapfix.io import add_read_arguments
+
+# What adapting keeps from the starting model's training: the objective and the network. The
+# body augmentations stay off (these are the performers the model will meet), and so does
+# compiling (minutes on a CPU).
+OBJECTIVE = ("mask_ratio", "displace_ratio", "max_displacement_m", "clean_loss_ratio", "gap_ratio", "rotate_augment")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="mocapfix adapt",
+        description="Fine-tune a trained XMAE on your own takes (its training objective on their observed tokens).",
+        epilog="example: mocapfix adapt takes/ --model xmae-many --minutes 5 -o my-studio.ckpt",
+    )
+    ap.add_argument("inputs", nargs="+", help="folders or files of your takes (any format `fix` reads)")
+    which = ap.add_mutually_exclusive_group(required=True)
+    which.add_argument("--model", help="a shipped model to start from (`mocapfix models`)")
+    which.add_argument("--ckpt", help="a checkpoint to start from")
+    ap.add_argument("--minutes", type=float, default=5.0, help="training time (default 5)")
+    ap.add_argument("--lr", type=float, default=1e-4, help="learning rate after a 50-step warm-up (default 1e-4)")
+    ap.add_argument("--batch-size", type=int, default=32)
+    ap.add_argument("-o", "--out", default=None, help="the adapted checkpoint (default checkpoints/adapt/<model>.ckpt)")
+    ap.add_argument("--seed", type=int, default=0)
+    add_read_arguments(ap)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if not (0 < args.minutes <= 24 * 60) or not math.isfinite(args.minutes):
+        print(f"mocapfix adapt: --minutes {args.minutes}: give a time between 0 and 1440 minutes", file=sys.stderr)
+        return 2
+    try:
+        out = adapt(args)
+    except (MotionFileError, ValueError) as e:
+        print(f"mocapfix adapt: {e}", file=sys.stderr)
+        return 1
+    print(f"adapted model: {shown(out)}\nuse it: mocapfix fix INPUT --ckpt {shown(out)}")
+    return 0
+
+
+def adapt(args) -> Path:
+    import lightning as L
+    from lightning.pytorch.loggers import TensorBoardLogger
+
+    from mocapfix.data.datamodule import MotionDataModule
+    from mocapfix.fix.fixers import read_checkpoint
+    from mocapfix.models.build import checkpoint_entry
+    from mocapfix.pretrained import pretrained_path
+    from mocapfix.training.xmae_module import XMAEModule
+
+    start = str(pretrained_path(args.model)) if args.model else args.ckpt
+    ckpt = read_checkpoint(start)
+    if (ckpt.get("model") or {}).get("kind") != "xmae":
+        raise ValueError(f"{start}: adapt fine-tunes XMAE checkpoints; this one holds {ckpt.get('model', {}).get('kind')}")
+    hp = ckpt["hyper_parameters"]
+    name = args.model or Path(args.ckpt).stem
+    out = Path(args.out) if args.out else Path("checkpoints") / "adapt" / f"{name}.ckpt"
+    if out.suffix != ".ckpt":
+        raise ValueError(f"--out {out}: give a .ckpt file name")
+
+    L.seed_everything(args.seed, verbose=False)
+    fps, frames = float(hp["window_fps"]), int(hp["window_frames"])
+    # Every recording onto the model's body; a tenth of the files (at least one, when there are
+    # five or more) is held out so the fill policy is measured on takes adapting did not see.
+    files = args.inputs
+    data = MotionDataModule(
+        source=_source(files, args.source),
+        path=files if len(files) > 1 else files[0],
+        body="body21" if tuple(hp["skeleton"]["joint_names"]) == preset("body21").joint_names else None,
+        fps=fps,
+        window_s=frames / fps,
+        stride_s=0.1,
+        unit=args.unit,
+        up_axis=args.up_axis,
+        val_fraction=0.1,
+        test_fraction=0.0,
+        batch_size=args.batch_size,
+        eval_batch_size=256,
+    )
+    data.setup("fit")
+    has_val = len(data.datasets["val"]) > 0
+    module = XMAEModule(
+        init_weights=start,
+        lr=args.lr,
+        warmup_steps=50,
+        total_steps=10**9,  # a constant rate after the warm-up: the run ends on time, not on a step count
+        calibration_windows=256 if has_val else 0,
+        **{k: hp[k] for k in OBJECTIVE if k in hp},
+    )
+    trainer = L.Trainer(
+        max_time={"minutes": args.minutes},
+        max_epochs=-1,
+        accelerator="auto",
+        devices=1,
+        logger=TensorBoardLogger("logs", name="adapt", default_hp_metric=False),
+        enable_checkpointing=False,
+        limit_val_batches=0,  # measured once, at the end
+        num_sanity_val_steps=0,
+        log_every_n_steps=10,
+        enable_model_summary=False,
+    )
+    trainer.fit(module, datamodule=data)
+    if has_val:  # the fill policy on the held-out takes
+        trainer.limit_val_batches = 1.0
+        trainer.validate(module, datamodule=data, verbose=False)
+    module.net.float()
+    weights = {f"net.{k}": v.detach().cpu() for k, v in module.net.state_dict().items()}
+    saved = {
+        "hyper_parameters": dict(module.hparams),
+        "model": checkpoint_entry("xmae", module.net.config),
+        "state_dict": weights,
+        "global_step": trainer.global_step,
+        "adapted_from": start,
+    }
+    if module.fill_policy is not None:
+        saved["fill_policy"] = module.fill_policy.to_dict()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    torch.save(saved, tmp)
+    tmp.replace(out)
+    print(f"adapted {trainer.global_step} steps on {sum(len(c) for c in data.clips.values())} takes")
+    return out
+
+
+def _source(inputs: list[str], source: str) -> str:
+    """The data module's source for --source auto: bvh when every motion file is a BVH, else
+    positions files (.npz / .csv)."""
+    if source != "auto":
+        return source
+    from mocapfix.io import list_motion_files
+
+    files = [f for p in inputs for f in list_motion_files(p, "auto")]
+    return "bvh" if files and all(f.suffix.lower() == ".bvh" for f in files) else "positions"
