@@ -76,7 +76,8 @@ def adapt(args) -> Path:
     start = str(pretrained_path(args.model)) if args.model else args.ckpt
     ckpt = read_checkpoint(start)
     if (ckpt.get("model") or {}).get("kind") != "xmae":
-        raise ValueError(f"{start}: adapt fine-tunes XMAE checkpoints; this one holds {ckpt.get('model', {}).get('kind')}")
+        kind = (ckpt.get("model") or {}).get("kind")
+        raise ValueError(f"{start}: adapt fine-tunes XMAE checkpoints; this one holds {kind}")
     hp = ckpt["hyper_parameters"]
     name = args.model or Path(args.ckpt).stem
     out = Path(args.out) if args.out else Path("checkpoints") / "adapt" / f"{name}.ckpt"

@@ -56,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
             "       mocapfix inspect FILE... [--json]\n"
             "       mocapfix fix INPUT... --ckpt CKPT|--model NAME [-o OUT|--out-dir DIR] [--mode MODE]\n"
             "       mocapfix inspect FILE... --ckpt CKPT|--model NAME  (how the file's joints map onto the model's)\n"
-            "       mocapfix adapt FOLDER... --model NAME|--ckpt CKPT [--minutes M] [-o OUT.ckpt]  (fine-tune on your takes)\n"
+            "       mocapfix adapt FOLDER... --model NAME|--ckpt CKPT [--minutes M] [-o OUT.ckpt]\n"
             "       mocapfix render INPUT [FIXED...] -o OUT.gif|mp4|png [--start S] [--duration S]\n"
             "       mocapfix models\n"
             "       mocapfix demo\n"
