@@ -173,6 +173,28 @@ many)
   rm -f "$OUT/xmae_many_last_full.ckpt"  # the paper-sized run's optimiser state is too large to bring back
   tar czf "$OUT/many_logs.tgz" logs/xmae_many logs/xmae_many_cpu
   ;;
+many-hermite)
+  # Issue 31, the correction to the Hermite fill (fill_kind hermite): the cpu preset and the paper
+  # sizes at once on the one GPU (eager: compiling would take a third of a short call), MAX_TIME each.
+  MANY=(--data.source archive --data.path .device_data/corpus_body21.npz --data.cache_dir null
+    --data.split_by file --data.val_fraction 0 --data.test_fraction 0
+    --data.val_patterns '["*/cmu39/*", "*/reactidle014/*", "*/reactidle015/*"]'
+    --data.source_weights '{"*/bandai*": 0.6, "*/reactidle*": 0.25, "*/cmu*": 0.15}'
+    --model.init_args.fill_kind hermite --trainer.max_time "${MAX_TIME:-00:00:01:20}"
+    --trainer.max_steps "${STEPS:-2500}" --model.init_args.total_steps "${STEPS:-2500}"
+    --model.init_args.warmup_steps 300 --trainer.val_check_interval 1200 --trainer.enable_progress_bar false)
+  $PY -m mocapfix fit --config configs/xmae_many.yaml --experiment xmae_hermite_cpu "${MANY[@]}" \
+    --model.init_args.preset cpu --model.init_args.lr 1e-3 > "$OUT/hermite_cpu_fit.txt" 2>&1 &
+  $PY -m mocapfix fit --config configs/xmae_many.yaml --experiment xmae_hermite "${MANY[@]}" \
+    > "$OUT/hermite_fit.txt" 2>&1
+  wait
+  for run in xmae_hermite xmae_hermite_cpu; do
+    tail -n 3 "$OUT/${run#xmae_}_fit.txt" 2>/dev/null
+    CK=$(ls checkpoints/$run/best-*.ckpt 2>/dev/null | head -1 || true)
+    [ -n "$CK" ] || CK=checkpoints/$run/last.ckpt
+    [ -f "$CK" ] && $PY bench/shrink_checkpoint.py "$CK" "$OUT/$run.ckpt"
+  done
+  ;;
 dvae-speed)
   # a few minutes: is the prior's step faster compiled? (decides COMPILE=1 for dvae-prior)
   $PY bench/dvae_speed.py --compile --json-out "$OUT/dvae_speed-cuda.json" 2>&1 | tail -n 10

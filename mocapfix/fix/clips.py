@@ -31,7 +31,7 @@ import torch
 from mocapfix.core.clip import Clip, MotionFileError, check_human_scale
 from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill, limb_infill
+from mocapfix.evaluation.baselines import CLASSICAL, hermite_infill, lerp_infill, limb_infill
 from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, excursions, policy_names
 from mocapfix.fix.fixers import Fixer, RotationFixer
@@ -320,7 +320,8 @@ def _fix_positions(
     # Windows with data go to the model; windows without any (a hole longer than a window) get
     # Lerp instead, blended the same way, so there is no seam where the estimate meets the fallback.
     has_data = [np.isfinite(xm).all(-1).any(-1) for xm in x_m]  # (K,) per clip
-    blended = blend_windows(PositionWindows(fixer, x_m), need_m, has_data, overlap, batch_size, progress)
+    windows = PositionWindows(fixer, x_m, _whole_take_fills(fixer, clips, x_in, x_m))
+    blended = blend_windows(windows, need_m, has_data, overlap, batch_size, progress)
     Jm = model.num_joints
 
     out_clips, notes = [], []
@@ -444,22 +445,48 @@ def _model_view(
     return index, x_in, x_m
 
 
+def _whole_take_fills(fixer: Fixer, clips: list[Clip], x_in, x_m) -> list[np.ndarray] | None:
+    """For an XMAE that corrects the cubic Hermite fill (fill_kind hermite): each take's Hermite
+    fill over the whole take at the recording's own frame rate, brought to the model's (K, Jm, 3).
+    A window of the model sees at most a second; the fill from the whole take at, say, 120 fps is
+    a better start (on the CMU strangers it beats a cubic spline, docs/results.md). None for
+    every other model: they correct their window's own fill, as they were trained."""
+    net = getattr(fixer, "net", None)
+    if fixer.kind != "xmae" or not getattr(net, "fill_input", False) or getattr(net, "fill_kind", "") != "hermite":
+        return None
+    fills = []
+    for c, x, xm in zip(clips, x_in, x_m):
+        xt = torch.from_numpy(x.astype(np.float64))[None]  # (1, T, Jm, 3)
+        filled = hermite_infill(xt, ~torch.isnan(xt).any(-1))[0].numpy()
+        fill = resample_frames(filled, c.fps, fixer.fps, len(xm))  # NaN past the take's last frame
+        ok = np.isfinite(fill).all(axis=(1, 2))
+        fill = fill[np.maximum.accumulate(np.where(ok, np.arange(len(fill)), 0))]  # those hold the last frame
+        fills.append(fill.astype(np.float32))
+    return fills
+
+
 class PositionWindows:
     """Windows of joint positions for a positions fixer (windowing.WindowSource): x_m[k] (K, Jm, 3)
     each clip at the model's joints and fps, NaN at missing tokens; padding is missing too.
-    Estimates are blended as positions; the fallback is Lerp over the clip."""
+    fills: each clip's whole-take fill at the model's frames, the fill the network corrects
+    (_whole_take_fills), or None. Estimates are blended as positions; the fallback is Lerp over the clip."""
 
     fixed_length = True  # XMAE's positional embedding has one length
 
-    def __init__(self, fixer: Fixer, x_m: list[np.ndarray]):
-        self.fixer, self.x_m = fixer, x_m
+    def __init__(self, fixer: Fixer, x_m: list[np.ndarray], fills: list[np.ndarray] | None = None):
+        self.fixer, self.x_m, self.fills = fixer, x_m, fills
         self.window, self.dim = fixer.window, 3 * x_m[0].shape[1]
         self._lerp: dict[int, np.ndarray] = {}
 
     def estimate(self, windows: list[tuple[int, np.ndarray]]) -> torch.Tensor:
         pos = np.stack([np.where((f >= 0)[:, None, None], self.x_m[k][np.maximum(f, 0)], np.nan) for k, f in windows])
         pos = torch.from_numpy(pos.astype(np.float32))  # (B, W, Jm, 3)
-        return self.fixer.estimate(pos, ~torch.isnan(pos).any(-1)).double().flatten(2)  # (B, W, 3 Jm)
+        if self.fills is None:
+            return self.fixer.estimate(pos, ~torch.isnan(pos).any(-1)).double().flatten(2)  # (B, W, 3 Jm)
+        # past the take's ends (padding; NaN in the resampled fill too) the fill holds the nearest frame
+        fill = np.stack([self.fills[k][np.clip(f, 0, len(self.fills[k]) - 1)] for k, f in windows])
+        fill = torch.from_numpy(np.nan_to_num(fill))  # (B, W, Jm, 3)
+        return self.fixer.estimate(pos, ~torch.isnan(pos).any(-1), fill).double().flatten(2)
 
     def fallback(self, k: int) -> np.ndarray:
         if k not in self._lerp:

@@ -109,9 +109,13 @@ class XMAEFixer:
         return cls(net, skeleton, fps, device, precision)
 
     @torch.inference_mode()
-    def estimate(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+    def estimate(
+        self, positions: torch.Tensor, observed: torch.Tensor, fill: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        # fill: (B, T, J, 3) the classical fill the network corrects, from the whole take
+        fill = fill.to(self.device) if fill is not None else None
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
-            out = xmae_reconstruct(self.net, positions.to(self.device), observed.to(self.device))
+            out = xmae_reconstruct(self.net, positions.to(self.device), observed.to(self.device), fill)
         return out.float().cpu()
 
 

@@ -112,6 +112,7 @@ class XMAEConfig:
     decoder: str = "cross"
     position_unit_m: float = 0.1
     fill_input: bool = False
+    fill_kind: str = "lerp"
 
 
 # Named sizes (facebookresearch/mae's mae_vit_base_patch16 habit): a config names one and sets
@@ -143,6 +144,10 @@ def preset_sizes(preset: str, **overrides) -> dict:
     return sizes
 
 
+# The classical fills fill_input can correct (models/xmae_inference.py: xmae_fill).
+FILL_KINDS = ("lerp", "hermite")
+
+
 class XMAE(nn.Module):
     def __init__(
         self,
@@ -158,12 +163,15 @@ class XMAE(nn.Module):
         decoder: str = "cross",
         position_unit_m: float = 0.1,
         fill_input: bool = False,
+        fill_kind: str = "lerp",
     ):
         super().__init__()
         if decoder not in ("cross", "mae"):
             raise ValueError(f"decoder must be 'cross' (XMAE) or 'mae' (original MAE), got {decoder!r}")
         if fill_input and decoder != "cross":
             raise ValueError("fill_input needs the cross-attention decoder (decoder='cross')")
+        if fill_kind not in FILL_KINDS:
+            raise ValueError(f"fill_kind must be one of {', '.join(FILL_KINDS)}, got {fill_kind!r}")
         self.num_joints, self.num_frames, self.decoder_type = num_joints, num_frames, decoder
         # what a checkpoint stores to rebuild this network (models/build.py)
         self.config = XMAEConfig(
@@ -179,12 +187,17 @@ class XMAE(nn.Module):
             decoder,
             position_unit_m,
             fill_input,
+            fill_kind,
         )
         # Not in the paper: with fill_input the decoder's queries also carry a classical fill of
         # every token (xmae_inference.py: Lerp) and the network predicts the correction to it. A small
         # network then starts from the interpolation instead of having to learn it, and spends its
         # capacity on what interpolation gets wrong.
-        self.fill_input = fill_input
+        # fill_kind "hermite": a cubic that leaves and meets the data at its velocities
+        # (evaluation/baselines.py: hermite_infill), about a cubic spline's accuracy; fix then hands
+        # the network the take's whole-context fill at the recording's own frame rate
+        # (fix/clips.py), and the untrained network is that fill.
+        self.fill_input, self.fill_kind = fill_input, fill_kind
         # The network reads and writes positions in units of position_unit_m (default 0.1 m).
         # In metres, a joint's motion within a window (cm) is a tiny signal beside the metre-scale
         # body, and training sits at the mean pose for thousands of steps (docs/xmae-notes.md).

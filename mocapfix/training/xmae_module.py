@@ -52,6 +52,7 @@ class XMAEModule(L.LightningModule):
         decoder: str | None = None,
         position_unit_m: float | None = None,
         fill_input: bool | None = None,
+        fill_kind: str | None = None,
         mask_ratio: float = 0.85,
         displace_ratio: float = 0.05,
         max_displacement_m: float = 1.0,
@@ -89,6 +90,8 @@ class XMAEModule(L.LightningModule):
             position_unit_m: the network's internal position unit (inputs divided, outputs multiplied).
             fill_input: not in the paper: the decoder also reads a Lerp fill of every token and the
                 network predicts the correction to it (models/xmae.py).
+            fill_kind: the fill it corrects: "lerp", or "hermite" (a cubic leaving and meeting the
+                data at its velocities; fix hands it the whole take's, models/xmae.py).
             mask_ratio, displace_ratio: fractions of all J*T tokens masked / displaced in training.
             max_displacement_m: radius of the ball displacement offsets are drawn from.
             clean_loss_ratio: fraction of all tokens kept clean AND put in the loss ("BERT masking": 0.05).
@@ -142,6 +145,7 @@ class XMAEModule(L.LightningModule):
             decoder=decoder,
             position_unit_m=position_unit_m,
             fill_input=fill_input,
+            fill_kind=fill_kind,
         )
         self._init_state: dict | None = None
         self.fill_policy: FillPolicy | None = None  # from the last validation, or the checkpoint
@@ -231,7 +235,7 @@ class XMAEModule(L.LightningModule):
             generator,
             hp.gap_ratio if self.training else 0.0,
         )
-        fill = xmae_fill(x.reshape(B, T, J, 3), c.observed) if self.net.fill_input else None
+        fill = xmae_fill(x.reshape(B, T, J, 3), c.observed, self.net.fill_kind) if self.net.fill_input else None
         pred = self.net(x, kept, padding, fill).reshape(B, T, J, 3)
         has_truth = ~torch.isnan(target).any(-1)
         in_loss = (~c.observed | c.displaced) & has_truth
