@@ -172,7 +172,7 @@ def test_fit_saves_the_policy_and_test_reports_it_never_worse_than_the_classical
     saved = torch.load(ckpt, map_location="cpu", weights_only=True)
     policy = FillPolicy.from_dict(saved["fill_policy"])
     assert policy.gaps_s == [0.1, 0.3, 0.5, 0.7, 0.9] and set(policy.error_mm) == {"full", "arm", "leg"}
-    assert set(policy.methods()) == {"xmae", "lerp", "spline", "pchip", "limb"} and policy.replace_threshold_m > 0
+    assert set(policy.methods()) == {"xmae", "lerp", "spline", "pchip", "hermite", "limb"} and policy.replace_threshold_m > 0
     capsys.readouterr()
     assert (
         run_cli(
@@ -186,7 +186,7 @@ def test_fit_saves_the_policy_and_test_reports_it_never_worse_than_the_classical
     for task in ("infill",):
         for key in {(r["part"], r["gap_s"]) for r in rows if r["task"] == task}:
             got = {r["method"]: r["mpjpe_mm"] for r in rows if r["task"] == task and (r["part"], r["gap_s"]) == key}
-            best = min(got[m] for m in ("lerp", "spline", "pchip", "limb"))
+            best = min(got[m] for m in ("lerp", "spline", "pchip", "hermite", "limb"))
             # chosen on val, measured on test: where spline and PCHIP are close, the one chosen on
             # val can be the second on test; never the model where it loses, never Lerp where it loses
             assert got["policy"] <= best * 1.1 + 0.5, (key, got)

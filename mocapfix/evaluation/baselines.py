@@ -1,6 +1,7 @@
-"""Classical fills, the baselines of the test tables: Lerp (the XMAE paper's) and splines
-through each joint's observed frames (what capture software does: a cubic spline, or PCHIP, which
-does not overshoot). A learned model is worth using only where it beats the best of these."""
+"""Classical fills, the baselines of the test tables: Lerp (the XMAE paper's), splines through
+each joint's observed frames (what capture software does: a cubic spline, or PCHIP, which does not
+overshoot), a cubic Hermite that continues the motion at each end's velocity, and the limb fill
+(bone lengths kept). A learned model is worth using only where it beats the best of these."""
 
 from __future__ import annotations
 
@@ -164,6 +165,7 @@ CLASSICAL = {
     "lerp": lambda p, o, parents: lerp_infill(p, o),
     "spline": lambda p, o, parents: spline_infill(p, o, "spline"),
     "pchip": lambda p, o, parents: spline_infill(p, o, "pchip"),
+    "hermite": lambda p, o, parents: hermite_infill(p, o),
     "limb": limb_infill,
 }
 
