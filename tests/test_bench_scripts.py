@@ -498,3 +498,35 @@ def test_fast_path_accuracy_compares_against_the_seed_range():
     runs[0]["rows"] = rows(19.0)  # a wider spread between seeds: the same difference is noise
     assert compare(runs, ["plain", "fast"])[0]["within_seed_range"]
     assert compare(runs[1:], ["plain", "fast"])[0]["within_seed_range"] is None  # one plain seed: no verdict
+
+
+def test_build_corpus_puts_each_performer_in_a_folder_and_keeps_check_subjects_out(tmp_path, bandai_files, cmu_files):
+    import shutil
+
+    from mocapfix.data.windows import load_clips
+
+    idle, cmu = tmp_path / "reactidle" / "acted", tmp_path / "cmu"
+    idle.mkdir(parents=True)
+    cmu.mkdir()
+    shutil.copy(bandai_files[0], idle / "000_acted.bvh")  # person 000
+    shutil.copy(bandai_files[1], idle / "007_acted.bvh")  # person 007
+    shutil.copy(cmu_files[0], cmu / "35_01.bvh")  # a subject to train on
+    shutil.copy(cmu_files[1], cmu / "05_01.bvh")  # the stranger benchmark's: never trained on
+    out = tmp_path / "corpus.npz"
+    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
+    args = ["--reactidle", tmp_path / "reactidle", "--cmu", cmu, "--out", out, "--cache-dir", tmp_path / "cache"]
+    run = subprocess.run(
+        [sys.executable, str(REPO / "bench" / "build_corpus.py"), *map(str, args)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    clips = load_clips(out)
+    assert sorted(c.source for c in clips) == [
+        "corpus/cmu35/35_01.bvh",
+        "corpus/reactidle000/000_acted.bvh",
+        "corpus/reactidle007/007_acted.bvh",
+    ]
+    assert all(c.skeleton.num_joints == 21 and c.fps == 30.0 for c in clips)
