@@ -66,6 +66,13 @@ nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.t
 read -ra EXTRA_ARGS <<< "${EXTRA:-}"
 read -ra FIT_ARGS <<< "${FIT_EXTRA:-}"
 COMMON=(--data.source archive --data.cache_dir null --trainer.enable_progress_bar false "${EXTRA_ARGS[@]}")
+# many, many-hermite (issue 31): the corpus of bench/build_corpus.py, performers held out for
+# validation (CMU 39, ReActIdle 014 and 015), each source's share of the batches
+CORPUS=(--data.source archive --data.path .device_data/corpus_body21.npz --data.cache_dir null
+  --data.split_by file --data.val_fraction 0 --data.test_fraction 0
+  --data.val_patterns '["*/cmu39/*", "*/reactidle014/*", "*/reactidle015/*"]'
+  --data.source_weights '{"*/bandai*": 0.6, "*/reactidle*": 0.25, "*/cmu*": 0.15}'
+  --trainer.enable_progress_bar false)
 
 case "$PART" in
 xmae)
@@ -141,11 +148,7 @@ many)
   # subjects 35-39, ReActIdle), validated on performers held out (CMU 39, ReActIdle 014 and 015),
   # which also calibrate the fill policy. The paper-sized model trains on the GPU (bf16, compiled)
   # while the cpu preset trains on 8 of the machine's CPU cores: they share no device.
-  MANY=(--data.source archive --data.path .device_data/corpus_body21.npz --data.cache_dir null
-    --data.split_by file --data.val_fraction 0 --data.test_fraction 0
-    --data.val_patterns '["*/cmu39/*", "*/reactidle014/*", "*/reactidle015/*"]'
-    --data.source_weights '{"*/bandai*": 0.6, "*/reactidle*": 0.25, "*/cmu*": 0.15}'
-    --trainer.enable_progress_bar false "${EXTRA_ARGS[@]}")
+  MANY=("${CORPUS[@]}" "${EXTRA_ARGS[@]}")
   OMP_NUM_THREADS=8 $PY -m mocapfix fit --config configs/xmae_many.yaml --experiment xmae_many_cpu "${MANY[@]}" \
     --model.init_args.preset cpu --model.init_args.lr 1e-3 --model.init_args.warmup_steps 300 \
     --trainer.accelerator cpu --trainer.precision 32-true --data.batches_on_device false --data.batch_size 64 \
@@ -176,13 +179,9 @@ many)
 many-hermite)
   # Issue 31, the correction to the Hermite fill (fill_kind hermite): the cpu preset and the paper
   # sizes at once on the one GPU (eager: compiling would take a third of a short call), MAX_TIME each.
-  MANY=(--data.source archive --data.path .device_data/corpus_body21.npz --data.cache_dir null
-    --data.split_by file --data.val_fraction 0 --data.test_fraction 0
-    --data.val_patterns '["*/cmu39/*", "*/reactidle014/*", "*/reactidle015/*"]'
-    --data.source_weights '{"*/bandai*": 0.6, "*/reactidle*": 0.25, "*/cmu*": 0.15}'
-    --model.init_args.fill_kind hermite --trainer.max_time "${MAX_TIME:-00:00:01:20}"
+  MANY=("${CORPUS[@]}" --model.init_args.fill_kind hermite --trainer.max_time "${MAX_TIME:-00:00:01:20}"
     --trainer.max_steps "${STEPS:-2500}" --model.init_args.total_steps "${STEPS:-2500}"
-    --model.init_args.warmup_steps 300 --trainer.val_check_interval 1200 --trainer.enable_progress_bar false)
+    --model.init_args.warmup_steps 300 --trainer.val_check_interval 1200 "${EXTRA_ARGS[@]}")
   $PY -m mocapfix fit --config configs/xmae_many.yaml --experiment xmae_hermite_cpu "${MANY[@]}" \
     --model.init_args.preset cpu --model.init_args.lr 1e-3 > "$OUT/hermite_cpu_fit.txt" 2>&1 &
   $PY -m mocapfix fit --config configs/xmae_many.yaml --experiment xmae_hermite "${MANY[@]}" \

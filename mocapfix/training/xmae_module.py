@@ -160,8 +160,9 @@ class XMAEModule(L.LightningModule):
         self.save_hyperparameters()
         self.net: XMAE | None = None
         self._calibration: Calibration | None = None  # the running validation's measurements
-        if skeleton is not None and window_frames is not None:
+        if skeleton is not None and window_frames is not None:  # a checkpoint's own weights follow
             self._build()
+            self._init_state = None
 
     # --- construction ---
 
