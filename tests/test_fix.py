@@ -783,3 +783,33 @@ def test_sigterm_stops_fix_with_one_line_exit_143_and_no_temp_files(tmp_path, ck
     assert outputs and not any(n.startswith(".") for n in outputs) and len(outputs) < 24
     for name in outputs:  # every file there is whole
         assert np.isfinite(read_motion(tmp_path / "out" / name)[0].positions).all()
+
+
+def test_a_hermite_correcting_model_starts_from_the_whole_takes_hermite_fill(tmp_path):
+    """fill_kind hermite: fix hands the network the take's Hermite fill (whole take, the take's
+    frame rate); with its output layer zeroed the model answers exactly that fill, not the
+    fill of its 1-s windows."""
+    from mocapfix.evaluation.baselines import hermite_infill
+    from mocapfix.fix.clips import model_fill
+    from mocapfix.io.joint_names import onto_skeleton
+    from mocapfix.io.synthetic import generate_clips
+    from mocapfix.models.xmae import XMAE
+
+    body = preset("body21")
+    take = onto_skeleton(generate_clips(1, 6.0, 30.0, seed=4)[0], body).positions.astype(np.float64)
+    holed = take.copy()
+    holed[80:106] = np.nan  # 0.87 s of the whole body: a 1-s window holds almost no context
+    net = XMAE(
+        21, 30, enc_dim=32, enc_depth=1, dec_dim=32, dec_depth=1, head_dim=16, fill_input=True, fill_kind="hermite"
+    )
+    torch.nn.init.zeros_(net.head.weight)
+    torch.nn.init.zeros_(net.head.bias)
+    torch.save(xmae_checkpoint(net, body, 30.0), tmp_path / "h.ckpt")
+    out = model_fill(load_fixer(tmp_path / "h.ckpt"), overlap=0.5, batch_size=16)(holed.astype(np.float32), 30.0)
+    x = torch.from_numpy(holed)[None]
+    hermite = hermite_infill(x, ~torch.isnan(x).any(-1))[0].numpy()
+    assert np.abs(out[80:106] - hermite[80:106]).max() < 1e-4
+    assert (
+        np.abs(hermite[80:106] - take[80:106]).mean()
+        < np.abs(lerp_infill(x, ~torch.isnan(x).any(-1))[0].numpy()[80:106] - take[80:106]).mean()
+    )
