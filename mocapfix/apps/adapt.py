@@ -86,8 +86,9 @@ def adapt(args) -> Path:
 
     L.seed_everything(args.seed, verbose=False)
     fps, frames = float(hp["window_fps"]), int(hp["window_frames"])
-    # Every recording onto the model's body; a tenth of the files (at least one, when there are
-    # five or more) is held out so the fill policy is measured on takes adapting did not see.
+    # Every recording onto the model's body; about a tenth of the files (by a hash of the name;
+    # often none of a few files) is held out, where the fill policy is measured on takes adapting
+    # did not see. Without one, the starting model's policy is kept (fix measures on each file anyway).
     files = args.inputs
     data = MotionDataModule(
         source=_source(files, args.source),
