@@ -75,8 +75,8 @@ def adapt(args) -> Path:
 
     start = str(pretrained_path(args.model)) if args.model else args.ckpt
     ckpt = read_checkpoint(start)
-    if (ckpt.get("model") or {}).get("kind") != "xmae":
-        kind = (ckpt.get("model") or {}).get("kind")
+    kind = (ckpt.get("model") or {}).get("kind")
+    if kind != "xmae":
         raise ValueError(f"{start}: adapt fine-tunes XMAE checkpoints; this one holds {kind}")
     hp = ckpt["hyper_parameters"]
     name = args.model or Path(args.ckpt).stem

@@ -206,7 +206,7 @@ def save_clips(path: Path, clips: list[Clip], compact: bool = False) -> None:
 
 
 def _compact_positions(clips: list[Clip]) -> dict[str, np.ndarray]:
-    origins, mm = [], []
+    origins, mm, missing = [], [], []
     for c in clips:
         finite = c.positions[np.isfinite(c.positions).all(-1)]  # (n, 3)
         origin = np.round(finite.mean(0) if len(finite) else np.zeros(3), 3).astype(np.float64)
@@ -215,13 +215,13 @@ def _compact_positions(clips: list[Clip]) -> dict[str, np.ndarray]:
             raise ValueError(f"{c.source or c.name}: a joint over 32 m from the clip's centre cannot be stored compact")
         origins.append(origin)
         mm.append(rel.astype(np.int16))
+        missing.append(np.isnan(c.positions).any(-1))  # (T, J)
     mm = np.concatenate(mm)  # (F, J, 3) int16
-    positions = np.concatenate([c.positions for c in clips])
     # steps in int16 arithmetic: wrapping is exact, and the running sum on loading undoes it
     steps = np.diff(mm, axis=0, prepend=np.zeros_like(mm[:1]))
     return {
         "positions_mm_steps": steps,
-        "missing_bits": np.packbits(np.isnan(positions).any(-1).reshape(-1)),
+        "missing_bits": np.packbits(np.concatenate(missing).reshape(-1)),
         "origins_m": np.stack(origins),
     }
 

@@ -12,6 +12,17 @@ import torch
 from scipy.interpolate import CubicSpline, PchipInterpolator
 
 
+def _observed_neighbours(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """obs: (B, T, J) bool -> t, prev, nxt (B, T, J): each token's frame, the last observed frame
+    at or before it (-1 if none) and the first at or after it (T if none): running max forward,
+    running min backward."""
+    B, T, J = obs.shape
+    t = torch.arange(T, device=obs.device).view(1, T, 1).expand(B, T, J)
+    prev = torch.where(obs, t, -1).cummax(dim=1).values
+    nxt = torch.where(obs, t, T).flip(1).cummin(dim=1).values.flip(1)
+    return t, prev, nxt
+
+
 def lerp_infill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
     """Fill every unobserved token by linear interpolation in time between the nearest observed
     frames of the same joint.
@@ -28,12 +39,7 @@ def lerp_infill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor
     """
     B, T, J, _ = positions.shape
     obs = observed.to(torch.bool) & ~torch.isnan(positions).any(dim=-1)
-    t = torch.arange(T, device=positions.device).view(1, T, 1).expand(B, T, J)
-
-    # Index of the last observed frame at or before t (-1 if none), and of the first at or
-    # after t (T if none): running max forward, running min backward.
-    prev = torch.where(obs, t, -1).cummax(dim=1).values
-    nxt = torch.where(obs, t, T).flip(1).cummin(dim=1).values.flip(1)
+    t, prev, nxt = _observed_neighbours(obs)
     has_prev, has_next = prev >= 0, nxt < T
     p_val = positions.gather(1, prev.clamp(0, T - 1)[..., None].expand(B, T, J, 3))
     n_val = positions.gather(1, nxt.clamp(0, T - 1)[..., None].expand(B, T, J, 3))
@@ -69,9 +75,7 @@ def hermite_infill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Ten
     B, T, J, _ = positions.shape
     obs = observed.to(torch.bool) & ~torch.isnan(positions).any(dim=-1)
     lerp = lerp_infill(positions, obs)  # the value at every observed and border token
-    t = torch.arange(T, device=positions.device).view(1, T, 1).expand(B, T, J)
-    prev = torch.where(obs, t, -1).cummax(dim=1).values  # (B, T, J) last observed <= t
-    nxt = torch.where(obs, t, T).flip(1).cummin(dim=1).values.flip(1)  # first observed >= t
+    t, prev, nxt = _observed_neighbours(obs)
     inside = (prev >= 0) & (nxt < T) & ~obs
     # the observed neighbour beyond each end of the gap: before prev, after nxt
     before = torch.cat([torch.full_like(prev[:, :1], -1), prev[:, :-1]], dim=1)  # last observed < t
