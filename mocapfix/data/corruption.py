@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import roma
 import torch
 
 from mocapfix.core.kinematics import fk_axis_angle
@@ -337,6 +338,37 @@ def rotation_noise(
     noise = (sigma_rad * normal_like(rotations.shape, generator, rotations)).to(rotations.dtype)
     noisy_rot = torch.where(noisy_joint[:, None], rotations + noise, rotations)
     return noisy_rot, fk_axis_angle(noisy_rot, root_translation, offsets, parents)
+
+
+def jitter(
+    positions: torch.Tensor,
+    parents,
+    rotation_sigma_rad: torch.Tensor,
+    position_sigma_m: torch.Tensor,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """Jitter of a rig's joints, on positions alone (no rotations needed): every joint's bones
+    turned by a random rotation of N(0, rotation_sigma_rad^2) per axis-angle coordinate, as
+    noise on each joint's local rotation turns everything below it (rotation_noise, for any
+    skeleton), then N(0, position_sigma_m^2) on every coordinate; fresh noise every frame.
+
+    positions: (B, T, J, 3) metres, parents before children; rotation_sigma_rad,
+    position_sigma_m: (B,) one level per window -> (B, T, J, 3). The root's own rotation turns the
+    whole body about it: on a canonical body the root stands for the rig's lower spine and hips,
+    whose joints are noisy too. NaN stays NaN (and spreads to the joints below)."""
+    B, T, J, _ = positions.shape
+    axis_angle = rotation_sigma_rad.view(B, 1, 1, 1) * normal_like((B, T, J, 3), generator, positions)
+    turn = roma.rotvec_to_rotmat(axis_angle.to(positions.dtype))  # (B, T, J, 3, 3)
+    noisy = positions.clone()
+    frame = [turn[:, :, 0]] + [None] * (J - 1)  # each joint's accumulated turn
+    for j in range(1, J):
+        p = parents[j]
+        bone = positions[:, :, j] - positions[:, :, p]
+        noisy[:, :, j] = noisy[:, :, p] + (frame[p] @ bone[..., None])[..., 0]
+        frame[j] = frame[p] @ turn[:, :, j]
+    return noisy + position_sigma_m.view(B, 1, 1, 1).to(positions.dtype) * normal_like(
+        positions.shape, generator, positions
+    ).to(positions.dtype)
 
 
 # --- normalisation and augmentation (XMAE section 4.1, implementation details) ---

@@ -16,7 +16,8 @@ What a window holds is the part that differs by fixer, behind windowing.WindowSo
 PositionWindows (XMAE; Motion-DVAE on its positions state: joint positions, Lerp as the fallback,
 then the fill policy, the anchoring of fills on the data, and the other joints' holes) and
 RotationWindows (Motion-DVAE on its rotations state: joint rotations of BVH or AMASS input,
-blended as quaternions; a BVH input gets a BVH output).
+blended as quaternions; a BVH input gets a BVH output). The jitter remover reads whole takes,
+not windows: jitter_clips.py.
 """
 
 from __future__ import annotations
@@ -154,6 +155,10 @@ def fix_clips(
     check_human_scale(clips, clips[0].source or clips[0].name)
     if getattr(fixer, "state", "positions") == "rotations":
         return _fix_rotations(clips, fixer, mode, overlap, batch_size, progress, joint_map)
+    if fixer.kind == "jitter":  # whole takes, no windows: its own module (it uses this one's helpers)
+        from mocapfix.fix.jitter_clips import denoise_clips
+
+        return denoise_clips(clips, fixer, mode, progress, joint_map)
     policy: FillPolicy | None = getattr(fixer, "policy", None)
     policy_note, view = None, None
     # A calibrated model's holes are filled as the recording's own evidence says (a checkpoint

@@ -1,5 +1,5 @@
 """Fixers: a trained checkpoint turned into something that estimates windows of motion, one
-class per checkpoint kind (XMAE; the Motion-DVAE denoising stage), and the loading that picks
+class per checkpoint kind (XMAE; the Motion-DVAE denoising stage; the jitter remover), and the loading that picks
 the class by the kind the checkpoint names (models/build.py). Nothing here imports training code: a checkpoint holds
 everything a fixer needs (skeleton, fps, window, network sizes) as plain values, and it is
 loaded with weights_only=True. mocapfix.fix windows, blends and merges what a fixer estimates.
@@ -11,6 +11,7 @@ import dataclasses
 from pathlib import Path
 from typing import Protocol
 
+import numpy as np
 import torch
 
 from mocapfix.core.clip import MotionFileError
@@ -18,6 +19,7 @@ from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.policy import FillPolicy
+from mocapfix.fix.windowing import model_frames, resample_frames
 from mocapfix.models.body import build_body_model
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.dvae import DVAEConfig, InitialStatePredictor, MotionDVAE, NoisePredictor
@@ -30,6 +32,7 @@ from mocapfix.models.dvae_inference import (
     uses_noise_model,
 )
 from mocapfix.models.dvae_state import STATES, MotionState, velocity_mask
+from mocapfix.models.jitter import JitterNet, lowpass, residual_noise
 from mocapfix.models.xmae import XMAE, XMAEConfig
 from mocapfix.models.xmae_inference import xmae_reconstruct
 
@@ -292,6 +295,69 @@ class DVAEFixer:
         return rot.float().cpu(), root.float().cpu()
 
 
+class JitterFixer:
+    """The jitter remover (models/jitter.py) on whole takes: the low-pass and the noise measure at
+    the recording's own frame rate, the network's correction at its own (window_fps), brought back
+    to the recording's frames. The network is convolutional: a take is read in pieces of
+    CHUNK_S seconds with its receptive field on both sides, so memory does not grow with the
+    take and the result is the same as in one piece."""
+
+    kind = "jitter"
+    state = "positions"
+    CHUNK_S = 60.0
+
+    def __init__(self, net: JitterNet, skeleton: Skeleton, fps: float, device: str | torch.device = "cpu"):
+        self.net = net.to(device).eval()
+        self.skeleton, self.fps, self.window = skeleton, float(fps), int(net.config.num_frames)
+        self.device = torch.device(device)
+        self.policy = None
+
+    @classmethod
+    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32") -> JitterFixer:
+        skeleton, fps, _ = _window_hparams(path, ckpt["hyper_parameters"])
+        try:
+            net = build_model("jitter", ckpt["model"]["config"])
+        except (TypeError, ValueError) as e:
+            raise MotionFileError(path, f"bad jitter-remover sizes in the checkpoint ({e})") from None
+        weights = {k[len("net.") :]: v for k, v in ckpt["state_dict"].items() if k.startswith("net.")}
+        try:
+            net.load_state_dict(weights)
+        except RuntimeError as e:
+            first = " ".join(str(e).split())[:200]
+            raise MotionFileError(path, f"weights do not fit the network its config describes ({first})") from None
+        return cls(net, skeleton, fps, device)
+
+    @torch.inference_mode()
+    def denoise(self, x: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+        """x: (T, J, 3) one take at the model's joints and its own fps, metres, finite (holes
+        filled by the caller) -> (denoised, low-pass), both (T, J, 3) float64 at the take's frames.
+        ValueError where the frame rate cannot hold the model's cutoff."""
+        cutoff, fps_m = self.net.cutoff_hz, self.fps
+        xt = torch.from_numpy(x.astype(np.float64))[None]  # (1, T, J, 3)
+        base = lowpass(xt, fps, cutoff)
+        noise = residual_noise(xt, base, fps, cutoff)[0].numpy()  # (T, J)
+        base = base[0].numpy()
+        K = model_frames(len(x), fps, fps_m)
+        # Low-passed well below the network's Nyquist rate: plain linear resampling aliases nothing.
+        base_m, noise_m = (_held(resample_frames(a, fps, fps_m, K)) for a in (base, noise))
+        out_m = np.empty_like(base_m)
+        chunk, margin = max(1, round(self.CHUNK_S * fps_m)), self.net.receptive_field
+        for start in range(0, K, chunk):
+            lo, hi = max(0, start - margin), min(K, start + chunk + margin)
+            b = torch.from_numpy(base_m[lo:hi]).float()[None].to(self.device)
+            n = torch.from_numpy(noise_m[lo:hi]).float()[None].to(self.device)
+            out = self.net(b, n)[0].double().cpu().numpy()
+            out_m[start : min(K, start + chunk)] = out[start - lo : start - lo + min(chunk, K - start)]
+        correction = _held(resample_frames(out_m - base_m, fps_m, fps, len(x)))
+        return base + correction, base
+
+
+def _held(x: np.ndarray) -> np.ndarray:
+    """(T, ...) with NaN frames past the last finite one (resample_frames' end) -> those hold it."""
+    ok = np.isfinite(x.reshape(len(x), -1)).all(-1)
+    return x[np.maximum.accumulate(np.where(ok, np.arange(len(x)), 0))]
+
+
 def _window_hparams(path, hp: dict) -> tuple[Skeleton, float, int]:
     missing = [k for k in ("skeleton", "window_fps", "window_frames") if hp.get(k) is None]
     if missing:
@@ -324,7 +390,7 @@ def model_kind(ckpt: dict) -> str | None:
 
 
 # kind -> class with from_checkpoint(path, ckpt, device, precision)
-FIXERS: dict[str, type] = {"xmae": XMAEFixer, "motion-dvae": DVAEFixer}
+FIXERS: dict[str, type] = {"xmae": XMAEFixer, "motion-dvae": DVAEFixer, "jitter": JitterFixer}
 # Checkpoints fix recognises but cannot use, and why. A prior alone has no initial-state
 # predictor, and the paper's "No noisy train" ablation (appendix, Tab. 2) shows that its
 # encoder, trained on clean motion only, denoises badly: the denoising stage is what fix runs.
@@ -389,5 +455,15 @@ def xmae_checkpoint(net: XMAE, skeleton: Skeleton, fps: float) -> dict:
     return {
         "hyper_parameters": hp,
         "model": checkpoint_entry("xmae", net.config),
+        "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()},
+    }
+
+
+def jitter_checkpoint(net: JitterNet, skeleton: Skeleton, fps: float) -> dict:
+    """The smallest checkpoint load_fixer reads for a jitter remover (as xmae_checkpoint)."""
+    hp = {"skeleton": skeleton.to_dict(), "window_fps": float(fps), "window_frames": int(net.config.num_frames)}
+    return {
+        "hyper_parameters": hp,
+        "model": checkpoint_entry("jitter", net.config),
         "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()},
     }

@@ -1,6 +1,6 @@
 """build_model: a network from its kind and config.
 
-A model's config is data (XMAEConfig, DVAEConfig: plain values), saved in every checkpoint as
+A model's config is data (XMAEConfig, DVAEConfig, JitterConfig: plain values), saved in every checkpoint as
 checkpoint["model"] = {"kind": ..., "config": {...}}. Training, resume, `fix`, the benchmarks and
 the tests all build networks through build_model (nanoGPT's model_args habit), so a checkpoint
 says what it holds: nothing guesses a model from the names of its weights, and renaming an
@@ -15,11 +15,17 @@ import torch.nn as nn
 
 from mocapfix.models.dvae import DVAEConfig, MotionDVAE
 from mocapfix.models.dvae_state import state_dim, velocity_mask
+from mocapfix.models.jitter import JitterConfig, JitterNet
 from mocapfix.models.xmae import XMAE, XMAEConfig
 
 # kind -> its config class. A Motion-DVAE prior and its denoising stage share the network; the
 # denoising stage adds its own predictors (training/denoise_module.py), built from the same config.
-CONFIGS: dict[str, type] = {"xmae": XMAEConfig, "motion-dvae-prior": DVAEConfig, "motion-dvae": DVAEConfig}
+CONFIGS: dict[str, type] = {
+    "xmae": XMAEConfig,
+    "motion-dvae-prior": DVAEConfig,
+    "motion-dvae": DVAEConfig,
+    "jitter": JitterConfig,
+}
 
 
 def model_config(kind: str, values: dict):
@@ -43,6 +49,8 @@ def build_model(kind: str, config) -> nn.Module:
         config = model_config(kind, config)
     if isinstance(config, XMAEConfig):
         return XMAE(**asdict(config))
+    if isinstance(config, JitterConfig):
+        return JitterNet(config)
     if isinstance(config, DVAEConfig):
         velocity = None if config.encoder_velocities else velocity_mask(config.state, config.num_joints)
         return MotionDVAE(

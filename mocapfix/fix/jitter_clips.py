@@ -1,0 +1,86 @@
+"""`fix --mode denoise` with the jitter remover (models/jitter.py): whole takes of any rig that maps.
+
+Each take at the model's joints (found by structure and names, as for every model) is low-passed
+and corrected at its own frame rate (fixers.JitterFixer.denoise). The rig's other joints (fingers,
+toes, extra spine and twist joints) get the same low-pass and move with the nearest model joint
+above them by its correction, so a hand brings its fingers along. Holes stay holes: jitter is
+taken out of what was recorded and nothing is invented (an XMAE fills holes).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.evaluation.baselines import lerp_infill
+from mocapfix.evaluation.metrics import LimbSigma
+from mocapfix.fix.clips import FixReport, _frames_and_people, _who, map_joints
+from mocapfix.fix.fixers import JitterFixer
+from mocapfix.models.jitter import lowpass
+
+
+def denoise_clips(
+    clips: list[Clip],
+    fixer: JitterFixer,
+    mode: str,
+    progress: Callable[[int, int], None] | None = None,
+    joint_map: dict[str, str] | None = None,
+) -> tuple[list[Clip], FixReport]:
+    """The clips of one file with their jitter removed; each keeps its skeleton, frames and fps
+    (positions only: a BVH goes back into its hierarchy by inverse kinematics, as for XMAE)."""
+    model, source = fixer.skeleton, clips[0].source or clips[0].name
+    if mode != "denoise":
+        raise MotionFileError(
+            source,
+            f"a jitter remover takes jitter out (--mode denoise), it does not fill holes (--mode {mode}): an XMAE does",
+        )
+    who = _who(clips)
+    out, replaced, passengers = [], 0, 0
+    sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
+    for k, c in enumerate(clips):
+        index = map_joints(c.skeleton, model, source, joint_map)  # (Jm,) every model joint, or a MotionFileError
+        x = torch.from_numpy(c.positions.astype(np.float64))[None]  # (1, T, J, 3)
+        observed = ~torch.isnan(x).any(-1)  # (1, T, J)
+        never = [model.joint_names[m] for m, j in enumerate(index) if not observed[0, :, j].any()]
+        if never:
+            raise MotionFileError(
+                source, f"{who(k)}joints never observed: {', '.join(never)}; nothing to denoise them from"
+            )
+        # the low-pass needs every frame: holes are bridged for it and put back afterwards
+        filled = lerp_infill(x, observed)
+        try:
+            denoised, base = fixer.denoise(filled[0, :, index].numpy(), c.fps)  # (T, Jm, 3) each
+        except ValueError as e:  # a frame rate too low for the model's cutoff
+            raise MotionFileError(source, f"{who(k)}{e}") from None
+        correction = denoised - base
+
+        positions = lowpass(filled, c.fps, fixer.net.cutoff_hz)[0].numpy()  # (T, J, 3) every joint
+        positions[:, index] = denoised
+        column = {int(j): m for m, j in enumerate(index)}
+        parents = c.skeleton.parents
+        for j in range(c.skeleton.num_joints):
+            a = j
+            while a >= 0 and a not in column:
+                a = parents[a]
+            if j not in column and a >= 0:  # a passenger: moves with the model joint above it
+                positions[:, j] += correction[:, column[a]]
+                passengers += 1
+        positions = np.where(observed[0, ..., None].numpy(), positions, np.nan).astype(np.float32)
+        replaced += int(observed[0][:, index].sum())
+        sigma_before.update(torch.from_numpy(c.positions[:, index])[None])
+        sigma_after.update(torch.from_numpy(positions[:, index])[None])
+        out.append(c.replace(positions=positions, rotations=None, root_translation=None, offsets=None))
+        if progress is not None:
+            progress(k + 1, len(clips))
+
+    notes = [f"jitter taken out: a {fixer.net.cutoff_hz:g}-Hz zero-phase low-pass and the model's correction to it"]
+    if passengers:
+        notes.append(f"{passengers} joints the model does not use low-passed and moved with the model joint above them")
+    frames, people = _frames_and_people(clips)
+    report = FixReport(
+        frames, people, 0, replaced, float(sigma_before.compute()), float(sigma_after.compute()), len(clips), notes
+    )
+    return out, report

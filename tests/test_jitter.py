@@ -1,0 +1,143 @@
+"""The jitter remover (models/jitter.py, training/jitter_module.py, fix/jitter_clips.py): its
+low-pass and noise measure, its noise, its training, and `fix --mode denoise` on any rig."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from cli_utils import CONFIGS, QUIET, run_cli
+from test_dvae_training import CPU, bandai_subset
+
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.skeleton import preset
+from mocapfix.data.corruption import jitter
+from mocapfix.fix import fix_clips
+from mocapfix.fix.fixers import jitter_checkpoint, load_fixer
+from mocapfix.io import read_motion
+from mocapfix.models.jitter import JitterConfig, JitterNet, lowpass, residual_noise
+
+
+def _sine(fps: float, hz: float, seconds: float = 4.0) -> torch.Tensor:
+    t = torch.arange(int(seconds * fps), dtype=torch.float64) / fps
+    return torch.sin(2 * math.pi * hz * t).view(1, -1, 1, 1).expand(1, -1, 1, 3)
+
+
+@pytest.mark.parametrize("fps", [30.0, 120.0])
+def test_lowpass_keeps_motion_and_takes_out_what_is_above_the_cutoff(fps):
+    slow, fast = _sine(fps, 1.0), _sine(fps, 12.0)
+    inner = slice(int(fps), -int(fps))  # away from the ends
+    assert (lowpass(slow, fps, 6.0) - slow)[:, inner].abs().max() < 0.01
+    assert lowpass(fast, fps, 6.0)[:, inner].abs().max() < 0.01
+    # a take's trend survives its ends (odd reflection, not zeros or a held frame)
+    ramp = torch.linspace(0, 3, int(2 * fps), dtype=torch.float64).view(1, -1, 1, 1).expand(1, -1, 2, 3)
+    assert (lowpass(ramp, fps, 6.0) - ramp).abs().max() < 1e-9
+    with pytest.raises(ValueError, match="cannot be low-passed at 6 Hz"):
+        lowpass(slow, 10.0, 6.0)
+
+
+def test_residual_noise_reads_the_same_noise_the_same_at_any_frame_rate():
+    """White noise of sigma per sample leaves sigma sqrt(2 cutoff / fps) below the cutoff: the
+    measure says so at 30 and at 120 fps (within 10 %), and about 0 on smooth motion."""
+    g = torch.Generator().manual_seed(0)
+    for fps in (30.0, 120.0):
+        x = 0.03 * torch.randn(1, int(20 * fps), 4, 3, generator=g, dtype=torch.float64)
+        level = residual_noise(x, lowpass(x, fps, 6.0), fps, 6.0)[:, int(fps) : -int(fps)].mean().item()
+        assert level == pytest.approx(0.03 * math.sqrt(12.0 / fps), rel=0.1)
+    smooth = 0.3 * _sine(120.0, 1.0)
+    assert residual_noise(smooth, lowpass(smooth, 120.0, 6.0), 120.0, 6.0).max() < 1e-3
+
+
+def test_untrained_network_is_the_lowpass_and_reads_a_take_in_pieces_as_whole():
+    net = JitterNet(JitterConfig(21, 90))
+    base, noise = torch.randn(2, 200, 21, 3), 0.01 * torch.rand(2, 200, 21)
+    assert torch.equal(net(base, noise), base)
+    torch.nn.init.normal_(net.out.weight, std=0.1)  # a trained-looking output layer
+    m = net.receptive_field
+    whole = net(base, noise)
+    piece = net(base[:, 50 - m : 150 + m], noise[:, 50 - m : 150 + m])[:, m:-m]
+    assert torch.allclose(whole[:, 50:150], piece, atol=1e-5)
+    moved = base + torch.tensor([40.0, -7.0, 0.0])  # another place on the floor: the same correction
+    assert torch.allclose(net(moved, noise) - moved, whole - base, atol=1e-4)
+
+
+def test_jitter_turns_bones_without_changing_their_length_then_moves_joints():
+    body = preset("body21")
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(2, 10, 21, 3, generator=g, dtype=torch.float64)
+    none = torch.zeros(2, dtype=torch.float64)
+    assert torch.allclose(jitter(x, body.parents, none, none, g), x, atol=1e-12)
+    turned = jitter(x, body.parents, torch.full((2,), 0.2, dtype=torch.float64), none, g)
+    parents = torch.tensor(body.parents[1:])
+
+    def bones(p):
+        return (p[:, :, 1:] - p[:, :, parents]).norm(dim=-1)
+
+    assert torch.allclose(bones(turned), bones(x))
+    assert (turned - x).norm(dim=-1).mean() > 0.05
+    moved = jitter(x, body.parents, none, torch.full((2,), 0.02, dtype=torch.float64), g)
+    assert (moved - x).std().item() == pytest.approx(0.02, rel=0.1)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory, bandai_files):
+    """configs/jitter.yaml for a few steps on three Bandai takes (the loop, not the accuracy)."""
+    tmp = tmp_path_factory.mktemp("jitter")
+    data = bandai_subset(bandai_files, tmp / "bvh")
+    args = ["fit", "--config", CONFIGS / "jitter.yaml", *QUIET, *CPU, *data, "--experiment", "j"]
+    args += [
+        "--model.init_args.width",
+        "16",
+        "--model.init_args.depth",
+        "2",
+        "--data.batch_size",
+        "4",
+        "--data.window_s",
+        "1.0",
+    ]
+    args += ["--trainer.max_steps", "3", "--trainer.val_check_interval", "3", "--trainer.limit_val_batches", "1"]
+    assert run_cli(args, tmp) == 0
+    return tmp / "checkpoints" / "j" / "last.ckpt"
+
+
+def test_fit_logs_the_network_beside_its_lowpass_and_fix_reads_the_checkpoint(trained):
+    ckpt = torch.load(trained, map_location="cpu", weights_only=True)
+    assert ckpt["model"]["kind"] == "jitter"
+    best = next(v for k, v in ckpt["callbacks"].items() if "ModelCheckpoint" in k and v.get("monitor"))
+    assert best["monitor"] == "val/mpjpe_mm" and torch.isfinite(best["best_model_score"])
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(next((trained.parents[2] / "logs" / "j").glob("version_*"))))
+    events.Reload()
+    assert {"val/mpjpe_mm", "val/mpjpe_mm/lowpass", "val/mpjpe_mm/noisy"} <= set(events.Tags()["scalars"])
+    fixer = load_fixer(trained)
+    assert fixer.kind == "jitter" and fixer.skeleton.num_joints == 21 and fixer.fps == 30.0
+
+
+def test_fix_denoises_another_rig_at_its_own_frame_rate_and_keeps_holes(cmu_files, tmp_path):
+    """An untrained network is its low-pass: on a CMU take (31 joints, 120 fps) with jitter,
+    fix's output at the 21 model joints is the low-pass of the input; fingers and toes move with
+    the model joint above them; holes stay holes; other modes refuse in one line."""
+    net = JitterNet(JitterConfig(21, 90))
+    torch.save(jitter_checkpoint(net, preset("body21"), 30.0), tmp_path / "j.ckpt")
+    fixer = load_fixer(tmp_path / "j.ckpt")
+    [clip] = read_motion(cmu_files[0])
+    g = np.random.default_rng(0)
+    noisy = clip.positions + 0.02 * g.standard_normal(clip.positions.shape).astype(np.float32)
+    noisy[100:110, 5] = np.nan
+    take = clip.replace(positions=noisy, rotations=None, root_translation=None, offsets=None)
+    (out,), report = fix_clips([take], fixer, "denoise")
+    assert np.array_equal(np.isnan(out.positions), np.isnan(noisy))
+    err_in = np.nanmean(np.linalg.norm(noisy - clip.positions, axis=-1))
+    err_out = np.nanmean(np.linalg.norm(out.positions - clip.positions, axis=-1))
+    assert err_out < 0.5 * err_in
+    assert report.limb_sigma_after_mm < 0.5 * report.limb_sigma_before_mm
+    assert any("low-pass" in n for n in report.notes)
+    for mode in ("infill", "both"):
+        with pytest.raises(MotionFileError, match="does not fill holes"):
+            fix_clips([take], fixer, mode)
+    slow = take.replace(fps=10.0)
+    with pytest.raises(MotionFileError, match="cannot be low-passed"):
+        fix_clips([slow], fixer, "denoise")
