@@ -3,6 +3,7 @@ low-pass and noise measure, its noise, its training, and `fix --mode denoise` on
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -86,20 +87,13 @@ def trained(tmp_path_factory, bandai_files):
     """configs/jitter.yaml for a few steps on three Bandai takes (the loop, not the accuracy)."""
     tmp = tmp_path_factory.mktemp("jitter")
     data = bandai_subset(bandai_files, tmp / "bvh")
-    args = ["fit", "--config", CONFIGS / "jitter.yaml", *QUIET, *CPU, *data, "--experiment", "j"]
-    args += [
-        "--model.init_args.width",
-        "16",
-        "--model.init_args.depth",
-        "2",
-        "--data.batch_size",
-        "4",
-        "--data.window_s",
-        "1.0",
-    ]
-    args += ["--trainer.max_steps", "3", "--trainer.val_check_interval", "3", "--trainer.limit_val_batches", "1"]
-    assert run_cli(args, tmp) == 0
-    return tmp / "checkpoints" / "j" / "last.ckpt"
+    common = [*QUIET, *CPU, *data, "--experiment", "j", "--data.batch_size", "4", "--data.window_s", "0.5"]
+    args = ["fit", "--config", CONFIGS / "jitter.yaml", *common, "--model.init_args.width", "16"]
+    args += ["--model.init_args.depth", "2", "--trainer.max_steps", "3", "--trainer.val_check_interval", "3"]
+    assert run_cli([*args, "--trainer.limit_val_batches", "1"], tmp) == 0
+    ckpt = tmp / "checkpoints" / "j" / "last.ckpt"
+    assert run_cli(["test", "--config", CONFIGS / "jitter.yaml", *common, "--ckpt_path", ckpt], tmp) == 0
+    return ckpt
 
 
 def test_fit_logs_the_network_beside_its_lowpass_and_fix_reads_the_checkpoint(trained):
@@ -112,6 +106,11 @@ def test_fit_logs_the_network_beside_its_lowpass_and_fix_reads_the_checkpoint(tr
     events = EventAccumulator(str(next((trained.parents[2] / "logs" / "j").glob("version_*"))))
     events.Reload()
     assert {"val/mpjpe_mm", "val/mpjpe_mm/lowpass", "val/mpjpe_mm/noisy"} <= set(events.Tags()["scalars"])
+    [table] = (trained.parents[2] / "logs" / "j").glob("version_*/eval.json")
+    rows = json.loads(table.read_text())
+    assert {r["method"] for r in rows} == {"jitter", "lowpass", "noisy"}
+    clean = {r["method"]: r["mpjpe_mm"] for r in rows if r["rotation_noise_rad"] == 0}
+    assert clean["noisy"] < 1e-3 and all(r["mpjpe_mm"] > 5 for r in rows if r["rotation_noise_rad"] == 0.2)
     fixer = load_fixer(trained)
     assert fixer.kind == "jitter" and fixer.skeleton.num_joints == 21 and fixer.fps == 30.0
 

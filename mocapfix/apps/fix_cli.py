@@ -254,7 +254,7 @@ def fix_files(
     ckpt: str,
     out: str | None = None,
     out_dir: str | None = None,
-    mode: str = "infill",
+    mode: str | None = None,
     device: str = "auto",
     batch_size: int = 64,
     overlap: float = 0.5,
@@ -270,7 +270,8 @@ def fix_files(
     joint_map_path: str = "--joint-map",
     **read_options,
 ) -> int:
-    """Fix every file; -> exit code (0 all written, 1 some failed). read_options go to read_motion;
+    """Fix every file; -> exit code (0 all written, 1 some failed). mode: MODES, None: the model's
+    own (denoise for a jitter remover, else infill). read_options go to read_motion;
     joint_map (input name -> model name) names joints io/joint_names.py does not find;
     render_gif: an animation of the input beside the output next to each output (core/render.py)."""
     out_stream, err = stdout or sys.stdout, stderr or sys.stderr
@@ -279,6 +280,7 @@ def fix_files(
     except Exception as e:
         print(f"error: {_one_line(ckpt, e)}", file=err)
         return 1
+    mode = mode or ("denoise" if fixer.kind == "jitter" else "infill")
     try:
         if joint_map:
             check_joint_map(joint_map, fixer.skeleton, joint_map_path)
@@ -468,16 +470,17 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="mocapfix fix", description=__doc__.split("\n")[0])
     ap.add_argument("paths", nargs="+", metavar="INPUT", help="motion files or folders")
     which = ap.add_mutually_exclusive_group(required=True)
-    which.add_argument("--ckpt", help="a mocapfix checkpoint (XMAE, or Motion-DVAE's denoising stage)")
+    which.add_argument("--ckpt", help="a mocapfix checkpoint (XMAE, Motion-DVAE's denoising stage, a jitter remover)")
     which.add_argument("--model", help="a model shipped with mocapfix (`mocapfix models` lists them)")
     where = ap.add_mutually_exclusive_group()
     where.add_argument("-o", "--out", default=None, help="output file (one input file only)")
     where.add_argument("--out-dir", default=None, help="folder for the outputs (default: <input>.fixed.<ext>)")
     ap.add_argument(
         "--mode",
-        default="infill",
+        default=None,
         choices=MODES,
-        help="infill: fill missing tokens only; denoise: replace observed tokens; both: both",
+        help="infill: fill missing tokens only; denoise: replace observed tokens; both: both "
+        "(default: denoise for a jitter remover, else infill)",
     )
     ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
     ap.add_argument("--batch-size", type=int, default=64, help="windows per model call")

@@ -27,6 +27,7 @@ from mocapfix.models.jitter import JitterConfig, JitterNet, lowpass, residual_no
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.schedules import warmup_cosine
+from mocapfix.training.test_report import publish
 
 
 def denoise(net: JitterNet, noisy: torch.Tensor, fps: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -47,6 +48,7 @@ class JitterModule(L.LightningModule):
         clean_fraction: float = 0.1,
         val_rotation_noise_rad: float = 0.1,
         val_position_noise_m: float = 0.02,
+        test_rotation_noise_rad: tuple[float, ...] = (0.0, 0.05, 0.1, 0.2),
         rotate_augment: bool = True,
         stature_range: float = 0.0,
         limb_range: float = 0.0,
@@ -72,6 +74,8 @@ class JitterModule(L.LightningModule):
                 per coordinate of every position), at the data's fps.
             clean_fraction: training windows left without noise (clean input must come back).
             val_rotation_noise_rad, val_position_noise_m: the validation's one noise level.
+            test_rotation_noise_rad: the `test` table's rotation noise levels (positions at
+                val_position_noise_m beside each, none beside 0: clean input).
             rotate_augment: a random heading per training window.
             stature_range, limb_range, mirror_prob, joint_shift_m: body augmentations (data/augment.py).
             lr, weight_decay, warmup_steps, total_steps: AdamW, linear warm-up then cosine to zero
@@ -190,3 +194,44 @@ class JitterModule(L.LightningModule):
             self.log(f"val/mpjpe_mm/{name}", self.val_mpjpe[name])
         if batch_idx == 0 and not self.trainer.sanity_checking:
             log_validation_figure(self, "val/denoised", clean, noisy, None, denoised, "clean / noisy / denoised")
+
+    # --- the test table: each method at each noise level ---
+
+    def on_test_epoch_start(self):
+        levels = self.hparams.test_rotation_noise_rad
+        self._test = {(lv, m): MPJPE().to(self.device) for lv in levels for m in ("jitter", "lowpass", "noisy")}
+
+    def test_step(self, batch, batch_idx):
+        hp = self.hparams
+        clean = batch["positions"]
+        ones = torch.ones(clean.shape[0], device=clean.device)
+        truth = torch.nan_to_num(clean).float()
+        for k, level in enumerate(hp.test_rotation_noise_rad):
+            generator = torch.Generator().manual_seed((hp.eval_seed * 100_003 + batch_idx) * 31 + k)
+            position = hp.val_position_noise_m if level > 0 else 0.0
+            noisy, observed = self._noisy(clean, level * ones, position * ones, generator)
+            denoised, base = denoise(self.net, noisy, hp.window_fps)
+            for name, estimate in (("jitter", denoised), ("lowpass", base), ("noisy", noisy)):
+                self._test[(level, name)].update(estimate.float(), truth, observed)
+
+    def on_test_epoch_end(self):
+        hp = self.hparams
+        rows = [
+            {
+                "task": "denoise",
+                "rotation_noise_rad": level,
+                "position_noise_m": hp.val_position_noise_m if level else 0.0,
+                "method": name,
+                "mpjpe_mm": float(metric.compute()),
+            }
+            for (level, name), metric in self._test.items()
+        ]
+        lines = [
+            f"jitter test: MPJPE mm at {hp.window_fps:g} fps (rotation noise rad; positions "
+            f"{1000 * hp.val_position_noise_m:g} mm beside each but 0)"
+        ]
+        lines.append("method    " + "".join(f"{lv:>9g}" for lv in hp.test_rotation_noise_rad))
+        for name in ("jitter", "lowpass", "noisy"):
+            lines.append(f"{name:<10}" + "".join(f"{r['mpjpe_mm']:9.1f}" for r in rows if r["method"] == name))
+        scalars = {f"test/mpjpe_mm/{r['method']}/{r['rotation_noise_rad']:g}rad": r["mpjpe_mm"] for r in rows}
+        publish(self, rows, scalars, "\n".join(lines))
