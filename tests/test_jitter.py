@@ -78,6 +78,9 @@ def test_jitter_turns_bones_without_changing_their_length_then_moves_joints():
 
     assert torch.allclose(bones(turned), bones(x))
     assert (turned - x).norm(dim=-1).mean() > 0.05
+    still_root = jitter(x, body.parents, torch.full((2,), 0.2, dtype=torch.float64), none, g, root_sigma_rad=none)
+    children = [j for j, p in enumerate(body.parents) if p == 0]
+    assert torch.allclose(still_root[:, :, children], x[:, :, children])  # the root's own bones stay
     moved = jitter(x, body.parents, none, torch.full((2,), 0.02, dtype=torch.float64), g)
     assert (moved - x).std().item() == pytest.approx(0.02, rel=0.1)
 

@@ -346,6 +346,7 @@ def jitter(
     rotation_sigma_rad: torch.Tensor,
     position_sigma_m: torch.Tensor,
     generator: torch.Generator | None = None,
+    root_sigma_rad: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Jitter of a rig's joints, on positions alone (no rotations needed): every joint's bones
     turned by a random rotation of N(0, rotation_sigma_rad^2) per axis-angle coordinate, as
@@ -353,11 +354,15 @@ def jitter(
     skeleton), then N(0, position_sigma_m^2) on every coordinate; fresh noise every frame.
 
     positions: (B, T, J, 3) metres, parents before children; rotation_sigma_rad,
-    position_sigma_m: (B,) one level per window -> (B, T, J, 3). The root's own rotation turns the
-    whole body about it: on a canonical body the root stands for the rig's lower spine and hips,
-    whose joints are noisy too. NaN stays NaN (and spreads to the joints below)."""
+    position_sigma_m: (B,) one level per window -> (B, T, J, 3). root_sigma_rad (B,): the root's
+    own rotation noise, which turns the whole body about it (default: rotation_sigma_rad; 0 as
+    the rotation-noise protocol keeps the root's orientation clean). NaN stays NaN (and spreads to
+    the joints below)."""
     B, T, J, _ = positions.shape
-    axis_angle = rotation_sigma_rad.view(B, 1, 1, 1) * normal_like((B, T, J, 3), generator, positions)
+    sigma = rotation_sigma_rad.view(B, 1, 1).expand(B, 1, J)
+    if root_sigma_rad is not None:
+        sigma = torch.cat([root_sigma_rad.view(B, 1, 1).to(sigma), sigma[:, :, 1:]], dim=-1)
+    axis_angle = sigma[..., None] * normal_like((B, T, J, 3), generator, positions)  # (B, T, J, 3)
     turn = roma.rotvec_to_rotmat(axis_angle.to(positions.dtype))  # (B, T, J, 3, 3)
     noisy = positions.clone()
     frame = [turn[:, :, 0]] + [None] * (J - 1)  # each joint's accumulated turn

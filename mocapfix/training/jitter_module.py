@@ -46,6 +46,7 @@ class JitterModule(L.LightningModule):
         max_rotation_noise_rad: float = 0.2,
         max_position_noise_m: float = 0.04,
         clean_fraction: float = 0.1,
+        root_noise_fraction: float = 0.5,
         val_rotation_noise_rad: float = 0.1,
         val_position_noise_m: float = 0.02,
         test_rotation_noise_rad: tuple[float, ...] = (0.0, 0.05, 0.1, 0.2),
@@ -73,6 +74,9 @@ class JitterModule(L.LightningModule):
                 drawn uniformly up to these (per axis-angle coordinate of every joint's rotation;
                 per coordinate of every position), at the data's fps.
             clean_fraction: training windows left without noise (clean input must come back).
+            root_noise_fraction: training windows whose root rotation is noisy too (the whole body
+                turning about its root: a rig's noisy hip and lower-spine joints); in the others
+                it is clean, as in the rotation-noise protocol, and in validation and test.
             val_rotation_noise_rad, val_position_noise_m: the validation's one noise level.
             test_rotation_noise_rad: the `test` table's rotation noise levels (positions at
                 val_position_noise_m beside each, none beside 0: clean input).
@@ -89,8 +93,9 @@ class JitterModule(L.LightningModule):
         ):
             if value < 0:
                 raise ValueError(f"{name} must be >= 0, got {value}")
-        if not 0.0 <= clean_fraction < 1.0:
-            raise ValueError(f"clean_fraction must be in [0, 1), got {clean_fraction}")
+        for name, value in (("clean_fraction", clean_fraction), ("root_noise_fraction", root_noise_fraction)):
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {value}")
         BodyAugment(stature_range, limb_range, mirror_prob, joint_shift_m).check()
         self.save_hyperparameters()
         self.net: JitterNet | None = None
@@ -140,12 +145,13 @@ class JitterModule(L.LightningModule):
 
     # --- the objective ---
 
-    def _noisy(self, clean: torch.Tensor, rotation: torch.Tensor, position: torch.Tensor, generator=None):
+    def _noisy(self, clean: torch.Tensor, rotation: torch.Tensor, position: torch.Tensor, generator=None, root=None):
         """clean: (B, T, J, 3), NaN = missing -> (noisy with holes Lerp-filled (B, T, J, 3), observed (B, T, J)):
         the low-pass needs every frame; the holes are left out of the loss."""
         observed = available(clean)
         filled = lerp_infill(clean, observed)
-        return jitter(filled, self.skeleton.parents, rotation, position, generator), observed
+        root = torch.zeros_like(rotation) if root is None else root
+        return jitter(filled, self.skeleton.parents, rotation, position, generator, root), observed
 
     def _loss(self, denoised: torch.Tensor, clean: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
         err = (denoised.float() - torch.nan_to_num(clean).float()).norm(dim=-1)  # (B, T, J)
@@ -168,7 +174,8 @@ class JitterModule(L.LightningModule):
         noisy_windows = (uniform_like((B,), None, clean) >= hp.clean_fraction).to(clean.dtype)
         rotation = hp.max_rotation_noise_rad * uniform_like((B,), None, clean) * noisy_windows
         position = hp.max_position_noise_m * uniform_like((B,), None, clean) * noisy_windows
-        noisy, observed = self._noisy(clean, rotation, position)
+        root = rotation * (uniform_like((B,), None, clean) < hp.root_noise_fraction).to(clean.dtype)
+        noisy, observed = self._noisy(clean, rotation, position, None, root)
         denoised, _ = denoise(self.net, noisy, hp.window_fps)
         loss = self._loss(denoised, clean, observed)
         self.log("train/loss_mm", 1000 * loss, prog_bar=True)
