@@ -71,14 +71,15 @@ def main(argv=None) -> int:
     fixer = load_fixer(ckpt)
     body = preset("body21")
     t0 = time.perf_counter()
-    rows = []
+    rows, skipped, takes_used = [], [], {}
     for dataset, folder in (("cmu 05-09", Path(args.cmu)), ("bandai-test", Path(args.bandai))):
         sums: dict[tuple[str, str], list[float]] = {}
         files = takes(dataset, folder)[: args.limit]
         for i, f in enumerate(files):
             clip = read_motion(f)[0]
-            if not clip.has_rotations:
-                raise SystemExit(f"{f}: no joint rotations to put noise on ({clip.meta.get('no_rotations')})")
+            if not clip.has_rotations:  # CMU 07_12: a teleport read as absurd values
+                skipped.append(f"{f.name} ({clip.meta.get('no_rotations')})")
+                continue
             g = torch.Generator().manual_seed(i)
             rot, root = torch.from_numpy(clip.rotations)[None], torch.from_numpy(clip.root_translation)[None]
             offsets = torch.from_numpy(clip.offsets)
@@ -118,13 +119,16 @@ def main(argv=None) -> int:
                     if r["input"] == "noisy"
                     else None
                 )
-        print(f"{dataset}: {len(files)} takes", flush=True)
+        takes_used[dataset] = len(files) - sum(s.startswith(tuple(f.name for f in files)) for s in skipped)
+        print(f"{dataset}: {takes_used[dataset]} takes", flush=True)
     result = {
         "env": describe(torch.device("cpu")),
         "checkpoint": ckpt,
         "rotation_noise_rad": args.rotation_noise_rad,
         "position_noise_m": args.position_noise_m,
         "seconds": round(time.perf_counter() - t0, 1),
+        "takes": takes_used,
+        "skipped (no joint rotations to put noise on)": skipped,
         "rows": rows,
     }
     path = write_result("denoise_strangers", result, args.json_out)

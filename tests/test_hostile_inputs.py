@@ -175,7 +175,7 @@ def test_two_concurrent_fix_runs_to_one_output_one_wins_whole(tmp_path, bandai):
 
 
 @pytest.mark.parametrize("frames", [1, 2])
-@pytest.mark.parametrize("model", ["xmae-cpu-bandai", "motion-dvae-bandai"])
+@pytest.mark.parametrize("model", ["xmae-cpu-bandai", "motion-dvae-bandai", "jitter-many"])
 def test_a_take_shorter_than_the_window_keeps_every_observed_token(tmp_path, bandai, capsys, frames, model):
     f = bvh_with(bandai, tmp_path / "short.bvh", frames)
     mode = "both" if model.startswith("xmae") else "denoise"

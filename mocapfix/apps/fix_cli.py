@@ -11,6 +11,7 @@ never over an existing file without --force.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -18,6 +19,8 @@ import signal
 import sys
 import threading
 import time
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -177,8 +180,8 @@ def _onto(fixed: list[Clip], inputs: list[Clip]) -> list[Clip]:
 class Progress:
     """A bar on a terminal, a line every 10% otherwise; silent when disabled."""
 
-    def __init__(self, label: str, enabled: bool, stream=None):
-        self.label, self.enabled = label, enabled
+    def __init__(self, label: str, enabled: bool, stream=None, unit: str = "windows"):
+        self.label, self.enabled, self.unit = label, enabled, unit
         self.stream = stream or sys.stderr
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.last = -1
@@ -190,12 +193,15 @@ class Progress:
         if self.tty:
             bar = "#" * (pct // 4)
             print(
-                f"\r{self.label} [{bar:<25}] {pct:3d}% ({done}/{total} windows)", end="", file=self.stream, flush=True
+                f"\r{self.label} [{bar:<25}] {pct:3d}% ({done}/{total} {self.unit})",
+                end="",
+                file=self.stream,
+                flush=True,
             )
             if done >= total:
                 print(file=self.stream, flush=True)
         elif pct // 10 > self.last // 10 or done >= total:
-            print(f"{self.label}: {done}/{total} windows ({pct}%)", file=self.stream, flush=True)
+            print(f"{self.label}: {done}/{total} {self.unit} ({pct}%)", file=self.stream, flush=True)
         self.last = pct
 
 
@@ -268,12 +274,18 @@ def fix_files(
     joint_map: dict[str, str] | None = None,
     render_gif: bool = False,
     joint_map_path: str = "--joint-map",
+    jobs: int | None = 1,
+    shard: tuple[int, int] = (0, 1),
+    resume: bool = False,
     **read_options,
 ) -> int:
     """Fix every file; -> exit code (0 all written, 1 some failed). mode: MODES, None: the model's
     own (denoise for a jitter remover, else infill). read_options go to read_motion;
     joint_map (input name -> model name) names joints io/joint_names.py does not find;
-    render_gif: an animation of the input beside the output next to each output (core/render.py)."""
+    render_gif: an animation of the input beside the output next to each output (core/render.py).
+    jobs: worker processes fixing files side by side (None: default_jobs), each with its share
+    of the cores; shard (i, N): only every N-th file from the i-th (shard_of); resume: inputs
+    whose output exists are skipped (outputs appear whole under their name, so it is complete)."""
     out_stream, err = stdout or sys.stdout, stderr or sys.stderr
     try:
         fixer = load_fixer(ckpt, device, precision)
@@ -302,135 +314,265 @@ def fix_files(
         else:  # once for the run; each file's line refers to it
             print(whole, file=out_stream, flush=True)
             measured = (measured[0], "fill policy measured over this run's files (above)")
-    written: dict[Path, Path] = {}
-    for path, rel in files:
-        t0 = time.perf_counter()
-        try:
-            clips = read_motion(path, source, **read_options)
-            if not clips:
-                raise MotionFileError(path, "no motion in the file")
-            rotations = getattr(fixer, "state", "positions") == "rotations"
-            # A BVH whose rotations were set aside (missing channels, a jump) still goes back as a
-            # BVH: the file re-read with its channels interpolated is the pose IK starts from.
-            reference = None if rotations or clips[0].has_rotations else _bvh_reference(path, clips)
-            target = output_path(
-                path,
-                clips,
-                Path(out) if out else None,
-                Path(out_dir) if out_dir else None,
-                rel,
-                rotations or reference is not None,
+    files = shard_of(files, shard)
+    settings = RunSettings(
+        out,
+        out_dir,
+        mode,
+        batch_size,
+        overlap,
+        force,
+        resume,
+        source,
+        progress,
+        as_json,
+        joint_map,
+        render_gif,
+        read_options,
+        measured,
+    )
+    jobs = min(jobs or default_jobs(device), max(1, len(files)))
+    counts = {"fixed": 0, "failed": 0, "skipped": 0}
+    failures: list[str] = []
+
+    def report(outcome: FileOutcome) -> None:
+        counts[outcome.status] += 1
+        if outcome.status == "failed":
+            failures.append(outcome.text)
+        print(outcome.text, file=err if outcome.status == "failed" else out_stream, flush=True)
+
+    if jobs == 1:
+        written: dict[Path, Path] = {}
+        for path, rel in files:
+            report(fix_one(path, rel, fixer, settings, err, written))
+    else:
+        del fixer  # each worker loads its own
+        for outcome in run_in_workers(files, ckpt, device, precision, settings, jobs, err):
+            report(outcome)
+    if len(files) > 1 or failed:
+        summary = f"fix: {counts['fixed']} fixed, {counts['failed']} failed, {counts['skipped']} skipped"
+        print(summary + (f" ({jobs} workers)" if jobs > 1 else ""), file=err, flush=True)
+        for line in failures[:20]:
+            print(f"  {line}", file=err)
+    return 1 if failed or counts["failed"] else 0
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSettings:
+    """What every file of a run is fixed with (plain values: it travels to worker processes)."""
+
+    out: str | None
+    out_dir: str | None
+    mode: str
+    batch_size: int
+    overlap: float
+    force: bool
+    resume: bool
+    source: str
+    progress: str
+    as_json: bool
+    joint_map: dict[str, str] | None
+    render_gif: bool
+    read_options: dict
+    measured: tuple | None
+
+
+@dataclasses.dataclass(frozen=True)
+class FileOutcome:
+    status: str  # "fixed", "failed" or "skipped"
+    text: str  # the report line (or JSON object), the error line, or why it was skipped
+
+
+class _Skipped(Exception):
+    pass
+
+
+def fix_one(path: Path, rel: Path | None, fixer, s: RunSettings, err, written: dict[Path, Path]) -> FileOutcome:
+    """One input file read, fixed and written (its output whole under its final name, or not
+    at all). written: outputs of this process's run so far (two inputs cannot share one)."""
+    mode, source, joint_map, read_options, measured = s.mode, s.source, s.joint_map, s.read_options, s.measured
+    out, out_dir, force, overlap, batch_size, progress = s.out, s.out_dir, s.force, s.overlap, s.batch_size, s.progress
+    t0 = time.perf_counter()
+    t0 = time.perf_counter()
+    try:
+        clips = read_motion(path, source, **read_options)
+        if not clips:
+            raise MotionFileError(path, "no motion in the file")
+        rotations = getattr(fixer, "state", "positions") == "rotations"
+        # A BVH whose rotations were set aside (missing channels, a jump) still goes back as a
+        # BVH: the file re-read with its channels interpolated is the pose IK starts from.
+        reference = None if rotations or clips[0].has_rotations else _bvh_reference(path, clips)
+        target = output_path(
+            path,
+            clips,
+            Path(out) if out else None,
+            Path(out_dir) if out_dir else None,
+            rel,
+            rotations or reference is not None,
+        )
+        resolved = target.resolve()
+        if resolved == path.resolve():
+            raise MotionFileError(path, f"output {shown(target)} is the input; fix never overwrites its input")
+        if resolved in written:
+            first = shown(written[resolved])
+            raise MotionFileError(path, f"output {shown(target)} was already written for {first}")
+        if s.resume and target.exists() and not force:  # written whole under its name: complete
+            raise _Skipped(f"{shown(target)} exists (--resume)")
+        with claimed(target, path):  # one run per output: a second one to the same -o fails here
+            for stale in target.parent.glob(f".{target.stem}.*.partial{target.suffix}"):
+                stale.unlink(missing_ok=True)  # a killed run's (this run holds the output's lock)
+            if target.exists() and not force:
+                raise MotionFileError(path, f"output {shown(target)} exists (use --force to overwrite)")
+            seconds = sum(c.duration_s for c in clips)
+            show = progress == "always" or (
+                progress == "auto" and (getattr(err, "isatty", lambda: False)() or seconds >= LONG_INPUT_S)
             )
-            resolved = target.resolve()
-            if resolved == path.resolve():
-                raise MotionFileError(path, f"output {shown(target)} is the input; fix never overwrites its input")
-            if resolved in written:
-                first = shown(written[resolved])
-                raise MotionFileError(path, f"output {shown(target)} was already written for {first}")
-            with claimed(target, path):  # one run per output: a second one to the same -o fails here
-                if target.exists() and not force:
-                    raise MotionFileError(path, f"output {shown(target)} exists (use --force to overwrite)")
-                seconds = sum(c.duration_s for c in clips)
-                show = progress == "always" or (
-                    progress == "auto" and (getattr(err, "isatty", lambda: False)() or seconds >= LONG_INPUT_S)
-                )
-                work = (
-                    rotation_clips(path, clips, fixer.skeleton, source, joint_map, **read_options)
-                    if rotations
-                    else clips
-                )
-                progress_bar = Progress(shown(path), show, err)
-                fixed, report = fix_clips(
-                    work, fixer, mode, overlap, batch_size, progress_bar, joint_map, None if rotations else measured
-                )
-                if target.suffix.lower() == ".bvh" and not rotations:
-                    # the tokens fix kept as recorded (T, J): only they pull the IK; a filled or
-                    # replaced one is where the model put it, and must not bend the observed limbs
-                    seen = [
-                        np.isfinite(c.positions).all(-1) & (f.positions == c.positions).all(-1)
-                        for c, f in zip(clips, fixed)
-                    ]
-                    fixed, ik_mean, ik_max = onto_hierarchy(fixed, reference or clips, seen)
-                    report.notes.append(
-                        f"BVH by inverse kinematics onto the input's skeleton: its bone lengths moved joints "
-                        f"{ik_mean:.1f} mm on average from the model's positions (max {ik_max:.1f} mm)"
-                    )
-                # Written beside the target under a hidden name, then moved into place without
-                # overwriting (unless --force): a file that appeared meanwhile is never lost.
-                staged = target.with_name(f".{target.stem}.{os.getpid()}.partial{target.suffix}")
-                try:
-                    write_output(staged, fixed, clips, path)
-                    publish(staged, target, replace=force)
-                except FileExistsError:
-                    raise MotionFileError(
-                        path, f"output {shown(target)} appeared while fixing (another program?); kept, nothing written"
-                    ) from None
-                finally:
-                    staged.unlink(missing_ok=True)
-            written[resolved] = path
-            if render_gif:  # the first person: a preview, not a report of every clip
-                tracks = tracks_for(clips[0], [(target.name, fixed[0])])
-                render(tracks, clips[0].skeleton.limbs, clips[0].fps, target.with_suffix(".gif"))
-                holes_map(tracks, clips[0].skeleton.joint_names, clips[0].fps, target.with_suffix(".holes.png"))
-        except Exception as e:  # one bad file must not stop the others
-            print(f"error: {_one_line(path, e)}", file=err, flush=True)
-            failed = True
-            continue
-        elapsed = time.perf_counter() - t0
-        notes = list(report.notes)
-        fmt = clips[0].meta.get("format")
-        if fmt in ("bvh", "amass") and target.suffix.lower() != ".bvh":
-            if fmt == "amass":
-                note = f"positions .npz/.csv: {fixer.kind.upper()} gives positions, not rotations"
-            elif rotations or clips[0].has_rotations:
-                note = "positions .npz/.csv: a .bvh output (the default for a BVH input) keeps rotations"
-            else:
-                why = clips[0].meta.get("no_rotations")
-                note = f"positions .npz/.csv: this BVH has no usable joint rotations{f' ({why})' if why else ''}"
-            notes.insert(0, note)
-        if report.filled_by:
-            notes.insert(0, "filled by " + ", ".join(f"{m} {n}" for m, n in sorted(report.filled_by.items())))
-        absurd = sum(int(c.meta.get("out_of_reach_tokens", 0)) for c in clips)
-        if absurd:
-            joints = sorted({j for c in clips for j in c.meta.get("absurd_joints", [])})
-            notes.insert(
-                0,
-                f"{absurd} tokens no body could take (a jump faster than any body part, or out of reach) were "
-                f"treated as missing{': ' + ', '.join(joints) if joints else ''}",
+            work = (
+                rotation_clips(path, clips, fixer.skeleton, source, joint_map, **read_options) if rotations else clips
             )
-        kind = "sequences" if clips[0].meta.get("format") == "h36m" else "person" if report.people == 1 else "people"
-        if as_json:
-            print(
-                json.dumps(
-                    {
-                        "input": str(path),
-                        "output": str(target),
-                        "mode": mode,
-                        "model": fixer.kind,
-                        "frames": report.frames,
-                        "people": report.people,
-                        "filled": report.filled,
-                        "replaced": report.replaced,
-                        "filled_by": report.filled_by,
-                        "windows": report.windows,
-                        "limb_sigma_before_mm": _finite_or_none(report.limb_sigma_before_mm),
-                        "limb_sigma_after_mm": _finite_or_none(report.limb_sigma_after_mm),
-                        "seconds": round(elapsed, 3),
-                        "notes": notes,
-                    }
-                ),
-                file=out_stream,
-                flush=True,
+            progress_bar = Progress(shown(path), show, err)
+            fixed, report = fix_clips(
+                work, fixer, mode, overlap, batch_size, progress_bar, joint_map, None if rotations else measured
             )
+            if target.suffix.lower() == ".bvh" and not rotations:
+                # the tokens fix kept as recorded (T, J): only they pull the IK; a filled or
+                # replaced one is where the model put it, and must not bend the observed limbs
+                seen = [
+                    np.isfinite(c.positions).all(-1) & (f.positions == c.positions).all(-1)
+                    for c, f in zip(clips, fixed)
+                ]
+                fixed, ik_mean, ik_max = onto_hierarchy(fixed, reference or clips, seen)
+                report.notes.append(
+                    f"BVH by inverse kinematics onto the input's skeleton: its bone lengths moved joints "
+                    f"{ik_mean:.1f} mm on average from the model's positions (max {ik_max:.1f} mm)"
+                )
+            # Written beside the target under a hidden name, then moved into place without
+            # overwriting (unless --force): a file that appeared meanwhile is never lost.
+            staged = target.with_name(f".{target.stem}.{os.getpid()}.partial{target.suffix}")
+            try:
+                write_output(staged, fixed, clips, path)
+                publish(staged, target, replace=force)
+            except FileExistsError:
+                raise MotionFileError(
+                    path, f"output {shown(target)} appeared while fixing (another program?); kept, nothing written"
+                ) from None
+            finally:
+                staged.unlink(missing_ok=True)
+        written[resolved] = path
+        if s.render_gif:  # the first person: a preview, not a report of every clip
+            tracks = tracks_for(clips[0], [(target.name, fixed[0])])
+            render(tracks, clips[0].skeleton.limbs, clips[0].fps, target.with_suffix(".gif"))
+            holes_map(tracks, clips[0].skeleton.joint_names, clips[0].fps, target.with_suffix(".holes.png"))
+    except _Skipped as e:
+        return FileOutcome("skipped", f"{shown(path)}: skipped, {e}")
+    except Exception as e:  # one bad file must not stop the others
+        return FileOutcome("failed", f"error: {_one_line(path, e)}")
+    elapsed = time.perf_counter() - t0
+    notes = list(report.notes)
+    fmt = clips[0].meta.get("format")
+    if fmt in ("bvh", "amass") and target.suffix.lower() != ".bvh":
+        if fmt == "amass":
+            note = f"positions .npz/.csv: {fixer.kind.upper()} gives positions, not rotations"
+        elif rotations or clips[0].has_rotations:
+            note = "positions .npz/.csv: a .bvh output (the default for a BVH input) keeps rotations"
         else:
-            line = (
-                f"{shown(path)} -> {shown(target)}: {report.frames} frames, {report.people} {kind}, "
-                f"{report.filled} tokens filled, {report.replaced} replaced ({mode}, {fixer.kind}), "
-                f"limb sigma {_num(report.limb_sigma_before_mm)} -> {_num(report.limb_sigma_after_mm)} mm, "
-                f"{elapsed:.2f} s"
-            )
-            print(line + "".join(f"; {n}" for n in notes), file=out_stream, flush=True)
-    return 1 if failed else 0
+            why = clips[0].meta.get("no_rotations")
+            note = f"positions .npz/.csv: this BVH has no usable joint rotations{f' ({why})' if why else ''}"
+        notes.insert(0, note)
+    if report.filled_by:
+        notes.insert(0, "filled by " + ", ".join(f"{m} {n}" for m, n in sorted(report.filled_by.items())))
+    absurd = sum(int(c.meta.get("out_of_reach_tokens", 0)) for c in clips)
+    if absurd:
+        joints = sorted({j for c in clips for j in c.meta.get("absurd_joints", [])})
+        notes.insert(
+            0,
+            f"{absurd} tokens no body could take (a jump faster than any body part, or out of reach) were "
+            f"treated as missing{': ' + ', '.join(joints) if joints else ''}",
+        )
+    kind = "sequences" if clips[0].meta.get("format") == "h36m" else "person" if report.people == 1 else "people"
+    if s.as_json:
+        return FileOutcome(
+            "fixed",
+            json.dumps(
+                {
+                    "input": str(path),
+                    "output": str(target),
+                    "mode": mode,
+                    "model": fixer.kind,
+                    "frames": report.frames,
+                    "people": report.people,
+                    "filled": report.filled,
+                    "replaced": report.replaced,
+                    "filled_by": report.filled_by,
+                    "windows": report.windows,
+                    "limb_sigma_before_mm": _finite_or_none(report.limb_sigma_before_mm),
+                    "limb_sigma_after_mm": _finite_or_none(report.limb_sigma_after_mm),
+                    "seconds": round(elapsed, 3),
+                    "notes": notes,
+                }
+            ),
+        )
+    else:
+        line = (
+            f"{shown(path)} -> {shown(target)}: {report.frames} frames, {report.people} {kind}, "
+            f"{report.filled} tokens filled, {report.replaced} replaced ({mode}, {fixer.kind}), "
+            f"limb sigma {_num(report.limb_sigma_before_mm)} -> {_num(report.limb_sigma_after_mm)} mm, "
+            f"{elapsed:.2f} s"
+        )
+        return FileOutcome("fixed", line + "".join(f"; {n}" for n in notes))
+
+
+def shard_of(files: list, shard: tuple[int, int]) -> list:
+    """Part i of N of a run's files (every N-th from the i-th, in the run's order: inputs as
+    given, folders sorted): N runs of the same command with i = 0..N-1 (a SLURM array, a
+    Kubernetes indexed job) fix disjoint parts that together are the whole run."""
+    i, n = shard
+    return files[i::n]
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """ "i/N" -> (i, N), 0 <= i < N; ValueError otherwise."""
+    try:
+        i, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise ValueError(f"--shard {text!r}: expected i/N, e.g. 0/4") from None
+    if not 0 <= i < n:
+        raise ValueError(f"--shard {text!r}: i must be in 0..N-1")
+    return i, n
+
+
+def default_jobs(device: str) -> int:
+    """The cores this process may use (one worker each); one on a GPU, which the workers would share."""
+    if device != "cpu":
+        return 1
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+_WORKER: dict = {}
+
+
+def _start_worker(ckpt: str, device: str, precision: str, threads: int) -> None:
+    # each worker its share of the cores: N workers x all cores each would fight over them
+    torch.set_num_threads(threads)
+    _WORKER["fixer"] = load_fixer(ckpt, device, precision)
+
+
+def _work(item: tuple[Path, Path | None, RunSettings]) -> FileOutcome:
+    path, rel, settings = item
+    return fix_one(path, rel, _WORKER["fixer"], settings, sys.stderr, {})
+
+
+def run_in_workers(files, ckpt: str, device: str, precision: str, settings: RunSettings, jobs: int, err):
+    """Outcomes of fix_one over `files` in `jobs` worker processes, in the files' order, with
+    one progress line over files. Workers are started fresh (spawn), as torch wants."""
+    threads = max(1, torch.get_num_threads() // jobs)
+    show = settings.progress == "always" or (settings.progress == "auto" and getattr(err, "isatty", lambda: False)())
+    bar = Progress("fix", show, err, unit="files")
+    settings = dataclasses.replace(settings, progress="never")  # the run's bar, not one per file
+    with ProcessPoolExecutor(jobs, get_context("spawn"), _start_worker, (ckpt, device, precision, threads)) as pool:
+        for done, outcome in enumerate(pool.map(_work, [(p, r, settings) for p, r in files]), 1):
+            bar(done, len(files))
+            yield outcome
 
 
 POOLED_FILES = 32  # files of a run its fill policy is measured over (evenly spread)
@@ -493,6 +635,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--overlap", type=float, default=0.5, help="fraction of a window shared by neighbours, [0, 1)")
     ap.add_argument("--force", action="store_true", help="overwrite existing outputs")
     ap.add_argument(
+        "--resume",
+        action="store_true",
+        help="skip inputs whose output exists (outputs appear whole under their name): rerun a killed run",
+    )
+    ap.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        help="files fixed side by side, each worker with its share of the cores (default: the cores; 1 on a GPU)",
+    )
+    ap.add_argument(
+        "--shard",
+        default="0/1",
+        metavar="i/N",
+        help="fix only part i of N of the files (e.g. a SLURM array: --shard $SLURM_ARRAY_TASK_ID/N); docs/scaling.md",
+    )
+    ap.add_argument(
         "--render",
         action="store_true",
         help="also write OUTPUT.gif (the input beside the output) and OUTPUT.holes.png (joints x time)",
@@ -517,6 +676,12 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--out-dir {args.out_dir} is a file, not a folder")
     if args.batch_size < 1:
         ap.error("--batch-size must be at least 1")
+    if args.jobs is not None and args.jobs < 1:
+        ap.error("--jobs must be at least 1")
+    try:
+        shard = parse_shard(args.shard)
+    except ValueError as e:
+        ap.error(str(e))
     if not 0.0 <= args.overlap < 1.0:
         ap.error("--overlap must be in [0, 1)")
     if args.device == "cuda" and not torch.cuda.is_available():
@@ -555,6 +720,9 @@ def main(argv: list[str] | None = None) -> int:
             up_axis=args.up_axis,
             fps=args.fps,
             body_model_path=args.body_model,
+            jobs=args.jobs,
+            shard=shard,
+            resume=args.resume,
         )
     except KeyboardInterrupt:  # outputs are renamed into place whole: nothing half-written is left
         print(

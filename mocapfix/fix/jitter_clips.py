@@ -4,7 +4,8 @@ Each take at the model's joints (found by structure and names, as for every mode
 and corrected at its own frame rate (fixers.JitterFixer.denoise). The rig's other joints (fingers,
 toes, extra spine and twist joints) get the same low-pass and move with the nearest model joint
 above them by its correction, so a hand brings its fingers along. Holes stay holes: jitter is
-taken out of what was recorded and nothing is invented (an XMAE fills holes).
+taken out of what was recorded and nothing is invented (an XMAE fills holes). A take shorter
+than MIN_TAKE_S is kept as recorded: too little motion to tell jitter from it.
 """
 
 from __future__ import annotations
@@ -17,9 +18,11 @@ import torch
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.metrics import LimbSigma
-from mocapfix.fix.clips import FixReport, _frames_and_people, _who, map_joints
+from mocapfix.fix.clips import NOT_JUDGED, FixReport, _frames_and_people, _who, map_joints
 from mocapfix.fix.fixers import JitterFixer
 from mocapfix.models.jitter import lowpass
+
+MIN_TAKE_S = 1.0  # shorter takes are kept as recorded
 
 
 def denoise_clips(
@@ -38,7 +41,7 @@ def denoise_clips(
             f"a jitter remover takes jitter out (--mode denoise), it does not fill holes (--mode {mode}): an XMAE does",
         )
     who = _who(clips)
-    out, replaced, passengers = [], 0, 0
+    out, replaced, passengers, notes = [], 0, 0, []
     sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
     for k, c in enumerate(clips):
         index = map_joints(c.skeleton, model, source, joint_map)  # (Jm,) every model joint, or a MotionFileError
@@ -49,6 +52,10 @@ def denoise_clips(
             raise MotionFileError(
                 source, f"{who(k)}joints never observed: {', '.join(never)}; nothing to denoise them from"
             )
+        if c.duration_s < MIN_TAKE_S:  # too little motion to tell jitter from it
+            notes.append(f"{who(k)}{c.num_frames} frames, shorter than {MIN_TAKE_S:g} s: {NOT_JUDGED}")
+            out.append(c.replace(rotations=None, root_translation=None, offsets=None))
+            continue
         # the low-pass needs every frame: holes are bridged for it and put back afterwards
         filled = lerp_infill(x, observed)
         try:
@@ -76,9 +83,11 @@ def denoise_clips(
         if progress is not None:
             progress(k + 1, len(clips))
 
-    notes = [f"jitter taken out: a {fixer.net.cutoff_hz:g}-Hz zero-phase low-pass and the model's correction to it"]
+    notes[:0] = [f"jitter taken out: a {fixer.net.cutoff_hz:g}-Hz zero-phase low-pass and the model's correction to it"]
     if passengers:
-        notes.append(f"{passengers} joints the model does not use low-passed and moved with the model joint above them")
+        notes.insert(
+            1, f"{passengers} joints the model does not use low-passed and moved with the model joint above them"
+        )
     frames, people = _frames_and_people(clips)
     report = FixReport(
         frames, people, 0, replaced, float(sigma_before.compute()), float(sigma_after.compute()), len(clips), notes

@@ -31,6 +31,13 @@ MODELS: dict[str, Pretrained] = {
         "on BVH takes (--mode denoise)",
         "CC BY-NC 4.0 (trained on Bandai Namco's motion dataset): non-commercial use only",
     ),
+    "jitter-many": Pretrained(
+        "jitter_many.ckpt",
+        "jitter remover (a learned correction to a 6-Hz low-pass, 392k parameters); any rig that maps onto 21 "
+        "joints, any frame rate >= 12 fps; jitter (--mode denoise)",
+        "CC BY-NC 4.0 (trained on Bandai Namco's motion dataset, ReActIdle (MIT) and CMU (free)): "
+        "non-commercial use only",
+    ),
 }
 
 

@@ -1,0 +1,78 @@
+"""`mocapfix fix` over many files: worker processes, shards, resuming a killed run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mocapfix.apps.fix_cli import parse_shard, shard_of
+from mocapfix.apps.main import main
+from mocapfix.io import read_motion
+
+
+def test_shards_are_disjoint_and_together_the_whole_run():
+    files = list(range(11))
+    parts = [shard_of(files, (i, 3)) for i in range(3)]
+    assert sorted(sum(parts, [])) == files and not set(parts[0]) & set(parts[1])
+    assert parse_shard("2/3") == (2, 3)
+    for bad in ("3/3", "-1/2", "1", "a/b"):
+        with pytest.raises(ValueError, match="--shard"):
+            parse_shard(bad)
+
+
+@pytest.fixture(scope="module")
+def takes(tmp_path_factory, bandai_files) -> Path:
+    """Four Bandai takes with holes, as positions .npz."""
+    folder = tmp_path_factory.mktemp("archive")
+    rng = np.random.default_rng(0)
+    for f in bandai_files[:4]:
+        clip = read_motion(f)[0]
+        x = clip.positions.copy()
+        for _ in range(3):
+            s = int(rng.integers(0, len(x) - 20))
+            x[s : s + 12, int(rng.integers(0, x.shape[1]))] = np.nan
+        names, parents = np.array(clip.skeleton.joint_names), np.array(clip.skeleton.parents)
+        np.savez(folder / f"{f.stem}.npz", positions=x, fps=np.float64(clip.fps), joint_names=names, parents=parents)
+    return folder
+
+
+def _outputs(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if not p.name.startswith(".")}
+
+
+def _fix(takes: Path, out: Path, *extra) -> int:
+    return main(["fix", str(takes), "--model", "xmae-cpu-bandai", "--out-dir", str(out), *map(str, extra)])
+
+
+def test_workers_shards_and_resume_write_what_one_process_writes(takes, tmp_path, capsys):
+    assert _fix(takes, tmp_path / "one", "--jobs", "1") == 0
+    reference = _outputs(tmp_path / "one")
+    assert len(reference) == 4
+    assert "fix: 4 fixed, 0 failed, 0 skipped" in capsys.readouterr().err
+
+    assert _fix(takes, tmp_path / "two", "--jobs", "2") == 0
+    assert _outputs(tmp_path / "two") == reference
+    assert "(2 workers)" in capsys.readouterr().err
+
+    for i in (0, 1):
+        assert _fix(takes, tmp_path / "shards", "--jobs", "1", "--shard", f"{i}/2") == 0
+    assert _outputs(tmp_path / "shards") == reference
+
+    # a killed run: two outputs whole, one left half-written under its hidden temporary name
+    resumed = tmp_path / "resumed"
+    resumed.mkdir()
+    names = sorted(reference)
+    for name in names[:2]:
+        (resumed / name).write_bytes(reference[name])
+    stale = resumed / f".{Path(names[2]).stem}.12345.partial.npz"
+    stale.write_bytes(b"half")
+    capsys.readouterr()
+    assert _fix(takes, resumed, "--jobs", "1", "--resume") == 0
+    assert _outputs(resumed) == reference and not stale.exists()
+    err = capsys.readouterr().err
+    assert "fix: 2 fixed, 0 failed, 2 skipped" in err
+    # without --resume an existing output is still an error, never overwritten
+    assert _fix(takes, resumed, "--jobs", "1") == 1
+    assert "exists (use --force" in capsys.readouterr().err and _outputs(resumed) == reference
