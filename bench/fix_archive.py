@@ -29,9 +29,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import describe, write_result
-
 import torch  # noqa: E402
+from common import describe, write_result
 
 from mocapfix.io import read_motion  # noqa: E402
 
@@ -86,7 +85,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", default=str(SHARED))
     ap.add_argument("--takes", type=int, default=200)
-    ap.add_argument("--long-minutes", type=float, default=30.0)
+    ap.add_argument("--long-minutes", type=float, default=30.0, help="0: no memory part")
     ap.add_argument("--jobs", type=int, default=len(os.sched_getaffinity(0)))
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
@@ -129,7 +128,10 @@ def main(argv=None) -> int:
         killed = work / "killed"
         cmd = [sys.executable, "-m", "mocapfix", "fix", str(inputs), "--model", MODEL, "--out-dir", str(killed)]
         proc = subprocess.Popen(
-            [*cmd, "--jobs", str(args.jobs)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+            [*cmd, "--jobs", str(args.jobs)],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
         )
         deadline, partial_seen = time.perf_counter() + runs[args.jobs]["seconds"] / 2, []
         while time.perf_counter() < deadline:
@@ -151,6 +153,8 @@ def main(argv=None) -> int:
         print(result["kill_resume"], flush=True)
 
         # 4. memory and time against take length
+        if args.long_minutes <= 0:
+            return finish(result, args)
         all_motion = np.concatenate(motion)
         memory = {}
         for label, minutes_long in (("60 s", 1.0), (f"{args.long_minutes:g} min", args.long_minutes)):
@@ -170,6 +174,10 @@ def main(argv=None) -> int:
         result["memory"] = memory
     finally:
         shutil.rmtree(work, ignore_errors=True)
+    return finish(result, args)
+
+
+def finish(result: dict, args) -> int:
     path = write_result("fix_archive", result, args.json_out)
     print(result)
     print(f"wrote {path}")

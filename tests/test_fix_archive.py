@@ -76,3 +76,28 @@ def test_workers_shards_and_resume_write_what_one_process_writes(takes, tmp_path
     # without --resume an existing output is still an error, never overwritten
     assert _fix(takes, resumed, "--jobs", "1") == 1
     assert "exists (use --force" in capsys.readouterr().err and _outputs(resumed) == reference
+
+
+def test_a_long_take_is_fixed_in_pieces_with_context(bandai_files, monkeypatch):
+    """A take longer than a piece and its margins goes through fix piece by piece (memory bounded
+    by a piece): every hole filled, every observed token kept, the counts those of the take."""
+    from mocapfix.fix import clips as fix_clips_module
+    from mocapfix.fix import fix_clips
+    from mocapfix.fix.fixers import load_fixer
+    from mocapfix.pretrained import pretrained_path
+
+    clip = max((read_motion(f)[0] for f in bandai_files[:20]), key=lambda c: c.num_frames)
+    monkeypatch.setattr(fix_clips_module, "PIECE_S", 1.0)
+    monkeypatch.setattr(fix_clips_module, "PIECE_MARGIN_S", 0.5)
+    assert clip.duration_s > 2.0
+    x = clip.positions.copy()
+    hand = clip.skeleton.index("Hand_L")
+    x[20:30, hand] = np.nan  # across the first cut (frame 30) too: x[25:35]
+    x[25:35, hand] = np.nan
+    take = clip.replace(positions=x, rotations=None, root_translation=None, offsets=None)
+    (out,), report = fix_clips([take], load_fixer(pretrained_path("xmae-cpu-bandai")), "infill")
+    assert any(n.startswith("fixed in ") and "pieces" in n for n in report.notes)
+    observed = np.isfinite(x).all(-1)
+    assert np.array_equal(out.positions[observed], x[observed]) and np.isfinite(out.positions).all()
+    assert report.filled == 15 and sum(report.filled_by.values()) <= 15
+    assert np.linalg.norm(out.positions[20:35, hand] - clip.positions[20:35, hand], axis=-1).mean() < 0.1

@@ -30,7 +30,9 @@ from mocapfix.core.clip import Clip, MotionFileError, shown
 from mocapfix.core.ik import ik_error_mm, inverse_kinematics
 from mocapfix.core.render import holes_map, render, tracks_for
 from mocapfix.fix import MODES, fix_clips, map_joints, measure_recordings, rotation_clips
+from mocapfix.fix.clips import model_fill
 from mocapfix.fix.fixers import PRECISIONS, load_fixer
+from mocapfix.fix.recording_policy import measure_take
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import read_bvh, write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
@@ -306,49 +308,59 @@ def fix_files(
             file=err,
         )
     files, failed = _inputs(paths, source, err, out_dir)
-    measured = _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read_options)
-    if measured is not None and measured[1]:
-        whole = measured[1].replace("this recording", f"the {len(files)} files of this run", 1)
-        if as_json:
-            measured = (measured[0], whole)
-        else:  # once for the run; each file's line refers to it
-            print(whole, file=out_stream, flush=True)
-            measured = (measured[0], "fill policy measured over this run's files (above)")
-    files = shard_of(files, shard)
-    settings = RunSettings(
-        out,
-        out_dir,
-        mode,
-        batch_size,
-        overlap,
-        force,
-        resume,
-        source,
-        progress,
-        as_json,
-        joint_map,
-        render_gif,
-        read_options,
-        measured,
-    )
-    jobs = min(jobs or default_jobs(device), max(1, len(files)))
-    counts = {"fixed": 0, "failed": 0, "skipped": 0}
-    failures: list[str] = []
+    mine = shard_of(files, shard)  # the policy below is the whole run's, whichever shard this is
+    jobs = min(jobs or default_jobs(device), max(1, len(mine)))
+    pool = None
+    if jobs > 1:  # each worker loads the model once and serves both the measuring and the files
+        threads = max(1, torch.get_num_threads() // jobs)
+        init = (ckpt, device, precision, threads, overlap, batch_size)
+        pool = ProcessPoolExecutor(jobs, get_context("spawn"), _start_worker, init)
+    try:
+        map_takes = (lambda work: list(pool.map(_measure_take, work))) if pool else None
+        measured = _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read_options, map_takes)
+        if measured is not None and measured[1]:
+            whole = measured[1].replace("this recording", f"the {len(files)} files of this run", 1)
+            if as_json:
+                measured = (measured[0], whole)
+            else:  # once for the run; each file's line refers to it
+                print(whole, file=out_stream, flush=True)
+                measured = (measured[0], "fill policy measured over this run's files (above)")
+        files = mine
+        settings = RunSettings(
+            out,
+            out_dir,
+            mode,
+            batch_size,
+            overlap,
+            force,
+            resume,
+            source,
+            progress,
+            as_json,
+            joint_map,
+            render_gif,
+            read_options,
+            measured,
+        )
+        counts = {"fixed": 0, "failed": 0, "skipped": 0}
+        failures: list[str] = []
 
-    def report(outcome: FileOutcome) -> None:
-        counts[outcome.status] += 1
-        if outcome.status == "failed":
-            failures.append(outcome.text)
-        print(outcome.text, file=err if outcome.status == "failed" else out_stream, flush=True)
+        def report(outcome: FileOutcome) -> None:
+            counts[outcome.status] += 1
+            if outcome.status == "failed":
+                failures.append(outcome.text)
+            print(outcome.text, file=err if outcome.status == "failed" else out_stream, flush=True)
 
-    if jobs == 1:
-        written: dict[Path, Path] = {}
-        for path, rel in files:
-            report(fix_one(path, rel, fixer, settings, err, written))
-    else:
-        del fixer  # each worker loads its own
-        for outcome in run_in_workers(files, ckpt, device, precision, settings, jobs, err):
-            report(outcome)
+        if pool is None:
+            written: dict[Path, Path] = {}
+            for path, rel in files:
+                report(fix_one(path, rel, fixer, settings, err, written))
+        else:
+            for outcome in run_in_workers(pool, files, settings, err):
+                report(outcome)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
     if len(files) > 1 or failed:
         summary = f"fix: {counts['fixed']} fixed, {counts['failed']} failed, {counts['skipped']} skipped"
         print(summary + (f" ({jobs} workers)" if jobs > 1 else ""), file=err, flush=True)
@@ -551,10 +563,11 @@ def default_jobs(device: str) -> int:
 _WORKER: dict = {}
 
 
-def _start_worker(ckpt: str, device: str, precision: str, threads: int) -> None:
+def _start_worker(ckpt: str, device: str, precision: str, threads: int, overlap: float, batch_size: int) -> None:
     # each worker its share of the cores: N workers x all cores each would fight over them
     torch.set_num_threads(threads)
-    _WORKER["fixer"] = load_fixer(ckpt, device, precision)
+    _WORKER["fixer"] = fixer = load_fixer(ckpt, device, precision)
+    _WORKER["model_fill"] = model_fill(fixer, overlap, batch_size)
 
 
 def _work(item: tuple[Path, Path | None, RunSettings]) -> FileOutcome:
@@ -562,23 +575,25 @@ def _work(item: tuple[Path, Path | None, RunSettings]) -> FileOutcome:
     return fix_one(path, rel, _WORKER["fixer"], settings, sys.stderr, {})
 
 
-def run_in_workers(files, ckpt: str, device: str, precision: str, settings: RunSettings, jobs: int, err):
-    """Outcomes of fix_one over `files` in `jobs` worker processes, in the files' order, with
-    one progress line over files. Workers are started fresh (spawn), as torch wants."""
-    threads = max(1, torch.get_num_threads() // jobs)
+def _measure_take(job: tuple):
+    return measure_take(*job, model_fill=_WORKER["model_fill"])
+
+
+def run_in_workers(pool: ProcessPoolExecutor, files, settings: RunSettings, err):
+    """Outcomes of fix_one over `files` in the pool's workers (started fresh, spawn, as torch
+    wants), in the files' order, with one progress line over files."""
     show = settings.progress == "always" or (settings.progress == "auto" and getattr(err, "isatty", lambda: False)())
     bar = Progress("fix", show, err, unit="files")
     settings = dataclasses.replace(settings, progress="never")  # the run's bar, not one per file
-    with ProcessPoolExecutor(jobs, get_context("spawn"), _start_worker, (ckpt, device, precision, threads)) as pool:
-        for done, outcome in enumerate(pool.map(_work, [(p, r, settings) for p, r in files]), 1):
-            bar(done, len(files))
-            yield outcome
+    for done, outcome in enumerate(pool.map(_work, [(p, r, settings) for p, r in files]), 1):
+        bar(done, len(files))
+        yield outcome
 
 
 POOLED_FILES = 32  # files of a run its fill policy is measured over (evenly spread)
 
 
-def _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read_options):
+def _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read_options, map_takes=None):
     """A run of several files (a folder of one performer or session): the fill policy measured
     over their holes together (fix/clips.py: measure_recordings), as each file
     alone has too few holes to rank the fills by (on 14 CMU takes, fix with each file's own
@@ -595,7 +610,9 @@ def _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read
             continue
         if clips:
             recordings.append(clips)
-    return measure_recordings(recordings, fixer, mode, overlap, batch_size, joint_map) if recordings else None
+    if not recordings:
+        return None
+    return measure_recordings(recordings, fixer, mode, overlap, batch_size, joint_map, map_takes)
 
 
 def _finite_or_none(v: float):

@@ -22,6 +22,7 @@ not windows: jitter_clips.py.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -159,6 +160,8 @@ def fix_clips(
         from mocapfix.fix.jitter_clips import denoise_clips
 
         return denoise_clips(clips, fixer, mode, progress, joint_map)
+    if any(c.duration_s > PIECE_S + 2 * PIECE_MARGIN_S for c in clips):
+        return _fix_in_pieces(clips, fixer, mode, overlap, batch_size, progress, joint_map, measured)
     policy: FillPolicy | None = getattr(fixer, "policy", None)
     policy_note, view = None, None
     # A calibrated model's holes are filled as the recording's own evidence says (a checkpoint
@@ -240,6 +243,60 @@ def fix_clips(
     return out, report
 
 
+# A take longer than PIECE_S is fixed in pieces of PIECE_S, each with PIECE_MARGIN_S of the take
+# on both sides as context (more than a window, a jump's MAX_REPLACED_S and most holes): the
+# memory a run needs is a piece's, whatever the take's length (a 30-minute take was 2.5x a
+# minute's), and each piece's fill policy is measured on that piece of the recording.
+PIECE_S = 120.0
+PIECE_MARGIN_S = 10.0
+
+
+def _fix_in_pieces(clips, fixer, mode, overlap, batch_size, progress, joint_map, measured):
+    """fix_clips for clips of which some are long: each clip alone, a long one piece by piece."""
+    out, reports = [], []
+    for c in clips:
+        T, piece, margin = c.num_frames, round(PIECE_S * c.fps), round(PIECE_MARGIN_S * c.fps)
+        starts = range(0, T, piece) if c.duration_s > PIECE_S + 2 * PIECE_MARGIN_S else [0]
+        positions = np.empty_like(c.positions)
+        for a in starts:
+            b = T if len(starts) == 1 else min(T, a + piece)
+            lo, hi = max(0, a - margin), min(T, b + margin)
+            part = c.replace(positions=c.positions[lo:hi], rotations=None, root_translation=None, offsets=None)
+            (fixed,), report = fix_clips([part], fixer, mode, overlap, batch_size, progress, joint_map, measured)
+            positions[a:b] = fixed.positions[a - lo : b - lo]
+            # the piece's counts are over its margins too: its own frames' share of them
+            was, now = np.isfinite(c.positions[a:b]).all(-1), np.isfinite(positions[a:b]).all(-1)
+            filled, replaced = int((~was & now).sum()), int((was & (positions[a:b] != c.positions[a:b]).any(-1)).sum())
+            share = filled / report.filled if report.filled else 0.0
+            by = {m: round(n * share) for m, n in report.filled_by.items()}
+            reports.append((dataclasses.replace(report, filled=filled, replaced=replaced, filled_by=by), b - a))
+        out.append(c.replace(positions=positions, rotations=None, root_translation=None, offsets=None))
+    frames, people = _frames_and_people(clips)
+    notes, filled_by = [], {}
+    for report, _ in reports:
+        notes += [n for n in report.notes if n not in notes]
+        for method, n in report.filled_by.items():
+            filled_by[method] = filled_by.get(method, 0) + n
+    pieces = len(reports) - len(clips) + sum(1 for c in clips if c.duration_s <= PIECE_S + 2 * PIECE_MARGIN_S)
+    notes.append(f"fixed in {pieces} pieces of {PIECE_S:g} s (each with {PIECE_MARGIN_S:g} s of context)")
+
+    def mean(field: str) -> float:  # frame-weighted over the pieces
+        return sum(getattr(r, field) * n for r, n in reports) / max(1, sum(n for _, n in reports))
+
+    report = FixReport(
+        frames,
+        people,
+        sum(r.filled for r, _ in reports),
+        sum(r.replaced for r, _ in reports),
+        mean("limb_sigma_before_mm"),
+        mean("limb_sigma_after_mm"),
+        sum(r.windows for r, _ in reports),
+        notes,
+        filled_by,
+    )
+    return out, report
+
+
 def measure_recordings(
     recordings: list[list[Clip]],
     fixer: Fixer,
@@ -247,12 +304,13 @@ def measure_recordings(
     overlap: float = 0.5,
     batch_size: int = 64,
     joint_map: dict[str, str] | None = None,
+    map_takes=None,
 ) -> tuple[FillPolicy | None, str | None]:
     """The fill policy of several recordings measured together (the takes of one folder: one
     performer or session, whose holes alone are too few to rank the fills by; recording_policy.py)
     -> (policy, a line for the report); pass it to fix_clips(measured=...). (None, None) for a
     checkpoint without a policy, a rotations model or denoise. A recording the model's joints
-    cannot be found in is left out (fixing it says why)."""
+    cannot be found in is left out (fixing it says why). map_takes: measure_on_takes' (workers)."""
     if fixer.kind != "xmae" or mode == "denoise" or getattr(fixer, "policy", None) is None:
         return None, None
     views, mapped = [], []
@@ -264,16 +322,15 @@ def measure_recordings(
             continue
     if not views:
         return None, None
-    return _measure(fixer, views, mapped, mode, overlap, batch_size)
+    return _measure(fixer, views, mapped, mode, overlap, batch_size, map_takes)
 
 
-def _measure(fixer, views, recordings, mode, overlap, batch_size):
+def _measure(fixer, views, recordings, mode, overlap, batch_size, map_takes=None):
     """measure_policy over recordings and their _model_view()s (index, x_in, x_m) -> (policy, note)."""
     tracks = [x for v in views for x in v[2]]  # (K, Jm, 3) per clip, the model's fps
     takes = [(x, c.fps) for v, clips in zip(views, recordings) for x, c in zip(v[1], clips)]  # the input's fps
-    return measure_policy(
-        fixer, tracks, takes, fixer.policy, model_fill(fixer, overlap, batch_size), every_cell=mode == "both"
-    )
+    fill = model_fill(fixer, overlap, batch_size)
+    return measure_policy(fixer, tracks, takes, fixer.policy, fill, mode == "both", map_takes)
 
 
 def _fix_positions(

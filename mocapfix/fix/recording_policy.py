@@ -93,43 +93,60 @@ def cut_holes(observed: np.ndarray, options: list[list[int]], frames: int, budge
 
 
 def measure_on_takes(
-    takes: list[tuple[np.ndarray, float]], skeleton, gaps_s, cells=None, model_fill=None
+    takes: list[tuple[np.ndarray, float]], skeleton, gaps_s, cells=None, model_fill=None, map_takes=None
 ) -> tuple[FillPolicy | None, dict[tuple[str, float], int]]:
     """takes: (x (T, J, 3) NaN = missing, fps) per clip, at the model's joints and the input's fps;
     model_fill(x, fps) -> (T, J, 3) the model's fill as fix makes it (None: classical fills only)
     -> (every fill and the mean of every two, by part and gap, over holes cut into the takes,
     inf where none could be cut; the holes cut per (part, gap)). cells: only these (part, gap),
-    None: all."""
+    None: all. map_takes(jobs) -> results: how the takes' measure_take(*job) calls run (default:
+    one after another here; fix --jobs hands them to its workers); each take is measured alone
+    and the sums are added up in the takes' order, so the result is the same either way."""
+    calibration = Calibration(gaps_s)
+    budget = -(-HOLES_PER_CELL // max(1, len(takes)))
+    jobs = [(x, fps, skeleton, tuple(calibration.gaps_s), cells, budget) for x, fps in takes]
+    if map_takes is None:
+        results = [measure_take(*job, model_fill=model_fill) for job in jobs]
+    else:
+        results = map_takes(jobs)
+    cut: dict[tuple[str, float], int] = {}
+    for sums, take_cut in results:
+        for key, (total, count) in sums.items():
+            s = calibration.sums.setdefault(key, [0.0, 0])
+            s[0] += total
+            s[1] += count
+        for cell, n in take_cut.items():
+            cut[cell] = cut.get(cell, 0) + n
+    return calibration.compute(), cut
+
+
+def measure_take(x: np.ndarray, fps: float, skeleton, gaps_s, cells, budget: int, model_fill=None):
+    """One take's share of measure_on_takes: up to `budget` holes of each kind cut into x (T, J, 3)
+    and every fill's error there -> (Calibration sums, holes cut per (part, gap))."""
     calibration = Calibration(gaps_s)
     options = {"full": [list(range(skeleton.num_joints))]}
     for group, members in sorted(skeleton.groups.items()):
         options.setdefault(group.split("_")[-1], []).append(list(members))
+    observed = np.isfinite(x).all(-1)
+    truth = torch.from_numpy(x.astype(np.float64))[None]
     cut: dict[tuple[str, float], int] = {}
     for part in PARTS:
         for gap in gaps_s:
             if part not in options or (cells is not None and (part, gap) not in cells):
                 continue
-            for x, fps in takes:
-                observed = np.isfinite(x).all(-1)
-                hidden = cut_holes(
-                    observed,
-                    options[part],
-                    max(1, round(gap * fps)),
-                    -(-HOLES_PER_CELL // len(takes)),
-                    max(1, round(CONTEXT_S * fps)),
-                )
-                if not hidden.any():
-                    continue
-                n = int((np.diff(hidden.any(-1).astype(np.int64), prepend=0) == 1).sum())
-                cut[(part, gap)] = cut.get((part, gap), 0) + n
-                truth = torch.from_numpy(x.astype(np.float64))[None]
-                holed = truth.masked_fill(torch.from_numpy(hidden)[None, ..., None], float("nan"))
-                obs = torch.from_numpy(observed & ~hidden)[None]
-                fills = {name: fill(holed, obs, skeleton.parents) for name, fill in CLASSICAL.items()}
-                if model_fill is not None:
-                    fills["xmae"] = torch.from_numpy(model_fill(holed[0].numpy(), fps)).double()[None]
-                calibration.add_fills(part, gap, fills, truth, torch.from_numpy(hidden)[None])
-    return calibration.compute(), cut
+            hidden = cut_holes(
+                observed, options[part], max(1, round(gap * fps)), budget, max(1, round(CONTEXT_S * fps))
+            )
+            if not hidden.any():
+                continue
+            cut[(part, gap)] = int((np.diff(hidden.any(-1).astype(np.int64), prepend=0) == 1).sum())
+            holed = truth.masked_fill(torch.from_numpy(hidden)[None, ..., None], float("nan"))
+            obs = torch.from_numpy(observed & ~hidden)[None]
+            fills = {name: fill(holed, obs, skeleton.parents) for name, fill in CLASSICAL.items()}
+            if model_fill is not None:
+                fills["xmae"] = torch.from_numpy(model_fill(holed[0].numpy(), fps)).double()[None]
+            calibration.add_fills(part, gap, fills, truth, torch.from_numpy(hidden)[None])
+    return calibration.sums, cut
 
 
 def measure_policy(
@@ -139,11 +156,12 @@ def measure_policy(
     fallback: FillPolicy | None,
     model_fill,
     every_cell: bool = False,
+    map_takes=None,
 ) -> tuple[FillPolicy | None, str | None]:
     """The fill policy of this recording for a positions fixer (.skeleton, .fps); tracks: its clips
     at the model's joints and fps (the kinds of hole it has, as apply_fill_policy reads them);
     takes: (x, fps) the same at the input's fps; model_fill(x, fps) -> the model's fill as fix
-    makes it. -> (policy, a line for the report).
+    makes it; map_takes: measure_on_takes'. -> (policy, a line for the report).
     Only the kinds of hole the recording has are measured (every_cell: all, for a run's policy in
     --mode both, whose jumps make holes of any kind); the others keep the fallback's numbers, the
     classical ones only where nothing of the recording could be measured. A kind with fewer than
@@ -156,7 +174,7 @@ def measure_policy(
     cells = None if every_cell else hole_kinds(tracks, fixer.skeleton, fixer.fps, gaps)
     if cells is not None and not cells:  # no hole to fill
         return fallback, None
-    measured, cut = measure_on_takes(takes, fixer.skeleton, gaps, cells, model_fill)
+    measured, cut = measure_on_takes(takes, fixer.skeleton, gaps, cells, model_fill, map_takes)
     asked = sorted(cells) if cells is not None else [(p, g) for p in PARTS for g in gaps]
     earned = {cell for cell in asked if cut.get(cell, 0) >= MIN_HOLES}
 
