@@ -1,15 +1,17 @@
 """`mocapfix fix` over an archive: workers, shards, a killed run resumed, memory against take length.
 
 Inputs: the first --takes Bandai Namco takes (sorted), each with holes cut into it (12 holes of
-0.5 s of one joint, seeded per take: fix has work to do) and written as positions .npz; a long
+0.5 s of one joint, seeded per take: fix has work to do) and written as positions .npz (--as-is:
+the BVH files as recorded, each fixed back into a BVH); a long
 take and a 60-s take of Bandai motion played end to end. Every run is a separate `mocapfix fix`
 process (as a user or a scheduler starts it), the shipped XMAE, on this machine:
 
 1. --jobs 1 and --jobs N (N = the cores here): wall time, files per second, outputs compared byte
    for byte;
 2. --shard 0/2 and --shard 1/2: together, the same files and bytes as the unsharded run;
-3. --jobs N killed with SIGKILL halfway (while it runs, every file under a final name is checked
-   against the uninterrupted run's), then rerun with --resume: every output there and identical;
+3. --jobs N killed with SIGKILL when half the outputs are written (until then, every file under a
+   final name is checked against the uninterrupted run's), then rerun with --resume: every
+   output there and identical;
 4. `fix --mode both` of the long take and of the 60-s take: peak memory (/usr/bin/time -v) and
    seconds per minute of motion.
 
@@ -87,10 +89,12 @@ def main(argv=None) -> int:
     ap.add_argument("--takes", type=int, default=200)
     ap.add_argument("--long-minutes", type=float, default=30.0, help="0: no memory part")
     ap.add_argument("--jobs", type=int, default=len(os.sched_getaffinity(0)))
+    ap.add_argument("--as-is", action="store_true", help="the takes as they are (BVH), no holes cut")
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="fix_archive_"))
     result: dict = {"env": describe(torch.device("cpu")), "model": MODEL, "takes": args.takes, "jobs": args.jobs}
+    result["inputs"] = "BVH as recorded" if args.as_is else "positions .npz, 12 holes of 0.5 s each"
     try:
         inputs = work / "in"
         inputs.mkdir()
@@ -100,7 +104,10 @@ def main(argv=None) -> int:
             clip = read_motion(f)[0]
             first = first or clip
             motion.append(clip.positions)
-            write_take(inputs / f"{f.stem}.npz", holed(clip.positions, clip.fps, k), clip)
+            if args.as_is:  # the BVH files themselves: a BVH back for each
+                (inputs / f.name).symlink_to(f)
+            else:
+                write_take(inputs / f"{f.stem}.npz", holed(clip.positions, clip.fps, k), clip)
         minutes = sum(len(m) for m in motion) / first.fps / 60
         result["minutes_of_motion"] = round(minutes, 2)
         print(f"{len(files)} takes, {minutes:.1f} min of motion", flush=True)
@@ -133,12 +140,13 @@ def main(argv=None) -> int:
             stderr=subprocess.DEVNULL,
             start_new_session=True,
         )
-        deadline, partial_seen = time.perf_counter() + runs[args.jobs]["seconds"] / 2, []
-        while time.perf_counter() < deadline:
-            for name, data in contents(killed).items() if killed.exists() else ():
-                if data != reference.get(name):
-                    partial_seen.append(name)
-            time.sleep(0.2)
+        deadline, partial_seen = time.perf_counter() + 2 * runs[args.jobs]["seconds"], []
+        while time.perf_counter() < deadline:  # until half the outputs are there
+            now = contents(killed) if killed.exists() else {}
+            partial_seen += [name for name, data in now.items() if data != reference.get(name)]
+            if len(now) >= len(reference) // 2:
+                break
+            time.sleep(0.1)
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
         before = len(contents(killed))
