@@ -184,3 +184,14 @@ def test_the_shipped_jitter_remover_cleans_another_studios_bvh(cmu_files, tmp_pa
 
     assert err(out) < 0.7 * err(noisy)
     assert err(out) < err(filtfilt(b, a, noisy, axis=0))
+
+
+def test_the_rotations_denoiser_on_another_rig_names_the_real_reason(cmu_files, tmp_path, capsys):
+    """motion-dvae-bandai reads Bandai's hierarchy: on a CMU BVH (which has rotations) the one
+    line says the rig's rotations do not fit, not that there are none, and where to go."""
+    rc = main_fix(
+        [str(cmu_files[0]), "--model", "motion-dvae-bandai", "--mode", "denoise", "-o", str(tmp_path / "o.bvh")]
+    )
+    err = capsys.readouterr().err
+    assert rc == 1 and err.count("\n") == 1
+    assert "rotations do not fit" in err and "--model jitter-many" in err and "has none" not in err

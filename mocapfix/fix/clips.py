@@ -713,10 +713,17 @@ def _fix_rotations(
         idx = map_joints(c.skeleton, model, source, joint_map)
         if not c.has_rotations:
             why = c.meta.get("no_rotations")
+            if why == "the kept joints have no constant bone offsets":  # the rig's own rotations do not fit
+                problem = (
+                    f"this rig's rotations do not fit its {model.num_joints}-joint hierarchy ({model.name}): "
+                    "joints of the rig between the model's turn too"
+                )
+            else:
+                problem = f"this input has none{f' ({why})' if why else ''}"
             raise MotionFileError(
                 source,
-                f"{who(i)}the model ({fixer.kind}, rotations state) needs joint rotations; "
-                f"this input has none{f' ({why})' if why else ''}",
+                f"{who(i)}the model ({fixer.kind}, rotations state) needs joint rotations; {problem} "
+                "(jitter on any rig: --model jitter-many)",
             )
         hangs = [c.skeleton.parents[idx[m]] == (idx[p] if p >= 0 else -1) for m, p in enumerate(model.parents)]
         if not all(hangs):
