@@ -309,7 +309,7 @@ def fix_files(
         )
     files, failed = _inputs(paths, source, err, out_dir)
     mine = shard_of(files, shard)  # the policy below is the whole run's, whichever shard this is
-    jobs = min(jobs or default_jobs(device), max(1, len(mine)))
+    jobs = min(jobs, len(mine)) if jobs else default_jobs(device, len(mine))
     pool = None
     if jobs > 1:  # each worker loads the model once and serves both the measuring and the files
         threads = max(1, torch.get_num_threads() // jobs)
@@ -361,7 +361,7 @@ def fix_files(
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)
-    if len(files) > 1 or failed:
+    if len(files) > 1:
         summary = f"fix: {counts['fixed']} fixed, {counts['failed']} failed, {counts['skipped']} skipped"
         print(summary + (f" ({jobs} workers)" if jobs > 1 else ""), file=err, flush=True)
         for line in failures[:20]:
@@ -553,11 +553,16 @@ def parse_shard(text: str) -> tuple[int, int]:
     return i, n
 
 
-def default_jobs(device: str) -> int:
-    """The cores this process may use (one worker each); one on a GPU, which the workers would share."""
+FILES_PER_WORKER = 8  # a worker costs a few seconds to start (torch, the model): it needs files to pay
+
+
+def default_jobs(device: str, files: int) -> int:
+    """One worker per core this process may use, as long as each gets FILES_PER_WORKER files; one
+    on a GPU, which the workers would share."""
     if device != "cpu":
         return 1
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return max(1, min(cores, files // FILES_PER_WORKER))
 
 
 _WORKER: dict = {}
@@ -660,7 +665,8 @@ def main(argv: list[str] | None = None) -> int:
         "--jobs",
         type=int,
         default=None,
-        help="files fixed side by side, each worker with its share of the cores (default: the cores; 1 on a GPU)",
+        help="files fixed side by side, each worker with its share of the cores (default: the cores, "
+        "if each gets 8 files; 1 on a GPU)",
     )
     ap.add_argument(
         "--shard",
