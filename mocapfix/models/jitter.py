@@ -122,9 +122,10 @@ class JitterNet(nn.Module):
 
     @property
     def receptive_field(self) -> int:
-        """Frames on each side of a frame that its output depends on."""
+        """Frames on each side of a frame that its output depends on: the root's velocity (1), the
+        input layer (2) and the residual blocks."""
         k = self.config.kernel_size // 2
-        return 2 + sum(k * 2**i for i in range(self.config.depth))
+        return 1 + 2 + sum(k * 2**i for i in range(self.config.depth))
 
     def forward(self, base: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
         """base: (B, T, J, 3) low-passed positions, metres, z up; noise: (B, T, J) residual_noise
