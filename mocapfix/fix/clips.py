@@ -38,7 +38,14 @@ from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, excursions, policy_names
 from mocapfix.fix.fixers import Fixer, RotationFixer
 from mocapfix.fix.recording_policy import measure_policy
-from mocapfix.fix.windowing import blend_windows, model_frames, resample_frames, resample_motion, window_layout
+from mocapfix.fix.windowing import (
+    blend_windows,
+    hold_last_frame,
+    model_frames,
+    resample_frames,
+    resample_motion,
+    window_layout,
+)
 from mocapfix.io import read_motion
 from mocapfix.io.joint_names import match_joints
 
@@ -253,10 +260,11 @@ PIECE_MARGIN_S = 10.0
 
 def _fix_in_pieces(clips, fixer, mode, overlap, batch_size, progress, joint_map, measured):
     """fix_clips for clips of which some are long: each clip alone, a long one piece by piece."""
-    out, reports = [], []
+    out, reports, pieces = [], [], 0
     for c in clips:
         T, piece, margin = c.num_frames, round(PIECE_S * c.fps), round(PIECE_MARGIN_S * c.fps)
         starts = range(0, T, piece) if c.duration_s > PIECE_S + 2 * PIECE_MARGIN_S else [0]
+        pieces += len(starts) if len(starts) > 1 else 0
         positions = np.empty_like(c.positions)
         for a in starts:
             b = T if len(starts) == 1 else min(T, a + piece)
@@ -277,7 +285,6 @@ def _fix_in_pieces(clips, fixer, mode, overlap, batch_size, progress, joint_map,
         notes += [n for n in report.notes if n not in notes]
         for method, n in report.filled_by.items():
             filled_by[method] = filled_by.get(method, 0) + n
-    pieces = len(reports) - len(clips) + sum(1 for c in clips if c.duration_s <= PIECE_S + 2 * PIECE_MARGIN_S)
     notes.append(f"fixed in {pieces} pieces of {PIECE_S:g} s (each with {PIECE_MARGIN_S:g} s of context)")
 
     def mean(field: str) -> float:  # frame-weighted over the pieces
@@ -520,10 +527,8 @@ def _whole_take_fills(fixer: Fixer, clips: list[Clip], x_in, x_m) -> list[np.nda
     for c, x, xm in zip(clips, x_in, x_m):
         xt = torch.from_numpy(x.astype(np.float64))[None]  # (1, T, Jm, 3)
         filled = hermite_infill(xt, ~torch.isnan(xt).any(-1))[0].numpy()
-        fill = resample_frames(filled, c.fps, fixer.fps, len(xm))  # NaN past the take's last frame
-        ok = np.isfinite(fill).all(axis=(1, 2))
-        fill = fill[np.maximum.accumulate(np.where(ok, np.arange(len(fill)), 0))]  # those hold the last frame
-        fills.append(fill.astype(np.float32))
+        # NaN past the take's last frame in the model's frames: those hold the last frame
+        fills.append(hold_last_frame(resample_frames(filled, c.fps, fixer.fps, len(xm))).astype(np.float32))
     return fills
 
 

@@ -19,7 +19,7 @@ from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.policy import FillPolicy
-from mocapfix.fix.windowing import model_frames, resample_frames
+from mocapfix.fix.windowing import hold_last_frame, model_frames, resample_frames
 from mocapfix.models.body import build_body_model
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.dvae import DVAEConfig, InitialStatePredictor, MotionDVAE, NoisePredictor
@@ -328,18 +328,19 @@ class JitterFixer:
         return cls(net, skeleton, fps, device)
 
     @torch.inference_mode()
-    def denoise(self, x: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    def denoise(self, x: np.ndarray, fps: float, base: np.ndarray | None = None) -> np.ndarray:
         """x: (T, J, 3) one take at the model's joints and its own fps, metres, finite (holes
-        filled by the caller) -> (denoised, low-pass), both (T, J, 3) float64 at the take's frames.
-        ValueError where the frame rate cannot hold the model's cutoff."""
+        filled by the caller); base: its lowpass at the model's cutoff when the caller has it ->
+        denoised (T, J, 3) float64 at the take's frames. ValueError where the frame rate cannot
+        hold the model's cutoff."""
         cutoff, fps_m = self.net.cutoff_hz, self.fps
         xt = torch.from_numpy(x.astype(np.float64))[None]  # (1, T, J, 3)
-        base = lowpass(xt, fps, cutoff)
-        noise = residual_noise(xt, base, fps, cutoff)[0].numpy()  # (T, J)
-        base = base[0].numpy()
+        bt = lowpass(xt, fps, cutoff) if base is None else torch.from_numpy(base.astype(np.float64))[None]
+        noise = residual_noise(xt, bt, fps, cutoff)[0].numpy()  # (T, J)
+        base = bt[0].numpy()
         K = model_frames(len(x), fps, fps_m)
         # Low-passed well below the network's Nyquist rate: plain linear resampling aliases nothing.
-        base_m, noise_m = (_held(resample_frames(a, fps, fps_m, K)) for a in (base, noise))
+        base_m, noise_m = (hold_last_frame(resample_frames(a, fps, fps_m, K)) for a in (base, noise))
         out_m = np.empty_like(base_m)
         chunk, margin = max(1, round(self.CHUNK_S * fps_m)), self.net.receptive_field
         for start in range(0, K, chunk):
@@ -348,14 +349,8 @@ class JitterFixer:
             n = torch.from_numpy(noise_m[lo:hi]).float()[None].to(self.device)
             out = self.net(b, n)[0].double().cpu().numpy()
             out_m[start : min(K, start + chunk)] = out[start - lo : start - lo + min(chunk, K - start)]
-        correction = _held(resample_frames(out_m - base_m, fps_m, fps, len(x)))
-        return base + correction, base
-
-
-def _held(x: np.ndarray) -> np.ndarray:
-    """(T, ...) with NaN frames past the last finite one (resample_frames' end) -> those hold it."""
-    ok = np.isfinite(x.reshape(len(x), -1)).all(-1)
-    return x[np.maximum.accumulate(np.where(ok, np.arange(len(x)), 0))]
+        correction = hold_last_frame(resample_frames(out_m - base_m, fps_m, fps, len(x)))
+        return base + correction
 
 
 def _window_hparams(path, hp: dict) -> tuple[Skeleton, float, int]:
@@ -451,19 +446,18 @@ def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32"
 def xmae_checkpoint(net: XMAE, skeleton: Skeleton, fps: float) -> dict:
     """The smallest checkpoint load_fixer reads for an XMAE (what XMAEModule saves, minus the
     training state): for benchmarks and tests that need a model without training one."""
-    hp = {"skeleton": skeleton.to_dict(), "window_fps": float(fps), "window_frames": int(net.num_frames)}
-    return {
-        "hyper_parameters": hp,
-        "model": checkpoint_entry("xmae", net.config),
-        "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()},
-    }
+    return _weights_checkpoint("xmae", net, skeleton, fps, net.num_frames)
 
 
 def jitter_checkpoint(net: JitterNet, skeleton: Skeleton, fps: float) -> dict:
     """The smallest checkpoint load_fixer reads for a jitter remover (as xmae_checkpoint)."""
-    hp = {"skeleton": skeleton.to_dict(), "window_fps": float(fps), "window_frames": int(net.config.num_frames)}
+    return _weights_checkpoint("jitter", net, skeleton, fps, net.config.num_frames)
+
+
+def _weights_checkpoint(kind: str, net, skeleton: Skeleton, fps: float, frames: int) -> dict:
+    hp = {"skeleton": skeleton.to_dict(), "window_fps": float(fps), "window_frames": int(frames)}
     return {
         "hyper_parameters": hp,
-        "model": checkpoint_entry("jitter", net.config),
+        "model": checkpoint_entry(kind, net.config),
         "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()},
     }

@@ -59,12 +59,11 @@ def denoise_clips(
         # the low-pass needs every frame: holes are bridged for it and put back afterwards
         filled = lerp_infill(x, observed)
         try:
-            denoised, base = fixer.denoise(filled[0, :, index].numpy(), c.fps)  # (T, Jm, 3) each
+            positions = lowpass(filled, c.fps, fixer.net.cutoff_hz)[0].numpy()  # (T, J, 3) every joint
+            denoised = fixer.denoise(filled[0, :, index].numpy(), c.fps, positions[:, index])  # (T, Jm, 3)
         except ValueError as e:  # a frame rate too low for the model's cutoff
             raise MotionFileError(source, f"{who(k)}{e}") from None
-        correction = denoised - base
-
-        positions = lowpass(filled, c.fps, fixer.net.cutoff_hz)[0].numpy()  # (T, J, 3) every joint
+        correction = denoised - positions[:, index]
         positions[:, index] = denoised
         column = {int(j): m for m, j in enumerate(index)}
         parents = c.skeleton.parents

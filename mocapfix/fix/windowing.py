@@ -40,6 +40,12 @@ def resample_frames(x: np.ndarray, src_fps: float, dst_fps: float, num: int) -> 
     return out.astype(x.dtype, copy=False)
 
 
+def hold_last_frame(x: np.ndarray) -> np.ndarray:
+    """(T, ...) with NaN frames past the last finite one (resample_frames' end) -> those hold it."""
+    ok = np.isfinite(x.reshape(len(x), -1)).all(-1)
+    return x[np.maximum.accumulate(np.where(ok, np.arange(len(x)), 0))]
+
+
 def resample_motion(
     rotations: np.ndarray, root: np.ndarray, src_fps: float, dst_fps: float, num: int
 ) -> tuple[np.ndarray, np.ndarray]:

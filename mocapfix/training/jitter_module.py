@@ -18,7 +18,7 @@ import torch.nn as nn
 
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.augment import BodyAugment, BodyAugmenter
-from mocapfix.data.corruption import available, jitter, uniform_like
+from mocapfix.data.corruption import available, jitter, random_z_rotation, uniform_like
 from mocapfix.data.spec import DataSpec
 from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.metrics import MPJPE
@@ -163,14 +163,8 @@ class JitterModule(L.LightningModule):
         if self.body_augment is not None:
             clean = self.body_augment(clean)
         B = clean.shape[0]
-        if hp.rotate_augment:  # a heading per window (about z: up stays up)
-            yaw = 2 * torch.pi * uniform_like((B,), None, clean)
-            c, s = yaw.cos(), yaw.sin()
-            x, y = clean[..., 0], clean[..., 1]
-            clean = torch.stack(
-                [c.view(B, 1, 1) * x - s.view(B, 1, 1) * y, s.view(B, 1, 1) * x + c.view(B, 1, 1) * y, clean[..., 2]],
-                -1,
-            )
+        if hp.rotate_augment:  # a heading per window (the network reads each frame from its root)
+            clean, _ = random_z_rotation(clean)
         noisy_windows = (uniform_like((B,), None, clean) >= hp.clean_fraction).to(clean.dtype)
         rotation = hp.max_rotation_noise_rad * uniform_like((B,), None, clean) * noisy_windows
         position = hp.max_position_noise_m * uniform_like((B,), None, clean) * noisy_windows
