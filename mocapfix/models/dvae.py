@@ -1,5 +1,8 @@
 """Motion-DVAE networks (paper section 3.2, appendices A.1, A.2, E.1) and the closed-form KLs.
 
+Fiche, Leglaive, Alameda-Pineda and Séguier, "Motion-DVAE: Unsupervised learning for fast human
+motion denoising", ACM SIGGRAPH Conference on Motion, Interaction and Games (MIG) 2023.
+
 Time runs t = 0..T inside a window of T+1 frames: x_0 is the first frame (given in the prior,
 predicted in denoising) and z_1..z_T, x_1..x_T the rest.
 

@@ -1,6 +1,7 @@
 """XMAE: a masked auto-encoder over joint tokens with a cross-attention decoder.
 
-Zhang et al.'s design as described in ../shared/papers/xmae.txt, section 3 and Table 1:
+Björkstrand, Sullivan, Bretzner, Loy and Wang, "Cross-attention Masked Auto-Encoder for Human
+3D Motion Infilling and Denoising", BMVC 2023; section 3 and Table 1 of the paper:
 one token per joint per frame (joint index fastest), the encoder sees observed tokens only,
 the decoder's queries are a learnable mask vector plus positional encodings for ALL J*T
 positions and the encoded tokens enter only through cross-attention. Because the queries never
