@@ -75,9 +75,10 @@ def matmul_tflops(device: torch.device, dtype: torch.dtype) -> float:
     return 2 * n**3 / seconds / 1e12
 
 
-def write_result(name: str, result: dict, json_out: str | None) -> Path:
-    """bench/results/<name>-<device>.json unless --json-out names another file."""
-    path = Path(json_out) if json_out else RESULTS / f"{name}-{result['env']['device']}.json"
+def write_result(name: str, result: dict, json_out: str | None, variant: str | None = None) -> Path:
+    """bench/results/<name>-<device>[-<variant>].json unless --json-out names another file."""
+    stem = f"{name}-{result['env']['device']}" + (f"-{variant}" if variant else "")
+    path = Path(json_out) if json_out else RESULTS / f"{stem}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(result, indent=2) + "\n")
     return path

@@ -240,7 +240,7 @@ def main() -> None:
         "table": table,
         "runs": runs,
     }
-    print(f"wrote {write_result('fast_path_accuracy', result, args.json_out)}")
+    print(f"wrote {write_result('fast_path_accuracy', result, args.json_out, 'small' if args.small else None)}")
 
 
 if __name__ == "__main__":

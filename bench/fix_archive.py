@@ -186,7 +186,7 @@ def main(argv=None) -> int:
 
 
 def finish(result: dict, args) -> int:
-    path = write_result("fix_archive", result, args.json_out)
+    path = write_result("fix_archive", result, args.json_out, "bvh_as_recorded" if args.as_is else None)
     print(result)
     print(f"wrote {path}")
     return 0

@@ -121,7 +121,7 @@ def main(argv=None) -> int:
         "seconds": round(time.perf_counter() - t0, 1),
         "rows": rows,
     }
-    path = write_result("fix_strangers_cmu", result, args.json_out)
+    path = write_result("fix_strangers_cmu", result, args.json_out, "model_only" if args.model_only else None)
     columns = [("part", "part"), ("method", "method")] + [(f"{g:g}s", f"{g:g} s") for g in GAPS_S]
     print_table(f"fix on CMU takes >= {args.min_seconds:g} s ({len(takes)}), MPJPE mm over the holes", rows, columns)
     print(f"wrote {path}")
