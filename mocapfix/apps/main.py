@@ -6,25 +6,41 @@ adapt                             apps/adapt.py
 inspect                           apps/inspect.py
 demo                              apps/demo.py
 models                            the shipped models (mocapfix/pretrained)
+docs                              where the documentation (mocapfix/docs) is installed
 """
 
 from __future__ import annotations
 
 import logging
 import sys
+from pathlib import Path
 
 from mocapfix.apps.cli import LIGHTNING_COMMANDS, packaged_configs, run_lightning
 
 
+# The docs/ pages of a checkout (a link to this folder there), installed with the package.
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+
+
+def list_docs() -> int:
+    """`mocapfix docs`: where the documentation is installed, and each page's title."""
+    print(f"mocapfix documentation (Markdown): {DOCS}")
+    for page in sorted(DOCS.glob("*.md")):
+        lines = page.read_text(encoding="utf-8").splitlines()
+        title = next((line[2:].strip() for line in lines if line.startswith("# ")), "")
+        print(f"  {page.name:<16} {title}")
+    return 0
+
+
 def list_models() -> int:
-    """`mocapfix models`: the shipped models, a line each (model cards: docs/models.md)."""
+    """`mocapfix models`: the shipped models, a line each, and where their cards are."""
     from mocapfix.fix import load_fixer
     from mocapfix.pretrained import MODELS, pretrained_path
 
     for name, m in MODELS.items():
         fixer = load_fixer(pretrained_path(name))
         print(f"{name}: {m.summary}. License: {m.license}.\n    joints: {', '.join(fixer.skeleton.joint_names)}")
-    print("use: mocapfix fix INPUT --model NAME   (model cards: docs/models.md)")
+    print(f"use: mocapfix fix INPUT --model NAME   (model cards: {DOCS / 'models.md'})")
     return 0
 
 
@@ -58,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
             "       mocapfix inspect FILE... --ckpt CKPT|--model NAME  (how the file's joints map onto the model's)\n"
             "       mocapfix adapt FOLDER... --model NAME|--ckpt CKPT [--minutes M] [-o OUT.ckpt]\n"
             "       mocapfix render INPUT [FIXED...] -o OUT.gif|mp4|png [--start S] [--duration S]\n"
-            "       mocapfix models\n"
+            "       mocapfix models | docs   (the shipped models; where the documentation is installed)\n"
             "       mocapfix demo\n"
             "       mocapfix --version\n"
             "`mocapfix COMMAND --help` lists its options; `mocapfix fit --config NAME --print_config` every setting.\n"
@@ -84,6 +100,8 @@ def main(argv: list[str] | None = None) -> int:
         return render_main(argv[1:])
     if command == "models":
         return list_models()
+    if command == "docs":
+        return list_docs()
     if command == "demo":
         from mocapfix.apps.demo import main as demo_main
 
@@ -97,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         return run_lightning(command, argv)
     print(
         f"mocapfix: unknown command {command!r}; use fit, validate, test, predict, inspect, fix, adapt, render, "
-        "models or demo",
+        "models, docs or demo",
         file=sys.stderr,
     )
     return 2
