@@ -126,10 +126,9 @@ def _choose_data(folder: str | None, takes: int) -> tuple[Clip, list[str], str]:
     if folder is None:
         from mocapfix.io.synthetic import generate_clips
 
-        clip = generate_clips(1, 12.0, 30.0, seed=1000)[0]
-        return onto_skeleton(clip, body).replace(name="synthetic_take"), ["--data.source", "synthetic", "--data.synthetic_clips", "24"], (
-            "the embedded synthetic motion (24 clips of 10 s)"
-        )
+        clip = onto_skeleton(generate_clips(1, 12.0, 30.0, seed=1000)[0], body).replace(name="synthetic_take")
+        data_args = ["--data.source", "synthetic", "--data.synthetic_clips", "24"]
+        return clip, data_args, "the embedded synthetic motion (24 clips of 10 s)"
     files = list_motion_files(folder)
     if not files:
         raise MotionFileError(folder, "no motion files (.bvh, .npz, .csv) in this folder")
@@ -144,7 +143,7 @@ def _choose_data(folder: str | None, takes: int) -> tuple[Clip, list[str], str]:
             break
     else:
         raise MotionFileError(
-            folder, f"no held-out take of {MIN_TAKE_S:g} s or more (the test split is {len(test)} files); give more files"
+            folder, f"no held-out take of {MIN_TAKE_S:g} s or more (its test split has {len(test)} files); give more"
         )
     source = "bvh" if all(f.suffix.lower() == ".bvh" for f in fitted) else "positions"
     data_args = ["--data.source", source, "--data.path", "[" + ", ".join(str(f) for f in fitted) + "]"]
@@ -236,7 +235,8 @@ def score_table(truth: np.ndarray, as_read: np.ndarray, fixed: np.ndarray, damag
         return f"{int(moved.sum())} of {int((damage.clean & seen).sum())}"
 
     rows = [("input", as_read), ("cubic spline", spline), ("mocapfix", fixed)]
-    head = ("", f"holes ({int(damage.holes.sum())} tokens)", f"jumped arm ({int(damage.jumped.sum())})", "clean changed")
+    holes, jumped = int(damage.holes.sum()), int(damage.jumped.sum())
+    head = ("", f"holes ({holes} tokens)", f"jumped arm ({jumped})", "clean changed")
     cells = [head] + [
         (name, error_mm(y, damage.holes), error_mm(y, damage.jumped), "-" if name == "input" else changed(y))
         for name, y in rows

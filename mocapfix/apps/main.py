@@ -17,7 +17,6 @@ from pathlib import Path
 
 from mocapfix.apps.cli import LIGHTNING_COMMANDS, packaged_configs, run_lightning
 
-
 # The docs/ pages of a checkout (a link to this folder there), installed with the package.
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
