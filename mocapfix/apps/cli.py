@@ -18,6 +18,16 @@ import sys
 from pathlib import Path
 
 LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
+# what each command's --help ends with
+EXAMPLES = {
+    "fit": "mocapfix fit --config xmae_cpu --data.path takes/ --experiment my_studio   "
+    "(then: tensorboard --logdir logs/my_studio)",
+    "validate": "mocapfix validate --config xmae_cpu --data.path takes/ --ckpt_path last   "
+    "(the fill policy measured on the val split, written into checkpoints/xmae_cpu/last.ckpt)",
+    "test": "mocapfix test --config xmae_cpu --data.path takes/ --ckpt_path last   (the test tables: eval.json)",
+    "predict": "mocapfix predict --config xmae_cpu --data.path takes/ --ckpt_path last   "
+    "(predictions.npz in the run's log folder; whole takes in their own format: mocapfix fix)",
+}
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 
 
@@ -286,7 +296,11 @@ def _lightning_cli(args: list[str]):
         return MocapCLI(
             datamodule_class=MotionDataModule,
             subclass_mode_model=True,
-            parser_kwargs={"parser_mode": "omegaconf", "prog": "mocapfix"},
+            parser_kwargs={
+                "parser_mode": "omegaconf",
+                "prog": "mocapfix",
+                **{c: {"epilog": f"example: {e}"} for c, e in EXAMPLES.items()},
+            },
             save_config_kwargs={"overwrite": True},
             auto_configure_optimizers=False,
         )

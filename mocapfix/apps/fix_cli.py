@@ -631,7 +631,12 @@ def _device(name: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="mocapfix fix", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="mocapfix fix",
+        description=__doc__.split("\n")[0],
+        epilog="example: mocapfix fix take.bvh --model xmae-cpu-bandai -o take.fixed.bvh   "
+        "(a folder: mocapfix fix takes/ --model xmae-cpu-bandai --out-dir fixed/)",
+    )
     ap.add_argument("paths", nargs="+", metavar="INPUT", help="motion files or folders")
     which = ap.add_mutually_exclusive_group(required=True)
     which.add_argument("--ckpt", help="a mocapfix checkpoint (XMAE, Motion-DVAE's denoising stage, a jitter remover)")

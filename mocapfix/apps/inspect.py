@@ -202,7 +202,12 @@ def _one_line(path, e: Exception) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="mocapfix inspect", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="mocapfix inspect",
+        description=__doc__.split("\n")[0],
+        epilog="example: mocapfix inspect takes/   (how the joints map onto a model's: "
+        "mocapfix inspect take.bvh --model xmae-cpu-bandai)",
+    )
     ap.add_argument("paths", nargs="+", metavar="FILE", help="motion files or folders")
     ap.add_argument("--json", action="store_true", help="one JSON object per file per line")
     which = ap.add_mutually_exclusive_group()

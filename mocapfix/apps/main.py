@@ -21,8 +21,23 @@ from mocapfix.apps.cli import LIGHTNING_COMMANDS, packaged_configs, run_lightnin
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 
-def list_docs() -> int:
+def _no_options(command: str, description: str, example: str, argv: list[str]) -> None:
+    """A command without options: its --help (description and an example), and an error for anything else."""
+    import argparse
+
+    argparse.ArgumentParser(
+        prog=f"mocapfix {command}", description=description, epilog=f"example: {example}"
+    ).parse_args(argv)
+
+
+def list_docs(argv: list[str] | None = None) -> int:
     """`mocapfix docs`: where the documentation is installed, and each page's title."""
+    _no_options(
+        "docs",
+        "Where the documentation (Markdown) is installed, and each page's title.",
+        "mocapfix docs   (then open the page it names, e.g. training.md)",
+        argv or [],
+    )
     print(f"mocapfix documentation (Markdown): {DOCS}")
     for page in sorted(DOCS.glob("*.md")):
         lines = page.read_text(encoding="utf-8").splitlines()
@@ -31,8 +46,14 @@ def list_docs() -> int:
     return 0
 
 
-def list_models() -> int:
+def list_models(argv: list[str] | None = None) -> int:
     """`mocapfix models`: the shipped models, a line each, and where their cards are."""
+    _no_options(
+        "models",
+        "The models shipped with mocapfix, a line each: what each was trained on, its license and joints.",
+        "mocapfix models   (then: mocapfix fix take.bvh --model xmae-cpu-bandai -o take.fixed.bvh)",
+        argv or [],
+    )
     from mocapfix.fix import load_fixer
     from mocapfix.pretrained import MODELS, pretrained_path
 
@@ -77,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
             "       mocapfix demo\n"
             "       mocapfix --version\n"
             "`mocapfix COMMAND --help` lists its options; `mocapfix fit --config NAME --print_config` every setting.\n"
+            "example: mocapfix fix take.bvh --model xmae-cpu-bandai -o take.fixed.bvh\n"
             f"packaged configs: {', '.join(packaged_configs())}",
             file=sys.stdout if command else sys.stderr,
         )
@@ -98,9 +120,9 @@ def main(argv: list[str] | None = None) -> int:
 
         return render_main(argv[1:])
     if command == "models":
-        return list_models()
+        return list_models(argv[1:])
     if command == "docs":
-        return list_docs()
+        return list_docs(argv[1:])
     if command == "demo":
         from mocapfix.apps.demo import main as demo_main
 

@@ -43,7 +43,11 @@ def render_files(
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="mocapfix render", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="mocapfix render",
+        description=__doc__.split("\n")[0],
+        epilog="example: mocapfix render take.bvh take.fixed.bvh -o take.gif --start 2 --duration 4",
+    )
     ap.add_argument("input", help="the recording (the reference: holes and changes are against it)")
     ap.add_argument("fixed", nargs="*", help="fix's outputs of it, drawn beside it")
     ap.add_argument("-o", "--out", required=True, help=".gif (Pillow), .mp4 (needs ffmpeg) or .png (a filmstrip)")
