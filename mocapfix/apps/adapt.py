@@ -20,6 +20,7 @@ from pathlib import Path
 
 import torch
 
+from mocapfix.apps.console import quiet_lightning
 from mocapfix.core.clip import MotionFileError, shown
 from mocapfix.core.skeleton import preset
 from mocapfix.io import add_read_arguments
@@ -55,7 +56,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mocapfix adapt: --minutes {args.minutes}: give a time between 0 and 1440 minutes", file=sys.stderr)
         return 2
     try:
-        out = adapt(args)
+        # the run ends on its time limit: Lightning's "Time limit reached ... Signaling Trainer to stop" is
+        # the plan, and the steps taken are said below
+        with quiet_lightning({"lightning.pytorch.utilities.rank_zero": (r"Time limit reached\. ",)}):
+            out = adapt(args)
     except (MotionFileError, ValueError) as e:
         print(f"mocapfix adapt: {e}", file=sys.stderr)
         return 1

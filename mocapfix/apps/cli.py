@@ -121,6 +121,7 @@ def _lightning_cli(args: list[str]):
     from lightning.pytorch.loggers import TensorBoardLogger
     from lightning.pytorch.utilities.exceptions import SIGTERMException
 
+    from mocapfix.apps.console import quiet_lightning
     from mocapfix.data.datamodule import MotionDataModule
     from mocapfix.training.interrupt_checkpoint import CheckpointOnInterrupt
     from mocapfix.training.monitor_check import MonitorCheck
@@ -293,17 +294,18 @@ def _lightning_cli(args: list[str]):
     argv_before = sys.argv
     sys.argv = [argv_before[0] if argv_before else "mocapfix", *expand_configs(args)]
     try:
-        return MocapCLI(
-            datamodule_class=MotionDataModule,
-            subclass_mode_model=True,
-            parser_kwargs={
-                "parser_mode": "omegaconf",
-                "prog": "mocapfix",
-                **{c: {"epilog": f"example: {e}"} for c, e in EXAMPLES.items()},
-            },
-            save_config_kwargs={"overwrite": True},
-            auto_configure_optimizers=False,
-        )
+        with quiet_lightning():
+            return MocapCLI(
+                datamodule_class=MotionDataModule,
+                subclass_mode_model=True,
+                parser_kwargs={
+                    "parser_mode": "omegaconf",
+                    "prog": "mocapfix",
+                    **{c: {"epilog": f"example: {e}"} for c, e in EXAMPLES.items()},
+                },
+                save_config_kwargs={"overwrite": True},
+                auto_configure_optimizers=False,
+            )
     finally:
         sys.argv = argv_before
 
