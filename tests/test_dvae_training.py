@@ -153,6 +153,11 @@ def test_kl_weight_follows_the_schedule_across_resume_and_tensorboard_has_every_
     ):
         assert tag in ea.Tags()["scalars"], tag
     assert "val/reconstruction_example" in ea.Tags()["images"]
+    # the run's summary (training/tracking.py), no placeholder hp_metric; the best carried across the resume
+    assert "hparams/best_val_mpjpe_mm" in ea.Tags()["scalars"] and "hp_metric" not in ea.Tags()["scalars"]
+    runs = [_scalars(tmp_path / "logs" / "kl" / v) for v in ("version_0", "version_1")]
+    val_loss = [e.value for run in runs for e in run.Scalars("val/loss")]
+    assert runs[1].Scalars("hparams/best_val_loss")[-1].value == pytest.approx(min(val_loss))
 
     ckpt = torch.load(tmp_path / "checkpoints" / "kl" / "last.ckpt", map_location="cpu", weights_only=True)
     assert ckpt["global_step"] == 6

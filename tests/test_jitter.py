@@ -109,7 +109,8 @@ def test_fit_logs_the_network_beside_its_lowpass_and_fix_reads_the_checkpoint(tr
 
     events = EventAccumulator(str(next((trained.parents[2] / "logs" / "j").glob("version_*"))))
     events.Reload()
-    assert {"val/mpjpe_mm", "val/mpjpe_mm/lowpass", "val/mpjpe_mm/noisy"} <= set(events.Tags()["scalars"])
+    tags = {"val/mpjpe_mm", "val/mpjpe_mm/lowpass", "val/mpjpe_mm/noisy", "hparams/best_val_mpjpe_mm"}
+    assert tags <= set(events.Tags()["scalars"])
     [table] = (trained.parents[2] / "logs" / "j").glob("version_*/eval.json")
     rows = json.loads(table.read_text())
     assert {r["method"] for r in rows} == {"jitter", "lowpass", "noisy"}

@@ -168,8 +168,11 @@ def test_fit_writes_tensorboard_scalars_hparams_and_figures(tmp_path):
         "val/mpjpe_mm",
         "val/gap0.5s_mpjpe_mm/xmae",
         "val/gap0.5s_mpjpe_mm/lerp",
+        "val/gap0.5s_mpjpe_mm/spline",
+        "val/gap_vs_spline",
+        "hparams/best_val_mpjpe_mm",
+        "hparams/val_vs_spline",
         "lr-Adam",
-        "hp_metric",
     ):
         assert tag in scalars, f"{tag} missing from {sorted(scalars)}"
     assert "val/infill_example" in ea.Tags()["images"]
@@ -177,8 +180,9 @@ def test_fit_writes_tensorboard_scalars_hparams_and_figures(tmp_path):
     assert len(figures) == 2  # one figure per validation
     # three windows side by side, each from the front and the side: twice as wide as tall
     assert figures[0].width >= 1.9 * figures[0].height
-    # the hparams plugin entry TensorBoard's HPARAMS tab reads
+    # the hparams plugin entry TensorBoard's HPARAMS tab reads, and no placeholder hp_metric card
     assert any(t.startswith("_hparams_") for t in ea.summary_metadata), "no hparams summary"
+    assert "hp_metric" not in scalars
     lr = [e.value for e in ea.Scalars("lr-Adam")]
     assert lr[0] < lr[1] and lr[-1] < max(lr), "warm-up then decay"
     assert (tmp_path / "checkpoints" / "tb" / "last.ckpt").exists()

@@ -94,11 +94,13 @@ LOGGERS = ("tensorboard", "csv", "mlflow")
 def make_logger(kind: str, experiment: str):
     """The run's logger: TensorBoard (scalars, hyperparameters, figures) or CSV (scalars and
     hyperparameters only: no figures) in logs/<experiment>/version_N, or MLflow (its own store,
-    ./mlruns by default; the experiment by name)."""
+    ./mlruns by default; the experiment by name). A fit's hyperparameters beside its results
+    (TensorBoard's HPARAMS tab): training/tracking.py."""
     if kind == "tensorboard":
         from lightning.pytorch.loggers import TensorBoardLogger
 
-        return TensorBoardLogger(save_dir="logs", name=experiment)
+        # default_hp_metric: Lightning's hp_metric card, a constant -1 (RunSummary logs real ones)
+        return TensorBoardLogger(save_dir="logs", name=experiment, default_hp_metric=False)
     if kind == "csv":
         from lightning.pytorch.loggers import CSVLogger
 
@@ -127,6 +129,7 @@ def _lightning_cli(args: list[str]):
     from mocapfix.training.monitor_check import MonitorCheck
     from mocapfix.training.predictions import WritePredictions
     from mocapfix.training.rng_state import RNGStateInCheckpoint
+    from mocapfix.training.tracking import RunSummary
 
     class MocapCLI(LightningCLI):
         def _run_subcommand(self, subcommand: str) -> None:
@@ -234,6 +237,9 @@ def _lightning_cli(args: list[str]):
             if kwargs.get("logger", trainer_cfg.get("logger")) not in (None, False):
                 extra.append(LearningRateMonitor(logging_interval="step"))
             extra.append(RNGStateInCheckpoint())
+            # a fit's hyperparameters beside its best validation results (the other commands: its
+            # state in the checkpoint, which Lightning wants a callback for)
+            extra.append(RunSummary(seed=cfg.get("seed_everything")))
             if self.subcommand == "predict":
                 extra.append(WritePredictions())
             configured = self.config_init[self.subcommand].trainer.get("callbacks") or []

@@ -326,9 +326,6 @@ class DVAEDenoiseModule(L.LightningModule):
     def on_validation_epoch_end(self):
         if self.trainer.sanity_checking:
             return
-        loss = self.trainer.callback_metrics.get("val/loss")
-        if loss is not None:
-            self.log("hp_metric", loss, sync_dist=True)
         sample = getattr(self, "_figure_sample", None)
         if sample is not None:
             truth, noisy, est = sample

@@ -18,7 +18,7 @@ from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.augment import BodyAugment, BodyAugmenter
 from mocapfix.data.corruption import check_training_corruption, uniform_like, xmae_training_input
 from mocapfix.data.spec import DataSpec
-from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill
+from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill, spline_infill
 from mocapfix.evaluation.harness import TestTable
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.model_fills import calibrate, candidate_fills, policy_output
@@ -114,7 +114,8 @@ class XMAEModule(L.LightningModule):
                 Not yet measured on a GPU. Ignored on the CPU (no graphs there).
             warmup_steps, total_steps: linear warm-up then cosine to zero at total_steps
                 (None: the Trainer's estimated number of optimiser steps).
-            val_gap_s: the full-skeleton gap logged every validation, XMAE beside Lerp.
+            val_gap_s: the full-skeleton gap logged every validation, XMAE beside Lerp and the cubic
+                spline (val/gap<s>s_mpjpe_mm/<fill>), and XMAE's over the spline's (val/gap_vs_spline).
             eval_gaps_s, eval_noise_sigmas_m: the `test` tables.
             calibration_windows: val windows (the first ones) on which every validation measures
                 XMAE against the classical fills per hole length and part (left limbs), and XMAE's
@@ -170,6 +171,11 @@ class XMAEModule(L.LightningModule):
     def skeleton(self) -> Skeleton:
         return Skeleton.from_dict(self.hparams.skeleton)
 
+    def tracked_hparams(self) -> dict:
+        """The settings a run is compared by (training/tracking.py): the network's sizes as the
+        preset (or init_weights) resolves them, not the overrides left None."""
+        return {**self.hparams, **self.sizes}
+
     def _build(self) -> None:
         hp = self.hparams
         self.net = build_model("xmae", XMAEConfig(len(hp.skeleton["parents"]), hp.window_frames, **self.sizes))
@@ -181,7 +187,7 @@ class XMAEModule(L.LightningModule):
         augment = BodyAugment(*(hp.get(k, 0.0) for k in names))
         self.body_augment = BodyAugmenter(self.skeleton, augment) if augment.active else None
         self.val_mpjpe = MPJPE()
-        self.val_gap = nn.ModuleDict({"xmae": MPJPE(), "lerp": MPJPE()})
+        self.val_gap = nn.ModuleDict({"xmae": MPJPE(), "lerp": MPJPE(), "spline": MPJPE()})
 
     def configure_callbacks(self):
         return [BindData()]
@@ -278,6 +284,7 @@ class XMAEModule(L.LightningModule):
         xmae = xmae_reconstruct(self.net, gap.positions, gap.observed)
         self.val_gap["xmae"](xmae.float(), positions.float(), scored)
         self.val_gap["lerp"](lerp_infill(gap.positions, gap.observed).float(), positions.float(), scored)
+        self.val_gap["spline"](spline_infill(gap.positions, gap.observed).float(), positions.float(), scored)
         for name, metric in self.val_gap.items():
             self.log(f"val/gap{self.hparams.val_gap_s}s_mpjpe_mm/{name}", metric)
         if batch_idx == 0:
@@ -318,9 +325,9 @@ class XMAEModule(L.LightningModule):
         policy = self._calibration.compute() if self._calibration is not None else None
         if policy is not None:
             self.fill_policy = policy
-        mpjpe = self.trainer.callback_metrics.get("val/mpjpe_mm")
-        if mpjpe is not None:
-            self.log("hp_metric", mpjpe, sync_dist=True)
+        if self.val_gap["spline"].update_called:  # the run's summary (training/tracking.py) keeps the best's
+            ratio = self.val_gap["xmae"].compute() / self.val_gap["spline"].compute()
+            self.log("val/gap_vs_spline", ratio, sync_dist=True)  # the same on every process (synced metrics)
         sample = getattr(self, "_figure_sample", None)
         if sample is not None:
             truth, given, observed, output = sample
