@@ -18,13 +18,17 @@ $(VENV)/.installed: pyproject.toml
 
 venv: $(VENV)/.installed
 
+# The demo fine-tunes on real takes where a folder of them is at hand (DEMO_DATA=your/folder; in
+# the project's own checkouts the Bandai Namco sample beside it), else on the embedded synthetic motion.
+DEMO_DATA ?= $(wildcard ../shared/data/bandai-namco)
+
 demo: $(VENV)/.installed
-	$(PY) -m mocapfix demo
+	$(PY) -m mocapfix demo $(if $(DEMO_DATA),--data $(DEMO_DATA))
 
 # The everyday suite: lint and format check (ruff, settings in pyproject.toml), then the tests;
 # tests marked slow (minutes of CPU training) run with `make test-all`. `make format` fixes both.
 test: $(VENV)/.installed lint
-	$(PY) -m pytest -q -ra -m "not slow" -n $(TEST_JOBS)
+	$(PY) -m pytest -q -ra -m "not slow" -n $(TEST_JOBS) --durations=15
 
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check mocapfix tests bench

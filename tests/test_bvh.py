@@ -322,6 +322,7 @@ def test_bandai_reference_fk(bandai_files):
         np.testing.assert_array_equal(default.rotations, rerooted.rotations)
 
 
+@pytest.mark.slow  # minutes of CPU; `make test-all` runs it
 def test_every_bandai_clip(bandai_files):
     """Batch over all 384 clips: geometry, guessed units, rotations, re-rooting."""
     assert len(bandai_files) == 384

@@ -183,6 +183,7 @@ def test_unknown_source_is_a_clear_error():
         MotionDataModule(source="mocap", path="x")
 
 
+@pytest.mark.slow  # minutes of CPU; `make test-all` runs it
 def test_bandai_drop_root_cache_timing(bandai_dir, tmp_path):
     """All 384 clips, 1-second windows at 30 fps: parse, then from the cache."""
     kw = dict(source="bvh", path=str(bandai_dir), drop_joints=["joint_Root"], fps=30, cache_dir=str(tmp_path))

@@ -42,6 +42,7 @@ def eval_rows(run: subprocess.CompletedProcess, cwd) -> dict:
     return {(r["task"], r["part"], r.get("gap_s"), r.get("sigma_m"), r["method"]): r["mpjpe_mm"] for r in rows}
 
 
+@pytest.mark.slow  # minutes of CPU; `make test-all` runs it
 def test_two_process_fit_and_test_give_the_one_process_table(tmp_path):
     common = ["--config", "xmae", *TINY, *DATA, *QUIET, *TABLE, "--model.init_args.calibration_windows", "0"]
     mocapfix(

@@ -56,6 +56,7 @@ def test_fast_dev_run_xmae_yaml(tmp_path):
     )
 
 
+@pytest.mark.slow  # minutes of CPU; `make test-all` runs it
 def test_fast_dev_run_xmae_bvh_yaml(tmp_path, bandai_dir):
     assert (
         run_cli(

@@ -35,7 +35,7 @@ from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.evaluation.baselines import CLASSICAL, hermite_infill, lerp_infill, limb_infill
 from mocapfix.evaluation.metrics import LimbSigma
-from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, excursions, policy_names
+from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, excursions, policy_names, recording_step_floor
 from mocapfix.fix.fixers import Fixer, RotationFixer
 from mocapfix.fix.recording_policy import measure_policy
 from mocapfix.fix.windowing import (
@@ -88,8 +88,9 @@ def map_joints(
 NOT_JUDGED = "observed tokens kept, not judged"
 # --mode both / denoise replace the observed tokens of a joint that jumped away from the model's
 # estimate by more than JUMP_STEP x the checkpoint's replace threshold (0.15 m for the shipped
-# XMAE) and back within MAX_REPLACED_S (evaluation/policy.py: excursions). Every other observed
-# token is kept as recorded: a model that disagrees with an unusual motion does not move it.
+# XMAE), and by more than the recording's own residual steps allow (recording_step_floor), and
+# back within MAX_REPLACED_S (evaluation/policy.py: excursions). Every other observed token is
+# kept as recorded: a model that disagrees with an unusual motion does not move it.
 JUMP_STEP = 2 / 3
 MAX_REPLACED_S = 2.0
 
@@ -192,7 +193,7 @@ def fix_clips(
     estimates, first = _fix_positions(
         clips, fixer, "both", overlap, batch_size, progress, None, joint_map, fill_other_joints=False, view=view
     )
-    masked, suspects, seen, replaced = [], 0, [], []
+    masked, suspects, seen, replaced, min_step = [], 0, [], [], 0.0
     for c, e in zip(clips, estimates):
         idx = map_joints(c.skeleton, fixer.skeleton, c.source, joint_map, allow_missing=True)
         seen.append(np.isfinite(c.positions[:, np.maximum(idx, 0)]).all(-1) & (idx >= 0))  # (T, Jm)
@@ -203,7 +204,8 @@ def fix_clips(
             bad = np.zeros(obs.shape, dtype=bool)
         else:  # (T, Jm) the tokens that jumped away from the estimate and back
             residual = torch.nan_to_num(x - torch.from_numpy(e.positions[:, idx]))
-            step = JUMP_STEP * policy.replace_threshold_m
+            step = max(JUMP_STEP * policy.replace_threshold_m, recording_step_floor(residual, obs))
+            min_step = max(min_step, step)
             bad = excursions(residual, obs, step, round(MAX_REPLACED_S * c.fps)).numpy()
         if too_short(c, fixer):  # no evidence to judge a token against: kept (pass 1 said so)
             bad[:] = False
@@ -241,7 +243,7 @@ def fix_clips(
     report.limb_sigma_before_mm = first.limb_sigma_before_mm
     report.notes.insert(
         0,
-        f"replaced where a joint jumped more than {1000 * JUMP_STEP * policy.replace_threshold_m:.0f} mm away from "
+        f"replaced where a joint jumped more than {1000 * min_step:.0f} mm away from "
         f"the model's estimate and back within {MAX_REPLACED_S:g} s"
         if policy.replace_threshold_m is not None
         else "no replace threshold: observed tokens kept",
