@@ -278,3 +278,23 @@ def test_a_preferred_fill_is_kept_over_near_ties_and_survives_the_checkpoint():
     assert policy.best("full", 0.9) == "xmae"
     assert FillPolicy.from_dict(policy.to_dict()).preferred == ("limb", 0.95)
     assert FillPolicy.from_dict({"gaps_s": [0.3], "error_mm": {"full": {"limb": [1.0]}}}).preferred is None
+
+
+def test_an_over_tight_threshold_is_raised_by_the_recordings_own_steps():
+    """A fine-tuned model can bring a replace threshold from its val split that a stranger's take
+    crosses every few frames (the demo's: a 32-mm step): the recording's own residual steps lift
+    the first step an excursion needs, and a real 35-cm jump is still found, and only it."""
+    from mocapfix.evaluation.policy import excursions, recording_step_floor
+
+    g = torch.Generator().manual_seed(0)
+    T, J = 300, 21
+    residual = 0.012 * torch.randn(T, J, 3, generator=g)  # (T, J, 3) the model's disagreement, metres
+    jumped = torch.zeros(T, J, dtype=torch.bool)
+    jumped[200:218, [10, 11, 12]] = True
+    residual[jumped] += torch.tensor([0.25, 0.0, 0.25])
+    observed = torch.ones(T, J, dtype=torch.bool)
+    tight = excursions(residual, observed, 0.032, 60)
+    assert (tight & ~jumped).sum() > 100  # the calibrated step alone
+    step = max(0.032, recording_step_floor(residual, observed))
+    assert 0.05 < step < 0.2
+    assert torch.equal(excursions(residual, observed, step, 60), jumped)
