@@ -76,6 +76,7 @@ def test_fit_logs_its_hyperparameters_beside_its_best_validation(tmp_path):
 
     # the metrics are measurements: the best of two validations, and XMAE over the cubic spline
     assert "hp_metric" not in scalars, "Lightning's placeholder hp_metric card"
+    assert "epoch" not in scalars, "steps count here; the epoch card was the first a user met"
     best = scalars["hparams/best_val_mpjpe_mm"]
     assert len(scalars["val/mpjpe_mm"]) == 2 and len(best) == 2
     assert all(math.isfinite(v) and v > 0 for v in best)

@@ -97,10 +97,10 @@ def make_logger(kind: str, experiment: str):
     ./mlruns by default; the experiment by name). A fit's hyperparameters beside its results
     (TensorBoard's HPARAMS tab): training/tracking.py."""
     if kind == "tensorboard":
-        from lightning.pytorch.loggers import TensorBoardLogger
+        from mocapfix.training.tracking import StepsTensorBoardLogger
 
         # default_hp_metric: Lightning's hp_metric card, a constant -1 (RunSummary logs real ones)
-        return TensorBoardLogger(save_dir="logs", name=experiment, default_hp_metric=False)
+        return StepsTensorBoardLogger(save_dir="logs", name=experiment, default_hp_metric=False)
     if kind == "csv":
         from lightning.pytorch.loggers import CSVLogger
 

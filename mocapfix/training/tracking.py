@@ -26,6 +26,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import lightning as L
+from lightning.pytorch.loggers import TensorBoardLogger
 
 # the scalars RunSummary logs: name -> (what it follows, how)
 METRICS = {
@@ -116,9 +117,15 @@ def hparams_summaries(params: Mapping[str, Any], metrics: Sequence[str], status:
     ]
 
 
-def _tensorboard_writers(trainer: L.Trainer) -> list:
-    from lightning.pytorch.loggers import TensorBoardLogger
+class StepsTensorBoardLogger(TensorBoardLogger):
+    """TensorBoard without Lightning's "epoch" card, the first one a user met: these schedules
+    count steps (validation every N steps), and epochs of windows compare nothing between runs."""
 
+    def log_metrics(self, metrics: Mapping[str, float], step: int | None = None) -> None:
+        super().log_metrics({k: v for k, v in metrics.items() if k != "epoch"}, step)
+
+
+def _tensorboard_writers(trainer: L.Trainer) -> list:
     return [lg.experiment._get_file_writer() for lg in trainer.loggers if isinstance(lg, TensorBoardLogger)]
 
 
