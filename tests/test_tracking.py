@@ -11,7 +11,7 @@ from mocapfix.training.tracking import METRICS
 
 
 def read_run(run_dir):
-    """-> (scalars: tag -> values, hparams: name -> value, metric tags the experiment names, end status)"""
+    """-> (scalars: tag -> values, hparams: name -> value, end status)"""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
     from tensorboard.plugins.hparams import api_pb2, metadata
 
@@ -24,11 +24,10 @@ def read_run(run_dir):
 
     start = metadata.parse_session_start_info_plugin_data(content(metadata.SESSION_START_INFO_TAG))
     hparams = {k: getattr(v, v.WhichOneof("kind")) for k, v in start.hparams.items()}
-    experiment = metadata.parse_experiment_plugin_data(content(metadata.EXPERIMENT_TAG))
-    assert {h.name for h in experiment.hparam_infos} >= set(hparams)
-    metrics = [m.name.tag for m in experiment.metric_infos]
+    # no experiment record: TensorBoard builds it from the runs, the settings that differ first
+    assert metadata.EXPERIMENT_TAG not in ea.summary_metadata
     end = metadata.parse_session_end_info_plugin_data(content(metadata.SESSION_END_INFO_TAG))
-    return scalars, hparams, metrics, api_pb2.Status.Name(end.status)
+    return scalars, hparams, api_pb2.Status.Name(end.status)
 
 
 def test_fit_logs_its_hyperparameters_beside_its_best_validation(tmp_path):
@@ -51,7 +50,7 @@ def test_fit_logs_its_hyperparameters_beside_its_best_validation(tmp_path):
         "0",
     ]
     assert run_cli(args, tmp_path) == 0
-    scalars, hparams, metrics, status = read_run(tmp_path / "logs" / "hp" / "version_0")
+    scalars, hparams, status = read_run(tmp_path / "logs" / "hp" / "version_0")
 
     # the main settings, flat, named as on the command line; the network's sizes as resolved
     expected = {
@@ -72,7 +71,7 @@ def test_fit_logs_its_hyperparameters_beside_its_best_validation(tmp_path):
         assert hparams.get(name) == value, f"{name}: {hparams.get(name)!r} (hparams: {sorted(hparams)})"
     assert not any("skeleton" in k or k.startswith("model._") for k in hparams)
     assert "data.num_workers" not in hparams and "data.cache_dir" not in hparams
-    assert metrics == list(METRICS) and status == "STATUS_SUCCESS"
+    assert set(METRICS) <= set(scalars) and status == "STATUS_SUCCESS"
 
     # the metrics are measurements: the best of two validations, and XMAE over the cubic spline
     assert "hp_metric" not in scalars, "Lightning's placeholder hp_metric card"

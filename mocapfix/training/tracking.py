@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import lightning as L
@@ -76,15 +76,14 @@ def run_hparams(trainer: L.Trainer, module: L.LightningModule, seed: int | None 
     return out
 
 
-def hparams_summaries(params: Mapping[str, Any], metrics: Sequence[str], status: str | None = None) -> list:
-    """TensorBoard's hparams plugin records (Summary protos) for one run: the experiment (which
-    hyperparameters and metrics there are) and the session's start (its values), or with `status`
-    ("STATUS_SUCCESS", "STATUS_FAILURE", "STATUS_ABORTED") the session's end.
+def hparams_summaries(params: Mapping[str, Any], status: str | None = None) -> list:
+    """TensorBoard's hparams plugin records (Summary protos) for one run: the session's start (its
+    settings), or with `status` ("STATUS_SUCCESS", "STATUS_FAILURE", "STATUS_ABORTED") its end.
 
-    As torch.utils.tensorboard.summary.hparams writes them, with two differences: no metric
-    values (the metrics are scalars the run logs; Lightning's log_hyperparams writes a value for
-    each, the -1 placeholder), and a setting that is None in this run is still named, without a
-    value, so that the column is there when TensorBoard takes the experiment from this run."""
+    No experiment record (torch.utils.tensorboard.summary.hparams and Lightning's log_hyperparams
+    write one): without it TensorBoard builds the experiment from the runs' sessions, lists first
+    the settings that differ between the runs in view (its table shows five at a time), and takes
+    the metrics from the runs' scalars (hparams/* among them) rather than a -1 placeholder."""
     from tensorboard.compat.proto.summary_pb2 import Summary, SummaryMetadata
     from tensorboard.plugins.hparams import api_pb2, metadata, plugin_data_pb2
 
@@ -97,24 +96,14 @@ def hparams_summaries(params: Mapping[str, Any], metrics: Sequence[str], status:
         end = plugin_data_pb2.SessionEndInfo(status=api_pb2.Status.Value(status), end_time_secs=time.time())
         return [summary(metadata.SESSION_END_INFO_TAG, session_end_info=end)]
     start = plugin_data_pb2.SessionStartInfo(start_time_secs=time.time())
-    infos = []
     for name, value in params.items():
         if isinstance(value, bool):  # before int: a bool is one
-            start.hparams[name].bool_value, kind = value, "DATA_TYPE_BOOL"
+            start.hparams[name].bool_value = value
         elif isinstance(value, (int, float)):
-            start.hparams[name].number_value, kind = value, "DATA_TYPE_FLOAT64"
+            start.hparams[name].number_value = value
         elif isinstance(value, str):
-            start.hparams[name].string_value, kind = value, "DATA_TYPE_STRING"
-        else:
-            kind = "DATA_TYPE_UNSET"
-        infos.append(api_pb2.HParamInfo(name=name, type=api_pb2.DataType.Value(kind)))
-    experiment = api_pb2.Experiment(
-        hparam_infos=infos, metric_infos=[api_pb2.MetricInfo(name=api_pb2.MetricName(tag=m)) for m in metrics]
-    )
-    return [
-        summary(metadata.EXPERIMENT_TAG, experiment=experiment),
-        summary(metadata.SESSION_START_INFO_TAG, session_start_info=start),
-    ]
+            start.hparams[name].string_value = value
+    return [summary(metadata.SESSION_START_INFO_TAG, session_start_info=start)]
 
 
 class StepsTensorBoardLogger(TensorBoardLogger):
@@ -144,13 +133,13 @@ class RunSummary(L.Callback):
             return
         params = run_hparams(trainer, pl_module, self.seed)
         for writer in _tensorboard_writers(trainer):
-            for s in hparams_summaries(params, list(METRICS)):
+            for s in hparams_summaries(params):
                 writer.add_summary(s)
 
     def _end(self, trainer: L.Trainer, status: str) -> None:
         if trainer.is_global_zero and trainer.state.fn == "fit":
             for writer in _tensorboard_writers(trainer):
-                writer.add_summary(hparams_summaries({}, [], status)[0])
+                writer.add_summary(hparams_summaries({}, status)[0])
                 writer.flush()
 
     def on_fit_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
