@@ -276,3 +276,16 @@ def test_a_file_at_the_wrong_scale_is_named(tmp_path):
     with pytest.raises(MotionFileError, match="not a human body") as e:
         dm.setup("fit")
     assert str(e.value).startswith(str(tmp_path / "mm.npz"))
+
+
+def test_parsing_a_folder_shows_progress(bandai_files, tmp_path, monkeypatch, caplog):
+    import logging
+
+    import mocapfix.data.datamodule as datamodule
+
+    monkeypatch.setattr(datamodule, "PROGRESS_EVERY_S", 0.0)
+    dm = MotionDataModule(source="bvh", path=[str(f) for f in bandai_files[:3]], fps=30, cache_dir=None)
+    with caplog.at_level(logging.INFO, logger="mocapfix"):
+        dm.setup("fit")
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("parsing:")]
+    assert lines[0].startswith("parsing: 0 of 3 files") and len(lines) == 3

@@ -36,6 +36,7 @@ from mocapfix.io.joint_names import onto_skeleton
 log = logging.getLogger(__name__)
 
 SOURCES = ("synthetic", "bvh", "positions", "h36m", "amass", "archive")
+PROGRESS_EVERY_S = 5.0  # a progress line while parsing, at most this often
 SPLITS = ("train", "val", "test")
 
 
@@ -269,8 +270,12 @@ class MotionDataModule(L.LightningDataModule):
             return load_clips(Path(hp.path))
         from mocapfix.io import read_motion
 
-        clips = []
-        for f in self._files():
+        clips, files = [], self._files()
+        t0 = shown = time.perf_counter()
+        for i, f in enumerate(files):
+            if time.perf_counter() - shown > PROGRESS_EVERY_S:  # a big folder takes minutes the first time
+                shown = time.perf_counter()
+                log.info("parsing: %d of %d files, %.0f s", i, len(files), shown - t0)
             # Joint selection happens in the reader where it can (BVH: exact re-rooted rotations),
             # and again in _prepare for readers that don't take it (a no-op after the reader).
             clips.extend(
