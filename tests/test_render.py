@@ -96,3 +96,12 @@ def test_fix_render_writes_a_gif_beside_the_output(recording):
     holes = np.asarray(Image.open(d / "in.fixed.holes.png").convert("RGB"))
     top, bottom = holes[: len(holes) // 2], holes[len(holes) // 2 :]
     assert _has(bottom, FILLED, pixels=20) and not _has(top, FILLED)
+
+
+def test_a_long_file_name_fits_its_panel_with_its_start_and_end():
+    from mocapfix.core.render import TITLE_CHARACTERS, _fitted
+
+    assert _fitted("take.npz") == "take.npz"
+    long = "dataset-2_walk_elderly_002_broken.npz"
+    short = _fitted(long)
+    assert len(short) == TITLE_CHARACTERS and short.startswith("dataset-2_walk") and short.endswith("_broken.npz")

@@ -32,6 +32,7 @@ HOLE_BAR = (220, 40, 40)
 VIEWS = {"front": (0, 2), "side": (1, 2)}  # (horizontal, vertical) axes of z-up positions
 HALF_WIDTH_M = 0.9  # the panel shows the body's centre +- this, horizontally
 STRIP_COLUMNS = 4  # a filmstrip's frames per row
+TITLE_CHARACTERS = 34  # what a panel's width holds at its title's font size
 
 
 def _rgb(c: tuple[int, int, int]) -> tuple[float, float, float]:
@@ -85,6 +86,14 @@ def _span(num_frames: int, fps: float, start_s: float, duration_s: float | None,
     return frames
 
 
+def _fitted(name: str, most: int = TITLE_CHARACTERS) -> str:
+    """A panel's title within its width: a long file name keeps its start and its end."""
+    if len(name) <= most:
+        return name
+    tail = (most - 1) // 2
+    return name[: most - 1 - tail] + "…" + name[-tail:]
+
+
 class _Scene:
     """The figure and its artists, redrawn per frame (set_frame)."""
 
@@ -103,7 +112,7 @@ class _Scene:
                 ax.set_xticks([])
                 ax.set_yticks([])
                 if r == 0:
-                    ax.set_title(tr.name, fontsize=8)
+                    ax.set_title(_fitted(tr.name), fontsize=8)
                 if c == 0:
                     ax.set_ylabel(view, fontsize=8)
                 self.axes.append((ax, view, tr))
