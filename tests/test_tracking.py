@@ -86,3 +86,12 @@ def test_fit_logs_its_hyperparameters_beside_its_best_validation(tmp_path):
     assert math.isclose(ratio, scalars["val/gap_vs_spline"][which], rel_tol=1e-6) and ratio > 0
     xmae, spline = scalars["val/gap0.5s_mpjpe_mm/xmae"][which], scalars["val/gap0.5s_mpjpe_mm/spline"][which]
     assert math.isclose(ratio, xmae / spline, rel_tol=1e-4)
+
+
+def test_the_end_statuses_written_are_tensorboards():
+    # a status TensorBoard lacks (STATUS_ABORTED) once turned a SIGTERM stop into an error
+    from mocapfix.training.tracking import hparams_summaries
+
+    for status in ("STATUS_SUCCESS", "STATUS_FAILURE"):
+        (summary,) = hparams_summaries({}, status)
+        assert summary.value[0].tag.endswith("session_end_info")

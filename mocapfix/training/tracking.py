@@ -78,7 +78,7 @@ def run_hparams(trainer: L.Trainer, module: L.LightningModule, seed: int | None 
 
 def hparams_summaries(params: Mapping[str, Any], status: str | None = None) -> list:
     """TensorBoard's hparams plugin records (Summary protos) for one run: the session's start (its
-    settings), or with `status` ("STATUS_SUCCESS", "STATUS_FAILURE", "STATUS_ABORTED") its end.
+    settings), or with `status` ("STATUS_SUCCESS", "STATUS_FAILURE": api_pb2.Status) its end.
 
     No experiment record (torch.utils.tensorboard.summary.hparams and Lightning's log_hyperparams
     write one): without it TensorBoard builds the experiment from the runs' sessions, lists first
@@ -148,8 +148,10 @@ class RunSummary(L.Callback):
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
         from lightning.pytorch.utilities.exceptions import SIGTERMException
 
-        stopped = isinstance(exception, (KeyboardInterrupt, SIGTERMException))
-        self._end(trainer, "STATUS_ABORTED" if stopped else "STATUS_FAILURE")
+        # A run stopped on purpose (Ctrl-C, SIGTERM) ends without a status: it has not failed,
+        # and its last.ckpt resumes it (TensorBoard's statuses have nothing between).
+        if not isinstance(exception, (KeyboardInterrupt, SIGTERMException)):
+            self._end(trainer, "STATUS_FAILURE")
 
     def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         # after the epoch's metrics are in callback_metrics (on_validation_epoch_end comes before)
