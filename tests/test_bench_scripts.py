@@ -274,6 +274,7 @@ def test_data_pipeline(tmp_path):
     assert [x["row"] for x in r["rows"]] == ["loader", "device"] and all(x["windows_per_s"] > 0 for x in r["rows"])
 
 
+@pytest.mark.slow  # a minute of CPU; `make test-all` runs it
 def test_dvae_speed(tmp_path):
     r = bench(
         "dvae_speed",
@@ -333,6 +334,7 @@ def test_units_bandai(tmp_path, bandai_dir):
     assert 0.95 < rows["0.0564"]["hip_ratio_min"] <= rows["0.0564"]["hip_ratio_max"] < 1.05
 
 
+@pytest.mark.slow  # a minute of CPU; `make test-all` runs it
 def test_fix_policy_bandai(tmp_path, bandai_dir):
     """Issue 18's denoising bars on Bandai's test split, with an untrained tiny model whose policy
     replaces nothing (a threshold no disagreement reaches): clean clips come back unchanged and

@@ -167,6 +167,7 @@ def trained(tmp_path_factory):
     return work, work / "checkpoints" / "p" / "last.ckpt"
 
 
+@pytest.mark.slow  # a minute of CPU; `make test-all` runs it
 def test_fit_saves_the_policy_and_test_reports_it_never_worse_than_the_classical_fills(trained, capsys):
     work, ckpt = trained
     saved = torch.load(ckpt, map_location="cpu", weights_only=True)

@@ -649,6 +649,7 @@ def _evaluate(ckpt, tmp_path, capsys) -> dict:
     }
 
 
+@pytest.mark.slow  # a minute of CPU; `make test-all` runs it
 def test_trained_xmae_checkpoint_sanity(tmp_path, capsys):
     """A briefly trained XMAE straight from `fit`: the Lightning checkpoint loads, nothing NaN
     comes out, displaced tokens are pulled back and limbs are steadier than in the input."""

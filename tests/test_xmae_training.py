@@ -76,6 +76,7 @@ def test_fast_dev_run_xmae_bvh_yaml(tmp_path, bandai_dir):
     )
 
 
+@pytest.mark.slow  # a minute of CPU; `make test-all` runs it
 def test_fast_dev_run_xmae_h36m_yaml(tmp_path):
     rng = np.random.default_rng(0)
     tree = {
