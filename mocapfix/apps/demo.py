@@ -103,9 +103,9 @@ def main(argv: list[str] | None = None) -> int:
         f"\nanimation (input | fixed; filled tokens green, replaced orange): {shown(gif)}\n"
         "next:\n"
         f"  tensorboard --logdir {log_dir}          # the fit's curves, figures and hyperparameters\n"
-        f"  mocapfix fix YOUR_TAKE.bvh --model {START_FROM} -o fixed.bvh   # fix your own file\n"
-        "  mocapfix render YOUR_TAKE.bvh fixed.bvh -o side_by_side.gif  # look at it\n"
-        "  mocapfix fit --config xmae_cpu --data.path YOUR_FOLDER        # train on your folder"
+        f"  mocapfix fix YOUR_TAKE.bvh --model {START_FROM} --mode both -o fixed.bvh   # fix your own file\n"
+        "  mocapfix render YOUR_TAKE.bvh fixed.bvh -o side_by_side.gif   # look at it\n"
+        "  mocapfix fit --config xmae_cpu --data.path YOUR_FOLDER         # train on your folder"
     )
     return 0
 
