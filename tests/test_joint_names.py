@@ -157,7 +157,8 @@ def test_fix_on_renamed_joints_matches_the_native_run(tmp_path, bandai_clip, cap
     assert "Chest            <- mixamorig:Spine1 (body part, from the rig's structure)" in out
     assert "UpperArm_L       <- mixamorig:LeftArm (body part, from the rig's structure)" in out
     assert "LowerArm_L       <- LeftBendy (joint map)" in out
-    assert "not used by the model (kept as recorded, moved with the model joint above them where fix replaces it): " + ", ".join(FINGERS) in out
+    where = "kept as recorded, moved with the model joint above them where fix replaces it"
+    assert f"not used by the model ({where}): " + ", ".join(FINGERS) in out
 
 
 def test_an_smpl_recording_maps_onto_a_bandai_model_with_the_nearest_spine_joints(bandai_clip):

@@ -266,7 +266,8 @@ def describe_mapping(skeleton: Skeleton, model: Skeleton, joint_map: dict[str, s
     used = set(found.values())
     extra = [skeleton.joint_names[i] for i in range(skeleton.num_joints) if i not in used]
     if extra:
-        lines.append(f"not used by the model (kept as recorded, moved with the model joint above them where fix replaces it): {', '.join(extra)}")
+        where = "kept as recorded, moved with the model joint above them where fix replaces it"
+        lines.append(f"not used by the model ({where}): {', '.join(extra)}")
     return lines
 
 
