@@ -221,7 +221,8 @@ def recording_step_floor(residual: torch.Tensor, observed: torch.Tensor) -> floa
     steps = (residual[1:] - residual[:-1]).norm(dim=-1)[both]  # (n,)
     if steps.numel() == 0:
         return 0.0
-    return STEP_FACTOR * float(torch.quantile(steps.double()[:1_000_000], STEP_QUANTILE))
+    every = -(-steps.numel() // 1_000_000)  # a sample over the whole take: torch.quantile refuses very large inputs
+    return STEP_FACTOR * float(torch.quantile(steps[::every].double(), STEP_QUANTILE))
 
 
 def excursions(residual: torch.Tensor, observed: torch.Tensor, min_step_m: float, max_frames: int) -> torch.Tensor:
