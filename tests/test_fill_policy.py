@@ -214,8 +214,9 @@ def test_validate_writes_the_policy_into_a_checkpoint_without_one(trained, capsy
 
 
 class OracleFixer:
-    """A fixer that knows the clean motion: it finds each window in the clean clip by its root
-    joint (never displaced here) and answers the truth. What fix does with a perfect model."""
+    """A fixer that knows the clean motion: it finds each window in the clean clip by its observed
+    tokens (one displaced joint cannot outweigh the rest; a root alone is ambiguous where the body
+    stands still) and answers the truth. What fix does with a perfect model."""
 
     kind, state = "xmae", "positions"
 
@@ -225,18 +226,18 @@ class OracleFixer:
 
     def estimate(self, positions, observed):
         padded = np.concatenate([self.clean, np.repeat(self.clean[-1:], self.window, axis=0)])
+        starts = np.lib.stride_tricks.sliding_window_view(padded, self.window, axis=0)[: len(self.clean)]
+        starts = np.moveaxis(starts, -1, 1)  # (S, W, J, 3): the clean window at every start
         out = []
         for window in positions.numpy():
-            root = window[:, 0]
-            seen = np.isfinite(root).all(-1)
-            errs = [np.abs(padded[s : s + self.window, 0][seen] - root[seen]).sum() for s in range(len(self.clean))]
-            s = int(np.argmin(errs))
+            seen = np.isfinite(window).all(-1)  # (W, J)
+            s = int(np.argmin(np.abs(starts[:, seen] - window[seen]).sum(axis=(1, 2))))
             out.append(padded[s : s + self.window])
         return torch.from_numpy(np.stack(out)).float()
 
 
 def test_fix_with_a_policy_replaces_only_what_the_model_disagrees_with_and_fills_by_it():
-    clip = generate_clips(1, 10.0, fps=30, seed=11)[0]  # room to measure the model on (recording_policy.py)
+    clip = generate_clips(1, 60.0, fps=30, seed=11)[0]  # room to cut 40 holes of a kind (recording_policy.py)
     clean = Clip(clip.positions, clip.fps, clip.skeleton, "clean", meta={"format": "positions-npz"})
     table = {"xmae": [5.0, 5.0], "spline": [1.0, 50.0]}
     fixer = OracleFixer(clean.positions, FillPolicy([0.1, 0.5], {p: table for p in ("full", "arm", "leg")}, 0.1))
@@ -252,7 +253,7 @@ def test_fix_with_a_policy_replaces_only_what_the_model_disagrees_with_and_fills
     untouched[40:55, 20] = False
     assert np.array_equal(out[0].positions[untouched], clean.positions[untouched])
     # infill: the table says the model for long holes, and a model must earn its place on the
-    # recording (fix/recording_policy.py): holes cut into these 10 s, the oracle model fills them
+    # recording (fix/recording_policy.py): holes cut into these 60 s, the oracle model fills them
     # exactly, so it fills the recording's holes
     holed = clean.positions.copy()
     holed[60:63] = np.nan
