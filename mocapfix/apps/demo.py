@@ -77,8 +77,12 @@ def main(argv: list[str] | None = None) -> int:
     out_dir = Path("logs") / args.experiment / "fixed_take"
     out_dir.mkdir(parents=True, exist_ok=True)
 
+    from mocapfix.io.positions import write_positions
+
     truth, broken, damage = break_take(held_out)
-    broken_path = _write(out_dir / f"{held_out.name}_broken.npz", broken)
+    broken_path = write_positions(
+        out_dir / f"{held_out.name}_broken.npz", broken.positions, broken.fps, broken.skeleton
+    )
     fixed_path = out_dir / f"{held_out.name}_fixed.npz"
     print(f"mocapfix demo 2/3: fixing {shown(broken_path)} (a take the fit never saw, broken) with {shown(ckpt)}")
     from mocapfix.apps.fix_cli import main as fix_main
@@ -98,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     first_hole = int(np.flatnonzero(damage.holes.any(1))[0])
     start_s = max(0.0, first_hole / truth.fps - 0.5)
     gif = render_files(broken_path, [fixed_path], out_dir / "demo.gif", start_s=start_s, fps=15)
-    log_dir = Path("logs") / args.experiment
+    log_dir = out_dir.parent
     print(
         f"\nanimation (input | fixed; filled tokens green, replaced orange): {shown(gif)}\n"
         "next:\n"
@@ -244,9 +248,3 @@ def score_table(truth: np.ndarray, as_read: np.ndarray, fixed: np.ndarray, damag
     widths = [max(len(r[i]) for r in cells) for i in range(len(head))]
     lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))) for r in cells]
     return "MPJPE in mm against the take before it was broken\n" + "\n".join(lines)
-
-
-def _write(path: Path, clip: Clip) -> Path:
-    from mocapfix.io.positions import write_positions
-
-    return write_positions(path, clip.positions, clip.fps, clip.skeleton)
