@@ -13,6 +13,7 @@
 #   bash bench/gpu_session.sh tune           # issue 6: the kernel-time levers: attention backends, max-autotune
 #   bash bench/gpu_session.sh gpu-tests      # the tests marked gpu (CUDA paths: CUDA graphs, bf16, resume across devices)
 #   bash bench/gpu_session.sh accuracy       # issue 6: XMAE test tables, fast path vs plain path, two seeds each
+#   bash bench/gpu_session.sh many-holes     # issue 31: Hermite-correcting XMAEs trained on the fix case's holes
 #   bash bench/gpu_session.sh many           # issue 31: XMAE across studios (configs/xmae_many.yaml), paper
 #                                            # sizes on the GPU and the cpu preset on 8 of its CPU cores at once
 #
@@ -193,6 +194,39 @@ many-hermite)
     [ -n "$CK" ] || CK=checkpoints/$run/last.ckpt
     [ -f "$CK" ] && $PY bench/shrink_checkpoint.py "$CK" "$OUT/$run.ckpt"
   done
+  ;;
+many-holes)
+  # Issue 31, the fix case: XMAEs correcting the Hermite fill, trained on one hole of the whole
+  # body or a limb per window (hole_ratio 1: what fix meets, model.init_args.hole_ratio) across the
+  # studios, three at once on the one GPU: the paper sizes (compiled), the cpu preset on 1-s and
+  # on 2-s windows (eager). HOLES_TIME caps each; the step counts are sized to finish first.
+  HOLES=("${CORPUS[@]}" --model.init_args.fill_kind hermite --model.init_args.fill_input true
+    --model.init_args.hole_ratio 1.0 --model.init_args.max_hole_s 0.9 --model.init_args.gap_ratio 0
+    --trainer.max_time "${HOLES_TIME:-00:00:06:10}" "${EXTRA_ARGS[@]}")
+  run_holes() {  # experiment steps window_s preset [more args]
+    local exp=$1 steps=$2 window=$3 preset=$4; shift 4
+    $PY -m mocapfix fit --config configs/xmae_many.yaml --experiment "$exp" "${HOLES[@]}" \
+      --data.window_s "$window" --model.init_args.preset "$preset" --trainer.max_steps "$steps" \
+      --model.init_args.total_steps "$steps" --trainer.val_check_interval "$((steps / 2))" "$@" > "$OUT/$exp.txt" 2>&1
+  }
+  RUNS=${RUNS:-holes_paper holes_cpu holes_cpu_2s}  # which of the three
+  [[ " $RUNS " == *" holes_paper "* ]] && run_holes holes_paper "${PAPER_STEPS:-4000}" 1.0 paper \
+    --model.init_args.compile_model true &
+  [[ " $RUNS " == *" holes_cpu "* ]] && run_holes holes_cpu "${CPU_STEPS:-8000}" 1.0 cpu \
+    --model.init_args.lr 1e-3 --model.init_args.warmup_steps 300 &
+  [[ " $RUNS " == *" holes_cpu_2s "* ]] && run_holes holes_cpu_2s "${CPU2_STEPS:-5000}" 2.0 cpu \
+    --model.init_args.lr 1e-3 --model.init_args.warmup_steps 300 &
+  wait
+  for run in $RUNS; do
+    grep -e "stopped" -e "Time limit" -e Error "$OUT/$run.txt" | tail -n 3 || true  # none: set -e would end the loop
+    CK=$(ls checkpoints/$run/best-*.ckpt 2>/dev/null | head -1 || true)
+    [ -n "$CK" ] || CK=checkpoints/$run/last.ckpt
+    FP32=(); [ "$run" = holes_paper ] || FP32=(--fp32)  # the cpu preset ships in fp32 (0.7 MB)
+    [ -f "$CK" ] && $PY bench/shrink_checkpoint.py "${FP32[@]}" "$CK" "$OUT/$run.ckpt" && echo "$run: $CK"
+    [ -f checkpoints/$run/last.ckpt ] && $PY -c "import torch, sys; c = torch.load(sys.argv[1], map_location='cpu', \
+weights_only=True); print(sys.argv[1], 'step', c['global_step'])" checkpoints/$run/last.ckpt
+  done
+  (cd logs && tar czf "$OUT/holes_logs.tgz" $RUNS)
   ;;
 dvae-speed)
   # a few minutes: is the prior's step faster compiled? (decides COMPILE=1 for dvae-prior)

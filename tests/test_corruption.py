@@ -21,6 +21,8 @@ from mocapfix.data.corruption import (
     rotate_z,
     rotation_noise,
     training_gaps,
+    training_holes,
+    xmae_training_input,
 )
 
 B, T, J = 6, 50, 17
@@ -129,6 +131,49 @@ def test_training_gaps_remove_whole_frames_and_keep_counts():
     # gap_ratio 0 draws nothing extra: the paper's corruption, token for token
     a, b = mask_and_displace(x, generator=gen(2)), mask_and_displace(x, generator=gen(2), gap_ratio=0.0)
     assert torch.equal(a.observed, b.observed) and torch.equal(a.positions, b.positions)
+
+
+def test_training_holes_take_one_part_for_one_stretch_inside_the_window():
+    x = motion()
+    parts = torch.zeros(3, J, dtype=torch.bool)
+    parts[0] = True  # the whole body
+    parts[1, :4] = True
+    parts[2, 10:12] = True
+    holes = training_holes(3000, T, parts, 20, gen(3), x)  # (3000, T, J)
+    frames = holes.any(dim=2)  # (3000, T)
+    length = frames.sum(dim=1)
+    assert length.min() == 1 and length.max() == 20  # every window has one, 1..max frames
+    rises = (frames[:, 1:] & ~frames[:, :-1]).sum(dim=1) + frames[:, 0]
+    assert (rises == 1).all()  # one contiguous stretch
+    assert not frames[:, 0].any() and not frames[:, -1].any()  # observed data on both sides
+    joints = holes.any(dim=1)  # (3000, J): which joints went missing
+    which = (joints[:, None, :] == parts[None]).all(dim=2)  # (3000, 3): exactly one part's joints
+    assert (which.sum(dim=1) == 1).all()
+    share = which.float().mean(dim=0)
+    assert (share - 1 / 3).abs().max() < 0.04  # parts drawn uniformly
+    # a window too short for the longest hole still keeps a frame either side
+    short = training_holes(500, 5, parts, 20, gen(4), x).any(dim=2)
+    assert short.sum(dim=1).max() == 3 and not short[:, 0].any() and not short[:, -1].any()
+
+
+def test_hole_windows_observe_everything_but_the_hole():
+    x = motion(nan_frac=0.05)
+    parts = torch.ones(1, J, dtype=torch.bool)
+    ti = xmae_training_input(x, 0.85, 0.05, 1.0, True, False, gen(5), 0.0, 1.0, parts, 10)
+    c = ti.corrupted
+    assert not c.displaced.any()  # no displaced token: only the hole is scored
+    missing = available(x) & ~c.observed  # (B, T, J) the hole's tokens that have data
+    frames = missing.any(dim=2)
+    assert (frames.sum(dim=1) >= 1).all() and (frames.sum(dim=1) <= 10).all()
+    assert (missing == (available(x) & frames[:, :, None])).all()  # every joint of a hole frame, nothing else
+    assert ti.kept.shape == (B, N)  # the encoder reads whole windows (padding covers the rest)
+    assert (~ti.padding).sum(dim=1).tolist() == c.observed.sum(dim=(1, 2)).tolist()
+    # hole_ratio 0: the paper's corruption, token for token
+    a = xmae_training_input(x, 0.85, 0.05, 1.0, True, False, gen(6))
+    b = xmae_training_input(x, 0.85, 0.05, 1.0, True, False, gen(6), 0.0, 0.0, parts, 10)
+    assert torch.equal(a.corrupted.observed, b.corrupted.observed) and torch.equal(a.kept, b.kept)
+    with pytest.raises(ValueError, match="max_hole_frames"):
+        xmae_training_input(x, 0.85, 0.05, 1.0, True, False, gen(6), 0.0, 0.5, None, 10)
 
 
 def test_invalid_ratios():

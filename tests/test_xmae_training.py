@@ -13,6 +13,8 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, SMALL_DATA, TINY, run_cli
 
+from mocapfix.core.skeleton import Skeleton
+from mocapfix.evaluation.baselines import hermite_infill
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.training.xmae_module import XMAEModule
 
@@ -561,6 +563,42 @@ def test_training_gaps_apply_in_training_only():
     assert frames_without_tokens().all()
     m.eval()
     assert not frames_without_tokens().all()
+
+
+def test_hole_windows_in_training_and_validation_score_only_the_hole():
+    """hole_ratio: the fix case in training and validation alike (val/mpjpe_mm is then the
+    objective's): one part missing over one stretch, the loss on exactly those tokens; an
+    untrained Hermite-correcting network answers its fill."""
+    skel = generate_clips(1, 1.0, fps=10, seed=0)[0].skeleton.to_dict()
+    sizes = dict(enc_dim=32, enc_depth=1, enc_mlp_dim=64, dec_dim=32, dec_depth=1, dec_mlp_dim=64, head_dim=16)
+    m = XMAEModule(
+        **sizes,
+        skeleton=skel,
+        window_fps=10.0,
+        window_frames=10,
+        hole_ratio=1.0,
+        max_hole_s=0.5,
+        fill_input=True,
+        fill_kind="hermite",
+        rotate_augment=False,
+    )
+    groups = Skeleton.from_dict(skel).groups
+    assert m.part_joints.shape == (2 * len(groups), len(skel["parents"]))  # the body as often as all limbs
+    x = torch.from_numpy(generate_clips(1, 1.0, fps=10, seed=1)[0].positions[:10])[None].repeat(32, 1, 1, 1)
+    for training in (True, False):
+        m.train(training)
+        loss, pred, target, c, in_loss, _ = m._corrupt_and_predict(x, torch.Generator().manual_seed(0))
+        assert torch.equal(in_loss, ~c.observed)  # nothing displaced: the hole is the loss
+        hole_frames = (~c.observed).any(dim=2).sum(dim=1)
+        assert hole_frames.min() >= 1 and hole_frames.max() <= 5
+        assert c.observed[:, 0].all() and c.observed[:, -1].all()
+    # the zero-initialised head: the prediction is the Hermite fill of the observed tokens
+    fill = hermite_infill(target, c.observed)
+    assert torch.allclose(pred.float(), fill.float(), atol=1e-5)
+    with pytest.raises(ValueError, match="hole_ratio must be in"):
+        XMAEModule(hole_ratio=1.5)
+    with pytest.raises(ValueError, match="max_hole_s > 0"):
+        XMAEModule(hole_ratio=0.5, max_hole_s=0.0)
 
 
 def test_loss_token_settings_are_checked_and_clean_tokens_follow_the_generator():

@@ -106,6 +106,35 @@ def training_gaps(
     return has_gap[:, None] & (t >= start[:, None]) & (t < (start + length)[:, None])
 
 
+def training_holes(
+    B: int,
+    T: int,
+    part_joints: torch.Tensor,
+    max_hole_frames: int,
+    generator: torch.Generator | None,
+    like: torch.Tensor,
+) -> torch.Tensor:
+    """The case `fix` meets: one contiguous hole per window, of one part, in data observed all
+    around it. part_joints: (P, J) bool, one row per part that can go missing (the whole body, an
+    arm, a leg); each window draws a part uniformly, a length of 1..max_hole_frames frames and a
+    start leaving at least one observed frame on either side. -> (B, T, J) bool, True in the hole.
+
+    The paper's 85 % random masking teaches a prior over whole poses; a model that corrects a
+    classical fill must also learn what the fill gets wrong in a real hole, which random masking
+    (a few joints left in nearly every frame) never shows it."""
+    P, J = part_joints.shape
+    longest = max(1, min(max_hole_frames, T - 2))
+    draw = uniform_like((3, B), generator, like)  # (3, B)
+    part = (draw[0] * P).long().clamp_max(P - 1)  # (B,)
+    length = 1 + (draw[1] * longest).long().clamp_max(longest - 1)  # (B,) in 1..longest
+    first = 1 if T - longest >= 2 else 0  # room for an observed frame either side
+    room = (T - length - 2 * first + 1).clamp_min(1)  # (B,) possible starts
+    start = first + (draw[2] * room).long().clamp_max(room - 1)  # (B,)
+    t = torch.arange(T, device=like.device)[None, :]  # (1, T)
+    in_time = (t >= start[:, None]) & (t < (start + length)[:, None])  # (B, T)
+    return in_time[:, :, None] & part_joints.to(like.device)[part][:, None, :]  # (B, T, J)
+
+
 def mask_and_displace(
     positions: torch.Tensor,
     mask_ratio: float = 0.85,
@@ -217,20 +246,38 @@ def xmae_training_input(
     rotate: bool = True,
     generator: torch.Generator | None = None,
     gap_ratio: float = 0.0,
+    hole_ratio: float = 0.0,
+    part_joints: torch.Tensor | None = None,
+    max_hole_frames: int = 0,
 ) -> TrainingInput:
     """XMAE's training corruption of a batch (B, T, J, 3), all on the batch's device: mask and
     displace, normalise, rotate about z (rotate=True), index the observed tokens. With a fixed
-    kept count, K is known without reading the data: no host-device sync."""
+    kept count, K is known without reading the data: no host-device sync.
+
+    hole_ratio > 0 (not in the paper): that fraction of the windows instead gets one hole of a
+    part (part_joints: (P, J) bool) of up to max_hole_frames frames, everything else observed
+    and clean (training_holes). K is then every token: the encoder reads whole windows."""
     B, T, J, _ = positions.shape
     c = mask_and_displace(
         positions, mask_ratio, displace_ratio, max_displacement_m, fixed_kept_count, generator, gap_ratio
     )
+    if hole_ratio > 0:
+        if part_joints is None or max_hole_frames < 1:
+            raise ValueError("hole_ratio > 0 needs part_joints and max_hole_frames >= 1")
+        hole = training_holes(B, T, part_joints, max_hole_frames, generator, positions)  # (B, T, J)
+        in_hole_mode = (uniform_like((B,), generator, positions) < hole_ratio)[:, None, None]  # (B, 1, 1)
+        observed = torch.where(in_hole_mode, available(positions) & ~hole, c.observed)
+        # No displaced tokens in a hole window: scored, their 0.5-1 m errors outweigh the hole's
+        # few cm and the network learns to move every token (bench/results: holes_* runs).
+        displaced = c.displaced & ~in_hole_mode
+        c = _pack(torch.where(displaced[..., None], c.positions, positions), observed, displaced)
     x, offset = normalize(c.positions, c.observed)
     target = positions - offset
     if rotate:
         x, angle = random_z_rotation(x, generator)
         target = rotate_z(target, angle)
-    kept, padding = kept_index(c.observed, kept_count(T * J, mask_ratio) if fixed_kept_count else None)
+    count = T * J if hole_ratio > 0 else kept_count(T * J, mask_ratio) if fixed_kept_count else None
+    kept, padding = kept_index(c.observed, count)
     return TrainingInput(x.reshape(B, T * J, 3), target, c, offset, kept, padding)
 
 

@@ -14,7 +14,7 @@ import lightning as L
 import torch
 import torch.nn as nn
 
-from mocapfix.core.skeleton import Skeleton
+from mocapfix.core.skeleton import GROUP_NAMES, Skeleton
 from mocapfix.data.augment import BodyAugment, BodyAugmenter
 from mocapfix.data.corruption import check_training_corruption, uniform_like, xmae_training_input
 from mocapfix.data.spec import DataSpec
@@ -58,6 +58,8 @@ class XMAEModule(L.LightningModule):
         max_displacement_m: float = 1.0,
         clean_loss_ratio: float = 0.0,
         gap_ratio: float = 0.0,
+        hole_ratio: float = 0.0,
+        max_hole_s: float = 1.0,
         fixed_kept_count: bool = True,
         rotate_augment: bool = True,
         stature_range: float = 0.0,
@@ -97,6 +99,11 @@ class XMAEModule(L.LightningModule):
             clean_loss_ratio: fraction of all tokens kept clean AND put in the loss ("BERT masking": 0.05).
             gap_ratio: fraction of training windows that also lose the whole skeleton over a random
                 stretch of frames (not in the paper, 0 = the paper's corruption; see corruption.training_gaps).
+            hole_ratio, max_hole_s: not in the paper: the fraction of windows (training and validation)
+                that get what `fix` meets instead of the paper's masking: one hole of the whole body or
+                of a limb, up to max_hole_s long, every other token observed and clean
+                (corruption.training_holes). With a fill_kind that model learns the correction to that
+                fill in real holes. The encoder then reads whole windows (slower steps).
             fixed_kept_count: every sample keeps the same number of tokens, known from mask_ratio
                 without reading the batch (no host-device sync); only samples short of data are padded.
             rotate_augment: random rotation about z after normalisation.
@@ -132,6 +139,11 @@ class XMAEModule(L.LightningModule):
         if compile_mode not in COMPILE_MODES:
             raise ValueError(f"compile_mode must be one of {COMPILE_MODES}, got {compile_mode!r}")
         check_training_corruption(mask_ratio, displace_ratio, clean_loss_ratio, max_displacement_m)
+        if not 0.0 <= hole_ratio <= 1.0 or max_hole_s <= 0:
+            raise ValueError(
+                f"hole_ratio must be in [0, 1] (a fraction of the windows) and max_hole_s > 0 (seconds), "
+                f"got {hole_ratio} and {max_hole_s}"
+            )
         BodyAugment(stature_range, limb_range, mirror_prob, joint_shift_m).check()
         # the network's sizes (num_joints and num_frames come from the data, at setup)
         self.sizes = preset_sizes(
@@ -186,6 +198,15 @@ class XMAEModule(L.LightningModule):
         names = ("stature_range", "limb_range", "mirror_prob", "joint_shift_m")
         augment = BodyAugment(*(hp.get(k, 0.0) for k in names))
         self.body_augment = BodyAugmenter(self.skeleton, augment) if augment.active else None
+        # the parts training_holes takes out, (P, J) bool: each limb, and the whole body as often
+        # as all limbs together (the longest holes of the whole body are where fills differ most)
+        skeleton, num_joints = self.skeleton, len(hp.skeleton["parents"])
+        limbs = [skeleton.groups[g] for g in GROUP_NAMES if g in skeleton.groups]
+        parts = [range(num_joints)] * max(1, len(limbs)) + limbs
+        part_joints = torch.zeros(len(parts), num_joints, dtype=torch.bool)
+        for row, joints in enumerate(parts):
+            part_joints[row, list(joints)] = True
+        self.register_buffer("part_joints", part_joints, persistent=False)
         self.val_mpjpe = MPJPE()
         self.val_gap = nn.ModuleDict({"xmae": MPJPE(), "lerp": MPJPE(), "spline": MPJPE()})
 
@@ -241,6 +262,9 @@ class XMAEModule(L.LightningModule):
             hp.rotate_augment and self.training,
             generator,
             hp.gap_ratio if self.training else 0.0,
+            hp.get("hole_ratio", 0.0),  # checkpoints from before it have none
+            self.part_joints,
+            max(1, round(hp.get("max_hole_s", 1.0) * hp.window_fps)),
         )
         fill = xmae_fill(x.reshape(B, T, J, 3), c.observed, self.net.fill_kind) if self.net.fill_input else None
         pred = self.net(x, kept, padding, fill).reshape(B, T, J, 3)
