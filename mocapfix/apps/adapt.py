@@ -28,7 +28,16 @@ from mocapfix.io import add_read_arguments
 # What adapting keeps from the starting model's training: the objective and the network. The
 # body augmentations stay off (these are the performers the model will meet), and so does
 # compiling (minutes on a CPU).
-OBJECTIVE = ("mask_ratio", "displace_ratio", "max_displacement_m", "clean_loss_ratio", "gap_ratio", "rotate_augment")
+OBJECTIVE = (
+    "mask_ratio",
+    "displace_ratio",
+    "max_displacement_m",
+    "clean_loss_ratio",
+    "gap_ratio",
+    "hole_ratio",
+    "max_hole_s",
+    "rotate_augment",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
