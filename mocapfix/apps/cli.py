@@ -129,6 +129,7 @@ def _lightning_cli(args: list[str]):
     from mocapfix.training.monitor_check import MonitorCheck
     from mocapfix.training.predictions import WritePredictions
     from mocapfix.training.rng_state import RNGStateInCheckpoint
+    from mocapfix.training.time_schedule import FitScheduleToTime
     from mocapfix.training.tracking import RunSummary
 
     class MocapCLI(LightningCLI):
@@ -234,6 +235,8 @@ def _lightning_cli(args: list[str]):
                             enable_version_counter=False,
                         )
                     )
+            if trainer_cfg.get("max_time"):  # the cosine ends when the clock stops the run
+                extra.append(FitScheduleToTime())
             if kwargs.get("logger", trainer_cfg.get("logger")) not in (None, False):
                 extra.append(LearningRateMonitor(logging_interval="step"))
             extra.append(RNGStateInCheckpoint())

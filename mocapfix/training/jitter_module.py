@@ -10,8 +10,6 @@ low-pass it corrects and the noisy input, at one fixed noise level.
 
 from __future__ import annotations
 
-from functools import partial
-
 import lightning as L
 import torch
 import torch.nn as nn
@@ -26,7 +24,7 @@ from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.jitter import JitterConfig, JitterNet, lowpass, residual_noise
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
-from mocapfix.training.schedules import warmup_cosine
+from mocapfix.training.schedules import WarmupCosine
 from mocapfix.training.test_report import publish
 
 
@@ -134,9 +132,7 @@ class JitterModule(L.LightningModule):
         hp = self.hparams
         opt = torch.optim.AdamW(self.parameters(), lr=hp.lr, weight_decay=hp.weight_decay)
         total = hp.total_steps or int(self.trainer.estimated_stepping_batches)
-        sched = torch.optim.lr_scheduler.LambdaLR(
-            opt, partial(warmup_cosine, warmup_steps=hp.warmup_steps, total_steps=total)
-        )
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, WarmupCosine(hp.warmup_steps, total))
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:

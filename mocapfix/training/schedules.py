@@ -13,6 +13,18 @@ def warmup_cosine(step: int, warmup_steps: int, total_steps: int) -> float:
     return 0.5 * (1.0 + math.cos(math.pi * progress))
 
 
+class WarmupCosine:
+    """warmup_cosine as LambdaLR's lr_lambda. An object, not a partial: LambdaLR saves an object's
+    attributes in the checkpoint, so an end moved during a run (training/time_schedule.py) is
+    what a resumed run goes on with."""
+
+    def __init__(self, warmup_steps: int, total_steps: int):
+        self.warmup_steps, self.total_steps = warmup_steps, total_steps
+
+    def __call__(self, step: int) -> float:
+        return warmup_cosine(step, self.warmup_steps, self.total_steps)
+
+
 def kl_anneal_weight(step: int, anneal_steps: int) -> float:
     """Linear KL annealing: 0 at step 0, 1 from anneal_steps on (1 throughout when anneal_steps <= 0)."""
     return 1.0 if anneal_steps <= 0 else min(1.0, step / anneal_steps)

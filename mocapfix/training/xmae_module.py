@@ -8,7 +8,6 @@ are stored as plain hyperparameters so a checkpoint alone rebuilds it (fix, load
 from __future__ import annotations
 
 import logging
-from functools import partial
 
 import lightning as L
 import torch
@@ -29,7 +28,7 @@ from mocapfix.models.xmae import XMAE, XMAEConfig, preset_sizes
 from mocapfix.models.xmae_inference import xmae_fill, xmae_reconstruct
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
-from mocapfix.training.schedules import warmup_cosine
+from mocapfix.training.schedules import WarmupCosine
 from mocapfix.training.test_report import publish
 
 log = logging.getLogger(__name__)
@@ -241,9 +240,7 @@ class XMAEModule(L.LightningModule):
         # (a checkpoint saved with it resumes on the CPU too: torch has a fused CPU Adam)
         opt = torch.optim.Adam(self.parameters(), lr=hp.lr, betas=tuple(hp.betas), fused=self.device.type == "cuda")
         total = hp.total_steps or int(self.trainer.estimated_stepping_batches)
-        sched = torch.optim.lr_scheduler.LambdaLR(
-            opt, partial(warmup_cosine, warmup_steps=hp.warmup_steps, total_steps=total)
-        )
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, WarmupCosine(hp.warmup_steps, total))
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
     # --- training ---
