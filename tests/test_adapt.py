@@ -68,3 +68,16 @@ def test_adapt_refuses_what_it_cannot_use(tmp_path, capsys):
     assert main(["adapt", str(tmp_path / "nothing"), "--model", "xmae-cpu-bandai", "--minutes", "0.1"]) == 1
     err = capsys.readouterr().err
     assert "nothing" in err and "Traceback" not in err
+
+
+def test_adapt_goes_on_with_the_checkpoint_objective(tmp_path, capsys):
+    """A model trained on the holes fix meets (hole_ratio) adapts on holes, not on the paper's masking."""
+    start = torch.load(pretrained_path("xmae-cpu-bandai"), weights_only=True)
+    start["hyper_parameters"].update(hole_ratio=1.0, max_hole_s=0.5, mask_ratio=0.8)
+    torch.save(start, tmp_path / "holes.ckpt")
+    folder = _body21_takes(tmp_path / "takes", n=3)
+    out = tmp_path / "mine.ckpt"
+    rc = main(["adapt", str(folder), "--ckpt", str(tmp_path / "holes.ckpt"), "--minutes", "0.1", "-o", str(out)])
+    assert rc == 0, capsys.readouterr().err
+    hp = torch.load(out, weights_only=True)["hyper_parameters"]
+    assert (hp["hole_ratio"], hp["max_hole_s"], hp["mask_ratio"]) == (1.0, 0.5, 0.8)
