@@ -268,7 +268,7 @@ def xmae_training_input(
         in_hole_mode = (uniform_like((B,), generator, positions) < hole_ratio)[:, None, None]  # (B, 1, 1)
         observed = torch.where(in_hole_mode, available(positions) & ~hole, c.observed)
         # No displaced tokens in a hole window: scored, their 0.5-1 m errors outweigh the hole's
-        # few cm and the network learns to move every token (bench/results: holes_* runs).
+        # few cm and the network learns to move every token (docs/results.md: the holes_* runs).
         displaced = c.displaced & ~in_hole_mode
         c = _pack(torch.where(displaced[..., None], c.positions, positions), observed, displaced)
     x, offset = normalize(c.positions, c.observed)
