@@ -55,10 +55,33 @@ def test_a_step_limit_that_comes_first_and_no_time_limit_leave_the_plan(monkeypa
     assert _run(monkeypatch, remaining_s=0.0).total_steps == SETTLE_STEPS + TIMED_STEPS
 
 
+def test_a_resume_with_more_time_re_plans_from_the_planned_end(monkeypatch):
+    first = _run(monkeypatch, remaining_s=50.0)  # the first run's end moved before step 600
+    assert first.total_steps < 600 and first.planned_steps == 10_000
+    schedule = WarmupCosine(10, 10_000)
+    schedule.total_steps = first.total_steps  # what the checkpoint carries to the resumed run
+    resumed_at = first.total_steps
+    opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=1.0)
+    timer = Timer(duration="00:01:00:00")
+    monkeypatch.setattr(timer, "time_remaining", lambda stage: 200.0)
+    scheduler = torch.optim.lr_scheduler.LambdaLR(opt, schedule)
+    trainer = SimpleNamespace(
+        callbacks=[timer], global_step=resumed_at, lr_scheduler_configs=[SimpleNamespace(scheduler=scheduler)]
+    )
+    callback = FitScheduleToTime()
+    callback.on_train_start(trainer, None)
+    clock = SimpleNamespace(now=0.0)
+    monkeypatch.setattr(time_schedule.time, "perf_counter", lambda: clock.now)
+    for step in range(resumed_at + 1, resumed_at + 1 + SETTLE_STEPS + TIMED_STEPS):
+        trainer.global_step, clock.now = step, step * 0.1
+        callback.on_train_batch_end(trainer, None, None, None, step)
+    assert schedule.total_steps == resumed_at + SETTLE_STEPS + TIMED_STEPS + int(0.9 * 200.0 / 0.1)
+
+
 def test_the_moved_end_is_in_the_checkpoint():
     opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=1.0)
     saved = torch.optim.lr_scheduler.LambdaLR(opt, WarmupCosine(10, 10_000))
-    saved.lr_lambdas[0].total_steps = 570
+    saved.lr_lambdas[0].total_steps = 560
     resumed = torch.optim.lr_scheduler.LambdaLR(opt, WarmupCosine(10, 10_000))
     resumed.load_state_dict(saved.state_dict())
-    assert resumed.lr_lambdas[0].total_steps == 570
+    assert resumed.lr_lambdas[0].total_steps == 560 and resumed.lr_lambdas[0].planned_steps == 10_000

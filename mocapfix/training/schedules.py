@@ -16,10 +16,10 @@ def warmup_cosine(step: int, warmup_steps: int, total_steps: int) -> float:
 class WarmupCosine:
     """warmup_cosine as LambdaLR's lr_lambda. An object, not a partial: LambdaLR saves an object's
     attributes in the checkpoint, so an end moved during a run (training/time_schedule.py) is
-    what a resumed run goes on with."""
+    what a resumed run goes on with. planned_steps keeps the end the run was configured with."""
 
     def __init__(self, warmup_steps: int, total_steps: int):
-        self.warmup_steps, self.total_steps = warmup_steps, total_steps
+        self.warmup_steps, self.total_steps, self.planned_steps = warmup_steps, total_steps, total_steps
 
     def __call__(self, step: int) -> float:
         return warmup_cosine(step, self.warmup_steps, self.total_steps)

@@ -1,6 +1,6 @@
 """The learning-rate schedule's end moved to where a run's time limit will stop it.
 
-A run given `--trainer.max_time` (a lent GPU's 10-minute call, `mocapfix demo`) stops on time,
+A run given `--trainer.max_time` (a lent GPU's 10-minute call) stops on time,
 usually before the step count its cosine was planned for, and then stops with the learning rate
 still high: the weights it keeps are a noisy mid-schedule state. After a short measurement of
 its own step rate, the run moves the cosine's end to the step it can reach in the time left, so
@@ -29,7 +29,8 @@ MARGIN = 0.9
 class FitScheduleToTime(L.Callback):
     """Once per run (and again after a resume): time a few optimiser steps, then set every
     WarmupCosine of the run's schedulers to end at the step the remaining time reaches (never
-    later than it was planned, never inside the warm-up)."""
+    later than it was planned, never inside the warm-up). A resume re-plans from the planned end:
+    given more time than the last run, its rate rises again and ends on the new time."""
 
     def __init__(self) -> None:
         self._first_timed_step = 0
@@ -60,6 +61,8 @@ class FitScheduleToTime(L.Callback):
         reachable = step + int(MARGIN * remaining / seconds_per_step)
         for config in trainer.lr_scheduler_configs:
             for schedule in getattr(config.scheduler, "lr_lambdas", []):
-                if isinstance(schedule, WarmupCosine) and reachable < schedule.total_steps:
-                    schedule.total_steps = max(reachable, schedule.warmup_steps + 1)
+                if isinstance(schedule, WarmupCosine):
+                    # from the planned end, not the last run's: a resumed run given more time goes further
+                    planned = getattr(schedule, "planned_steps", schedule.total_steps)
+                    schedule.total_steps = min(planned, max(reachable, schedule.warmup_steps + 1))
         self._done = True
