@@ -101,8 +101,10 @@ class XMAEModule(L.LightningModule):
             hole_ratio, max_hole_s: not in the paper: the fraction of windows (training and validation)
                 that get what `fix` meets instead of the paper's masking: one hole of the whole body or
                 of a limb, up to max_hole_s long, every other token observed and clean
-                (corruption.training_holes). With a fill_kind that model learns the correction to that
-                fill in real holes. The encoder then reads whole windows (slower steps).
+                (corruption.training_holes). Meant for a network correcting a fill (fill_input,
+                fill_kind): the correction is then trained where fix uses it (measured so far:
+                docs/results.md, "Models trained on many people"). The encoder reads whole windows
+                (slower steps).
             fixed_kept_count: every sample keeps the same number of tokens, known from mask_ratio
                 without reading the batch (no host-device sync); only samples short of data are padded.
             rotate_augment: random rotation about z after normalisation.
