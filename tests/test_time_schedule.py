@@ -12,9 +12,10 @@ from mocapfix.training.schedules import WarmupCosine
 from mocapfix.training.time_schedule import MIN_TIMED_STEPS, SETTLE_STEPS, TIMED_S, TIMED_STEPS, FitScheduleToTime
 
 
-def _run(monkeypatch, remaining_s, planned_steps=10_000, first_step=0, seconds_per_step=0.1, steps=200):
-    """Drive the callback through `steps` optimiser steps on a fake clock; -> the schedule."""
-    schedule = WarmupCosine(10, planned_steps)
+def _run(monkeypatch, remaining_s, planned_steps=10_000, first_step=0, seconds_per_step=0.1, steps=200, schedule=None):
+    """Drive the callback through `steps` optimiser steps on a fake clock; -> the schedule (a new
+    one planned for planned_steps, or the one given: a resumed run's)."""
+    schedule = schedule or WarmupCosine(10, planned_steps)
     opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=1.0)
     timer = Timer(duration="00:01:00:00")
     monkeypatch.setattr(timer, "time_remaining", lambda stage: remaining_s)
@@ -61,20 +62,7 @@ def test_a_resume_with_more_time_re_plans_from_the_planned_end(monkeypatch):
     schedule = WarmupCosine(10, 10_000)
     schedule.total_steps = first.total_steps  # what the checkpoint carries to the resumed run
     resumed_at = first.total_steps
-    opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=1.0)
-    timer = Timer(duration="00:01:00:00")
-    monkeypatch.setattr(timer, "time_remaining", lambda stage: 200.0)
-    scheduler = torch.optim.lr_scheduler.LambdaLR(opt, schedule)
-    trainer = SimpleNamespace(
-        callbacks=[timer], global_step=resumed_at, lr_scheduler_configs=[SimpleNamespace(scheduler=scheduler)]
-    )
-    callback = FitScheduleToTime()
-    callback.on_train_start(trainer, None)
-    clock = SimpleNamespace(now=0.0)
-    monkeypatch.setattr(time_schedule.time, "perf_counter", lambda: clock.now)
-    for step in range(resumed_at + 1, resumed_at + 1 + SETTLE_STEPS + TIMED_STEPS):
-        trainer.global_step, clock.now = step, step * 0.1
-        callback.on_train_batch_end(trainer, None, None, None, step)
+    _run(monkeypatch, 200.0, first_step=resumed_at, steps=SETTLE_STEPS + TIMED_STEPS, schedule=schedule)
     assert schedule.total_steps == resumed_at + SETTLE_STEPS + TIMED_STEPS + int(0.9 * 200.0 / 0.1)
 
 

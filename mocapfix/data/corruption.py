@@ -276,7 +276,10 @@ def xmae_training_input(
     if rotate:
         x, angle = random_z_rotation(x, generator)
         target = rotate_z(target, angle)
-    count = T * J if hole_ratio > 0 else kept_count(T * J, mask_ratio) if fixed_kept_count else None
+    if hole_ratio > 0:
+        count = T * J
+    else:
+        count = kept_count(T * J, mask_ratio) if fixed_kept_count else None
     kept, padding = kept_index(c.observed, count)
     return TrainingInput(x.reshape(B, T * J, 3), target, c, offset, kept, padding)
 

@@ -63,6 +63,5 @@ class FitScheduleToTime(L.Callback):
             for schedule in getattr(config.scheduler, "lr_lambdas", []):
                 if isinstance(schedule, WarmupCosine):
                     # from the planned end, not the last run's: a resumed run given more time goes further
-                    planned = getattr(schedule, "planned_steps", schedule.total_steps)
-                    schedule.total_steps = min(planned, max(reachable, schedule.warmup_steps + 1))
+                    schedule.total_steps = min(schedule.planned_steps, max(reachable, schedule.warmup_steps + 1))
         self._done = True
