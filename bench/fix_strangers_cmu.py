@@ -3,9 +3,12 @@ Bandai Namco's), holes of the full body, the left arm or the left leg of 0.1-0.9
 in every take of 8 s or more. MPJPE (mm) over the hidden tokens of what `fix --mode infill`
 outputs (its fill policy measured over the folder's takes, as `fix FOLDER` does; and over each
 file alone, as `fix FILE` does), beside every classical fill on the same whole take (Lerp, cubic spline, PCHIP, the
-limb fill), on the shipped model's 21 joints (each take mapped onto them, io/body_structure.py).
+limb fill, the cubic Hermite) and the motion-matching fills (fix/motion_matching.py; searching the
+folder's holed takes, as `fix FOLDER` does, and the take alone, as `fix FILE` does), on the
+shipped model's 21 joints (each take mapped onto them, io/body_structure.py).
 
     python bench/fix_strangers_cmu.py --model xmae-cpu-bandai
+    python bench/fix_strangers_cmu.py --model-only --library /other/takes/of/the/same/people
 """
 
 from __future__ import annotations
@@ -21,8 +24,10 @@ from common import describe, pick_device, print_table, write_result
 from mocapfix.core.skeleton import preset  # noqa: E402
 from mocapfix.evaluation.baselines import CLASSICAL  # noqa: E402
 from mocapfix.fix import fix_clips, measure_recordings  # noqa: E402
-from mocapfix.fix.clips import model_fill  # noqa: E402
+from mocapfix.fix.clips import model_fill, motion_library, take_keys  # noqa: E402
 from mocapfix.fix.fixers import load_fixer  # noqa: E402
+from mocapfix.fix.motion_matching import FILLS as MATCH_FILLS  # noqa: E402
+from mocapfix.fix.motion_matching import match_fills  # noqa: E402
 from mocapfix.io import list_motion_files, read_motion  # noqa: E402
 from mocapfix.io.joint_names import onto_skeleton  # noqa: E402
 from mocapfix.pretrained import pretrained_path  # noqa: E402
@@ -55,6 +60,12 @@ def main(argv=None) -> int:
         action="store_true",
         help="the model alone and the classical fills, not fix's policy (which measures: ~50 min on 2 cores)",
     )
+    ap.add_argument(
+        "--library",
+        default=None,
+        help="a folder of other takes of the same performers (none of the evaluated ones): fix --library",
+    )
+    ap.add_argument("--no-model", action="store_true", help="with --model-only: the fills alone, no model row")
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
     device = pick_device(args.device)
@@ -66,6 +77,12 @@ def main(argv=None) -> int:
         clip = read_motion(f)[0]
         if clip.duration_s >= args.min_seconds:
             takes.append(onto_skeleton(clip, body))
+    extra = (
+        [[onto_skeleton(read_motion(f)[0], body)] for f in list_motion_files(args.library, "bvh")]
+        if args.library
+        else []
+    )
+    extra_library = motion_library(extra, fixer) if extra else None
     model = model_fill(fixer, overlap=0.5, batch_size=64)
     t0 = time.perf_counter()
     sums: dict[tuple[str, float, str], list[float]] = {}
@@ -80,19 +97,28 @@ def main(argv=None) -> int:
                 holed_takes.append(
                     clip.replace(positions=np.where(hidden[..., None], np.nan, truth).astype(np.float32))
                 )
-            # the folder's policy: what `mocapfix fix FOLDER` measures over the takes it is given
-            folder = None if args.model_only else measure_recordings([[c] for c in holed_takes], fixer, "infill")
+            # the folder's policy and motion library: what `mocapfix fix FOLDER` measures and searches
+            recordings = [[c] for c in holed_takes]
+            library = motion_library(recordings + extra, fixer)
+            folder = None if args.model_only else measure_recordings(recordings, fixer, "infill", library=extra_library)
             for clip, holed_clip, hidden in zip(takes, holed_takes, hiddens):
                 truth = clip.positions.astype(np.float64)
                 holed = holed_clip.positions
                 x = torch.from_numpy(holed.astype(np.float64))[None]
-                outputs = {"model": model(holed, clip.fps)}  # the model alone in every hole, no policy
+                outputs = {} if args.no_model else {"model": model(holed, clip.fps)}  # alone in every hole
                 if not args.model_only:
-                    (fixed,), _ = fix_clips([holed_clip], fixer, "infill", measured=folder)
+                    (fixed,), _ = fix_clips([holed_clip], fixer, "infill", measured=folder, library=library)
                     (alone,), _ = fix_clips([holed_clip], fixer, "infill")
                     outputs.update({"fix": fixed.positions.astype(np.float64), "fix (file alone)": alone.positions})
                 for name, fill in CLASSICAL.items():
                     outputs[name] = fill(x, ~torch.isnan(x).any(-1), body.parents)[0].numpy()
+                observed = np.isfinite(holed).all(-1)
+                searched = library.without(take_keys([holed_clip])[0], clip.fps)  # as fix FOLDER searches
+                for name, found in match_fills(holed, observed, outputs["hermite"], searched).items():
+                    outputs[f"{name} (folder)"] = found
+                alone = None if extra_library is None else extra_library.without(None, clip.fps)
+                for name, found in match_fills(holed, observed, outputs["hermite"], alone).items():
+                    outputs[f"{name} (take alone)"] = found
                 for name, out in outputs.items():
                     err = np.linalg.norm(out[hidden] - truth[hidden], axis=-1)
                     s = sums.setdefault((part, gap, name), [0.0, 0])
@@ -100,7 +126,8 @@ def main(argv=None) -> int:
                     s[1] += int(err.size)
     rows = []
     for part in PARTS:
-        for name in ["fix", "fix (file alone)", "model", *CLASSICAL]:
+        matching = [f"{m} ({w})" for w in ("folder", "take alone") for m in MATCH_FILLS]
+        for name in ["fix", "fix (file alone)", "model", *CLASSICAL, *matching]:
             if (part, GAPS_S[0], name) not in sums:
                 continue
             row = {"part": part, "method": name}
@@ -118,6 +145,7 @@ def main(argv=None) -> int:
         "data": args.data,
         "takes": len(takes),
         "holes_per_take": 4,
+        "library": args.library,
         "seconds": round(time.perf_counter() - t0, 1),
         "rows": rows,
     }

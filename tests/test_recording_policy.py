@@ -187,3 +187,43 @@ def test_a_perfect_model_needs_as_many_cut_holes_as_a_classical_fill_to_take_a_k
     assert cut_short < TRUSTED_HOLES and not is_learned(short)
     long, cut_long = policy_for(120.0)
     assert cut_long >= TRUSTED_HOLES and is_learned(long)
+
+
+def test_fix_library_takes_are_searched_and_the_recording_says_when_to_use_them(tmp_path, cmu_files, capsys):
+    from mocapfix.fix import load_fixer, map_joints
+
+    """fix --library: the user's other takes. Here one of them is the take itself, turned 90
+    degrees and moved 4 m: the motion-matching fill finds it, the holes cut into the recording
+    (a 40-s CMU take: enough of them to overrule the preferred fill) say it is the best fill,
+    and the take's own holes come back exact; without it, not."""
+    [clip] = read_motion(next(f for f in cmu_files if f.name == "06_13.bvh"))
+    holes = np.zeros(clip.positions.shape[:2], dtype=bool)
+    for start in range(5 * int(clip.fps), clip.num_frames - 60, 10 * int(clip.fps)):  # 0.5 s every 10 s
+        holes[start : start + 60] = True
+    holed = np.where(holes[..., None], np.nan, clip.positions)
+    write_positions(tmp_path / "take.npz", holed, clip.fps, clip.skeleton)
+    library = tmp_path / "library"
+    library.mkdir()
+    turned = clip.positions.copy()
+    turned[..., 0], turned[..., 1] = -clip.positions[..., 1] + 4.0, clip.positions[..., 0]
+    write_positions(library / "other.npz", turned, clip.fps, clip.skeleton)
+
+    fixer = load_fixer(str(pretrained_path("xmae-cpu-bandai")), "cpu")
+    used = map_joints(clip.skeleton, fixer.skeleton, "take", None, allow_missing=True)  # the model's joints
+    scored = holes.copy()
+    scored[:, np.setdiff1d(np.arange(clip.skeleton.num_joints), used)] = False  # the others follow the skeleton
+
+    def fix(*extra: str) -> tuple[float, str]:
+        out = tmp_path / "fixed.npz"
+        capsys.readouterr()
+        argv = ["fix", str(tmp_path / "take.npz"), "-o", str(out), "--force", "--model", "xmae-cpu-bandai"]
+        assert main(argv + list(extra)) == 0
+        [fixed] = read_motion(out)
+        assert np.array_equal(fixed.positions[~holes], holed[~holes])
+        error = np.linalg.norm(fixed.positions[scored] - clip.positions[scored], axis=-1).mean()
+        return 1000 * float(error), capsys.readouterr().out
+
+    error, report = fix()
+    assert error > 10.0, report
+    error, report = fix("--library", str(library))
+    assert error < 1.0 and "full 0.5s match" in report, report

@@ -30,8 +30,9 @@ from mocapfix.core.clip import Clip, MotionFileError, shown
 from mocapfix.core.ik import ik_error_mm, inverse_kinematics
 from mocapfix.core.render import holes_map, render, tracks_for
 from mocapfix.fix import MODES, fix_clips, map_joints, measure_recordings, rotation_clips
-from mocapfix.fix.clips import model_fill
+from mocapfix.fix.clips import model_fill, motion_library
 from mocapfix.fix.fixers import PRECISIONS, load_fixer
+from mocapfix.fix.motion_matching import MotionLibrary
 from mocapfix.fix.recording_policy import measure_take
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import read_bvh, write_bvh_like
@@ -279,6 +280,7 @@ def fix_files(
     jobs: int | None = 1,
     shard: tuple[int, int] = (0, 1),
     resume: bool = False,
+    library: list[str] | None = None,
     **read_options,
 ) -> int:
     """Fix every file; -> exit code (0 all written, 1 some failed). mode: MODES, None: the model's
@@ -287,7 +289,9 @@ def fix_files(
     render_gif: an animation of the input beside the output next to each output (core/render.py).
     jobs: worker processes fixing files side by side (None: default_jobs), each with its share
     of the cores; shard (i, N): only every N-th file from the i-th (shard_of); resume: inputs
-    whose output exists are skipped (outputs appear whole under their name, so it is complete)."""
+    whose output exists are skipped (outputs appear whole under their name, so it is complete).
+    library: files or folders of other takes (the same performers, rig and studio) the
+    motion-matching fills search besides the run's own (fix/motion_matching.py)."""
     out_stream, err = stdout or sys.stdout, stderr or sys.stderr
     try:
         fixer = load_fixer(ckpt, device, precision)
@@ -308,6 +312,7 @@ def fix_files(
             file=err,
         )
     files, failed = _inputs(paths, source, err, out_dir)
+    extra = _library_takes(library or [], source, err, read_options)
     mine = shard_of(files, shard)  # the policy below is the whole run's, whichever shard this is
     jobs = min(jobs, len(mine)) if jobs else default_jobs(device, len(mine))
     pool = None
@@ -317,7 +322,9 @@ def fix_files(
         pool = ProcessPoolExecutor(jobs, get_context("spawn"), _start_worker, init)
     try:
         map_takes = (lambda work: list(pool.map(_measure_take, work))) if pool else None
-        measured = _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read_options, map_takes)
+        measured, library = _run_policy(
+            files, fixer, mode, source, overlap, batch_size, joint_map, read_options, map_takes, extra
+        )
         if measured is not None and measured[1]:
             whole = measured[1].replace("this recording", f"the {len(files)} files of this run", 1)
             if as_json:
@@ -341,6 +348,7 @@ def fix_files(
             render_gif,
             read_options,
             measured,
+            library,
         )
         counts = {"fixed": 0, "failed": 0, "skipped": 0}
         failures: list[str] = []
@@ -387,6 +395,7 @@ class RunSettings:
     render_gif: bool
     read_options: dict
     measured: tuple | None
+    library: MotionLibrary | None  # the run's takes, for the motion-matching fills
 
 
 @dataclasses.dataclass(frozen=True)
@@ -444,7 +453,15 @@ def fix_one(path: Path, rel: Path | None, fixer, s: RunSettings, err, written: d
             )
             progress_bar = Progress(shown(path), show, err)
             fixed, report = fix_clips(
-                work, fixer, mode, overlap, batch_size, progress_bar, joint_map, None if rotations else measured
+                work,
+                fixer,
+                mode,
+                overlap,
+                batch_size,
+                progress_bar,
+                joint_map,
+                None if rotations else measured,
+                None if rotations else s.library,
             )
             if target.suffix.lower() == ".bvh" and not rotations:
                 # the tokens fix kept as recorded (T, J): only they pull the IK; a filled or
@@ -598,15 +615,32 @@ def run_in_workers(pool: ProcessPoolExecutor, files, settings: RunSettings, err)
 POOLED_FILES = 32  # files of a run its fill policy is measured over (evenly spread)
 
 
-def _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read_options, map_takes=None):
+def _library_takes(paths: list[str], source: str, err, read_options: dict) -> list[list[Clip]]:
+    """The recordings of fix --library (files or folders); one that cannot be read is a warning
+    line and is left out (the library is evidence, not work to do)."""
+    recordings = []
+    for path, _ in _inputs(paths, source, err)[0] if paths else []:
+        try:
+            recordings.append(read_motion(path, source, **read_options))
+        except Exception as e:  # noqa: BLE001 -- any unreadable file: said in one line, left out
+            print(f"warning: --library: {_one_line(path, e)} (left out)", file=err)
+    return recordings
+
+
+def _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read_options, map_takes=None, extra=()):
     """A run of several files (a folder of one performer or session): the fill policy measured
     over their holes together (fix/clips.py: measure_recordings), as each file
     alone has too few holes to rank the fills by (on 14 CMU takes, fix with each file's own
     policy was up to 2.7 mm above the best classical fill in 3 of 15 cells; pooled, within
     0.5 mm in all 15). None for a single file (it measures its own) or where no policy applies. A file that
-    cannot be read is left out here; its own turn reports it."""
-    if len(files) < 2 or fixer.kind != "xmae" or getattr(fixer, "policy", None) is None or mode == "denoise":
-        return None
+    cannot be read is left out here; its own turn reports it. extra: the --library recordings
+    -> (measured, the motion library of the same files and the extra ones: what every file's
+    motion-matching fills search)."""
+    if fixer.kind != "xmae" or getattr(fixer, "policy", None) is None or mode == "denoise":
+        return None, None
+    extra_library = motion_library(list(extra), fixer, joint_map) if extra else None
+    if len(files) < 2:  # a single file measures its own policy, with the --library takes
+        return None, extra_library
     recordings = []
     for i in np.unique(np.linspace(0, len(files) - 1, min(POOLED_FILES, len(files))).round().astype(int)):
         try:
@@ -616,8 +650,9 @@ def _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read
         if clips:
             recordings.append(clips)
     if not recordings:
-        return None
-    return measure_recordings(recordings, fixer, mode, overlap, batch_size, joint_map, map_takes)
+        return None, extra_library
+    measured = measure_recordings(recordings, fixer, mode, overlap, batch_size, joint_map, map_takes, extra_library)
+    return measured, motion_library(recordings + list(extra), fixer, joint_map)
 
 
 def _finite_or_none(v: float):
@@ -683,6 +718,14 @@ def main(argv: list[str] | None = None) -> int:
         "--render",
         action="store_true",
         help="also write OUTPUT.gif (the input beside the output) and OUTPUT.holes.png (joints x time)",
+    )
+    ap.add_argument(
+        "--library",
+        nargs="+",
+        default=None,
+        metavar="TAKES",
+        help="files or folders of other takes of the same performers and rig: holes are also filled "
+        "from the moments of them that match (motion matching), where the recording says it is better",
     )
     ap.add_argument("--json", action="store_true", help="one JSON object per file instead of the report line")
     ap.add_argument(
@@ -751,6 +794,7 @@ def main(argv: list[str] | None = None) -> int:
             jobs=args.jobs,
             shard=shard,
             resume=args.resume,
+            library=args.library,
         )
     except KeyboardInterrupt:  # outputs are renamed into place whole: nothing half-written is left
         print(

@@ -37,6 +37,8 @@ from mocapfix.evaluation.baselines import CLASSICAL, hermite_infill, lerp_infill
 from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, excursions, policy_names, recording_step_floor
 from mocapfix.fix.fixers import Fixer, RotationFixer
+from mocapfix.fix.motion_matching import FILLS as MATCH_FILLS
+from mocapfix.fix.motion_matching import MotionLibrary, match_fills
 from mocapfix.fix.recording_policy import measure_policy
 from mocapfix.fix.windowing import (
     blend_windows,
@@ -143,11 +145,14 @@ def fix_clips(
     progress: Callable[[int, int], None] | None = None,
     joint_map: dict[str, str] | None = None,
     measured: tuple[FillPolicy | None, str | None] | None = None,
+    library: MotionLibrary | None = None,
 ) -> tuple[list[Clip], FixReport]:
     """Fix the clips of one file; each keeps its skeleton, frames and fps (positions only: no
     rotations; a rotation model's clips go to _fix_rotations and keep their rotations).
     progress(done, total) is called after each batch of windows. measured: (policy, note) from
-    measure_recordings over several files (a folder's takes) instead of this file's own.
+    measure_recordings over several files (a folder's takes) instead of this file's own;
+    library: other takes the motion-matching fills search besides this file's (motion_library:
+    the run's files, fix --library).
 
     With the fixer's fill policy (calibrated on its val split, evaluation/policy.py, and measured
     again on the recording, recording_policy.py) each hole is filled by the method that was best
@@ -169,7 +174,7 @@ def fix_clips(
 
         return denoise_clips(clips, fixer, mode, progress, joint_map)
     if any(c.duration_s > PIECE_S + 2 * PIECE_MARGIN_S for c in clips):
-        return _fix_in_pieces(clips, fixer, mode, overlap, batch_size, progress, joint_map, measured)
+        return _fix_in_pieces(clips, fixer, mode, overlap, batch_size, progress, joint_map, measured, library)
     policy: FillPolicy | None = getattr(fixer, "policy", None)
     policy_note, view = None, None
     # A calibrated model's holes are filled as the recording's own evidence says (a checkpoint
@@ -181,9 +186,11 @@ def fix_clips(
         if measured is not None and measured[1] and mode != "denoise":  # the run's (it measured something)
             policy, policy_note = measured
         elif mode == "infill" and any(not np.isfinite(x).all() for x in view[1]):  # else nothing to fill
-            policy, policy_note = _measure(fixer, [view], [clips], mode, overlap, batch_size)
+            policy, policy_note = _measure(fixer, [view], [clips], mode, overlap, batch_size, library=library)
     if policy is None or mode == "infill":
-        out, report = _fix_positions(clips, fixer, mode, overlap, batch_size, progress, policy, joint_map, view=view)
+        out, report = _fix_positions(
+            clips, fixer, mode, overlap, batch_size, progress, policy, joint_map, view=view, library=library
+        )
         if policy_note:
             report.notes.insert(0, policy_note)
         return out, report
@@ -217,7 +224,9 @@ def fix_clips(
     if fixer.kind == "xmae" and policy_note is None:
         masked_view = _model_view(masked, fixer, joint_map)
         if any(not np.isfinite(x).all() for x in masked_view[1]):  # holes or jumps to fill
-            policy, policy_note = _measure(fixer, [masked_view], [masked], "infill", overlap, batch_size)
+            policy, policy_note = _measure(
+                fixer, [masked_view], [masked], "infill", overlap, batch_size, library=library
+            )
     # Pass 2: the holes and the suspect tokens filled by the policy; the rest stays bit-identical.
     out, report = _fix_positions(
         masked,
@@ -230,6 +239,7 @@ def fix_clips(
         joint_map,
         fill_other_joints=mode != "denoise",
         seen=seen,
+        library=library,
     )
     report.filled, report.replaced = report.filled - suspects, suspects
     out = [_carry_passengers(o, c, idx, bad) for o, c, (idx, bad) in zip(out, clips, replaced)]
@@ -260,7 +270,7 @@ PIECE_S = 120.0
 PIECE_MARGIN_S = 10.0
 
 
-def _fix_in_pieces(clips, fixer, mode, overlap, batch_size, progress, joint_map, measured):
+def _fix_in_pieces(clips, fixer, mode, overlap, batch_size, progress, joint_map, measured, library):
     """fix_clips for clips of which some are long: each clip alone, a long one piece by piece."""
     out, reports, pieces = [], [], 0
     for c in clips:
@@ -272,7 +282,9 @@ def _fix_in_pieces(clips, fixer, mode, overlap, batch_size, progress, joint_map,
             b = T if len(starts) == 1 else min(T, a + piece)
             lo, hi = max(0, a - margin), min(T, b + margin)
             part = c.replace(positions=c.positions[lo:hi], rotations=None, root_translation=None, offsets=None)
-            (fixed,), report = fix_clips([part], fixer, mode, overlap, batch_size, progress, joint_map, measured)
+            (fixed,), report = fix_clips(
+                [part], fixer, mode, overlap, batch_size, progress, joint_map, measured, library
+            )
             positions[a:b] = fixed.positions[a - lo : b - lo]
             # the piece's counts are over its margins too: its own frames' share of them
             was, now = np.isfinite(c.positions[a:b]).all(-1), np.isfinite(positions[a:b]).all(-1)
@@ -314,12 +326,14 @@ def measure_recordings(
     batch_size: int = 64,
     joint_map: dict[str, str] | None = None,
     map_takes=None,
+    library: MotionLibrary | None = None,
 ) -> tuple[FillPolicy | None, str | None]:
     """The fill policy of several recordings measured together (the takes of one folder: one
     performer or session, whose holes alone are too few to rank the fills by; recording_policy.py)
     -> (policy, a line for the report); pass it to fix_clips(measured=...). (None, None) for a
     checkpoint without a policy, a rotations model or denoise. A recording the model's joints
-    cannot be found in is left out (fixing it says why). map_takes: measure_on_takes' (workers)."""
+    cannot be found in is left out (fixing it says why). map_takes: measure_on_takes' (workers);
+    library: other takes the motion-matching fills search besides these (fix --library)."""
     if fixer.kind != "xmae" or mode == "denoise" or getattr(fixer, "policy", None) is None:
         return None, None
     views, mapped = [], []
@@ -331,15 +345,37 @@ def measure_recordings(
             continue
     if not views:
         return None, None
-    return _measure(fixer, views, mapped, mode, overlap, batch_size, map_takes)
+    return _measure(fixer, views, mapped, mode, overlap, batch_size, map_takes, library)
 
 
-def _measure(fixer, views, recordings, mode, overlap, batch_size, map_takes=None):
+def _measure(fixer, views, recordings, mode, overlap, batch_size, map_takes=None, library=None):
     """measure_policy over recordings and their _model_view()s (index, x_in, x_m) -> (policy, note)."""
     tracks = [x for v in views for x in v[2]]  # (K, Jm, 3) per clip, the model's fps
     takes = [(x, c.fps) for v, clips in zip(views, recordings) for x, c in zip(v[1], clips)]  # the input's fps
+    keys = [key for clips in recordings for key in take_keys(clips)]
     fill = model_fill(fixer, overlap, batch_size)
-    return measure_policy(fixer, tracks, takes, fixer.policy, fill, mode == "both", map_takes)
+    return measure_policy(fixer, tracks, takes, fixer.policy, fill, mode == "both", map_takes, keys, library)
+
+
+def take_keys(clips: list[Clip]) -> list[tuple[str, int]]:
+    """What names each clip of a file in a MotionLibrary: (its file, its place in the file)."""
+    return [(c.source or c.name, i) for i, c in enumerate(clips)]
+
+
+def motion_library(
+    recordings: list[list[Clip]], fixer: Fixer, joint_map: dict[str, str] | None = None
+) -> MotionLibrary | None:
+    """The takes of several files (a run's) at the model's joints and their own fps, for the
+    motion-matching fills of every file of the run (fix/motion_matching.py); None where none maps."""
+    takes, keys = [], []
+    for clips in recordings:
+        try:
+            _, x_in, _ = _model_view(clips, fixer, joint_map)
+        except MotionFileError:
+            continue
+        takes += [(x, c.fps) for x, c in zip(x_in, clips)]
+        keys += take_keys(clips)
+    return MotionLibrary(takes, keys) if takes else None
 
 
 def _fix_positions(
@@ -354,18 +390,24 @@ def _fix_positions(
     fill_other_joints: bool = True,
     seen: list[np.ndarray] | None = None,
     view: tuple | None = None,
+    library: MotionLibrary | None = None,
 ) -> tuple[list[Clip], FixReport]:
     """fix_clips for a positions model, one pass: the model's estimate merged by mode (infill with
     the fill policy where there is one); the holes of joints the model does not use filled too
     (fill_other_joints, unless denoise). A clip shorter than the model's window keeps its
     observed tokens in every mode (too_short). seen: (T, Jm) per clip, the tokens the recording
     observed, when `clips` has some taken out (the policy's second pass): the report's "never
-    observed" is about the recording. view: _model_view(clips, ...) when the caller has it."""
+    observed" is about the recording. view: _model_view(clips, ...) when the caller has it.
+    library: what the policy's motion-matching fills search besides these clips."""
     model, W, fps_m = fixer.skeleton, fixer.window, fixer.fps
     source = clips[0].source or clips[0].name
     who = _who(clips)
 
     index, x_in, x_m = view if view is not None else _model_view(clips, fixer, joint_map)
+    keys = take_keys(clips)
+    if policy is not None and any(m in MATCH_FILLS for m in policy.methods()):
+        own = [(x, c.fps) for x, c in zip(x_in, clips)]
+        library = MotionLibrary(own, keys) if library is None else library.including(own, keys)
 
     # Which model frames need an estimate: infill only uses it at missing tokens and at the
     # observed frames next to them (anchors); the other modes use it wherever there is data.
@@ -416,7 +458,8 @@ def _fix_positions(
             if policy is not None:
                 absent = index[k] < 0
                 model_fill = new[:, absent]
-                new = _policy_fill(policy, x, obs, new, c.fps, model, filled_by)
+                searched = None if library is None else library.without(keys[k], c.fps)
+                new = _policy_fill(policy, x, obs, new, c.fps, model, filled_by, searched)
                 new[:, absent] = model_fill  # no classical fill has anything to go on there
         elif mode == "denoise":
             new = np.where(obs[..., None], est, np.nan)
@@ -609,12 +652,19 @@ def _policy_fill(
     fps: float,
     skeleton: Skeleton,
     counts: dict[str, int],
+    library: np.ndarray | None = None,
 ) -> np.ndarray:
     """x: (T, J, 3) one clip's data, obs: (T, J), model_fill: (T, J, 3) the model's fill -> each
-    hole filled by the method the policy names for its length and part; counts[method] += tokens."""
+    hole filled by the method the policy names for its length and part; counts[method] += tokens.
+    library: (N, J, 3) the other takes the motion-matching fills search (MotionLibrary.without)."""
     xt, ot = torch.from_numpy(x)[None], torch.from_numpy(obs)[None]
     fills = {"xmae": torch.from_numpy(model_fill)[None]}
-    fills.update({m: CLASSICAL[m](xt, ot, skeleton.parents) for m in policy.methods() if m in CLASSICAL})
+    methods = set(policy.methods())
+    fills.update({m: CLASSICAL[m](xt, ot, skeleton.parents) for m in methods if m in CLASSICAL})
+    if methods & set(MATCH_FILLS):
+        hermite = fills["hermite"] if "hermite" in fills else CLASSICAL["hermite"](xt, ot, skeleton.parents)
+        found = match_fills(x, obs, hermite[0].numpy(), library)
+        fills.update({m: torch.from_numpy(f)[None] for m, f in found.items()})
     out, chosen = apply_fill_policy(policy, xt, ot, fills, fps, skeleton)
     names = policy_names(policy, fills)
     for i, n in enumerate(torch.bincount(chosen[chosen >= 0], minlength=len(names)).tolist()):

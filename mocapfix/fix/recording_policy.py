@@ -30,6 +30,7 @@ from mocapfix.evaluation.policy import (
     is_learned,
     token_parts,
 )
+from mocapfix.fix.motion_matching import MotionLibrary, match_fills
 
 HOLES_PER_CELL = 64  # the budget of holes cut into the recording per (part, gap): a model pass each kind
 # A hole is cut only where its joints are observed this long on both sides. Cut right next to
@@ -95,7 +96,14 @@ def cut_holes(observed: np.ndarray, options: list[list[int]], frames: int, budge
 
 
 def measure_on_takes(
-    takes: list[tuple[np.ndarray, float]], skeleton, gaps_s, cells=None, model_fill=None, map_takes=None
+    takes: list[tuple[np.ndarray, float]],
+    skeleton,
+    gaps_s,
+    cells=None,
+    model_fill=None,
+    map_takes=None,
+    keys=None,
+    library: MotionLibrary | None = None,
 ) -> tuple[FillPolicy | None, dict[tuple[str, float], int]]:
     """takes: (x (T, J, 3) NaN = missing, fps) per clip, at the model's joints and the input's fps;
     model_fill(x, fps) -> (T, J, 3) the model's fill as fix makes it (None: classical fills only)
@@ -103,10 +111,16 @@ def measure_on_takes(
     inf where none could be cut; the holes cut per (part, gap)). cells: only these (part, gap),
     None: all. map_takes(jobs) -> results: how the takes' measure_take(*job) calls run (default:
     one after another here; fix --jobs hands them to its workers); each take is measured alone
-    and the sums are added up in the takes' order, so the result is the same either way."""
+    and the sums are added up in the takes' order, so the result is the same either way.
+    The motion-matching fills search the takes (keys: one per take, as fix names them to its
+    MotionLibrary; default their order), each take's own with its holes cut, and `library`
+    (the user's other takes, fix --library)."""
     calibration = Calibration(gaps_s)
     budget = -(-HOLES_PER_CELL // max(1, len(takes)))
-    jobs = [(x, fps, skeleton, tuple(calibration.gaps_s), cells, budget) for x, fps in takes]
+    keys = list(range(len(takes))) if keys is None else list(keys)
+    library = MotionLibrary(takes, keys) if library is None else library.including(takes, keys)
+    gaps = tuple(calibration.gaps_s)
+    jobs = [(x, fps, skeleton, gaps, cells, budget, library, key) for (x, fps), key in zip(takes, keys)]
     if map_takes is None:
         results = [measure_take(*job, model_fill=model_fill) for job in jobs]
     else:
@@ -122,9 +136,13 @@ def measure_on_takes(
     return calibration.compute(), cut
 
 
-def measure_take(x: np.ndarray, fps: float, skeleton, gaps_s, cells, budget: int, model_fill=None):
+def measure_take(
+    x: np.ndarray, fps: float, skeleton, gaps_s, cells, budget: int, library=None, key=None, model_fill=None
+):
     """One take's share of measure_on_takes: up to `budget` holes of each kind cut into x (T, J, 3)
-    and every fill's error there -> (Calibration sums, holes cut per (part, gap))."""
+    and every fill's error there -> (Calibration sums, holes cut per (part, gap)). library: a
+    MotionLibrary (its take `key` left out: this one is searched with its holes cut), None: no
+    motion-matching fills."""
     calibration = Calibration(gaps_s)
     options = {"full": [list(range(skeleton.num_joints))]}
     for group, members in sorted(skeleton.groups.items()):
@@ -145,6 +163,10 @@ def measure_take(x: np.ndarray, fps: float, skeleton, gaps_s, cells, budget: int
             holed = truth.masked_fill(torch.from_numpy(hidden)[None, ..., None], float("nan"))
             obs = torch.from_numpy(observed & ~hidden)[None]
             fills = {name: fill(holed, obs, skeleton.parents) for name, fill in CLASSICAL.items()}
+            if library is not None:
+                searched = library.without(key, fps)  # this take is searched with its holes cut
+                found = match_fills(holed[0].numpy(), obs[0].numpy(), fills["hermite"][0].numpy(), searched)
+                fills.update({name: torch.from_numpy(f)[None] for name, f in found.items()})
             if model_fill is not None:
                 fills["xmae"] = torch.from_numpy(model_fill(holed[0].numpy(), fps)).double()[None]
             calibration.add_fills(part, gap, fills, truth, torch.from_numpy(hidden)[None])
@@ -159,11 +181,13 @@ def measure_policy(
     model_fill,
     every_cell: bool = False,
     map_takes=None,
+    keys=None,
+    library: MotionLibrary | None = None,
 ) -> tuple[FillPolicy | None, str | None]:
     """The fill policy of this recording for a positions fixer (.skeleton, .fps); tracks: its clips
     at the model's joints and fps (the kinds of hole it has, as apply_fill_policy reads them);
     takes: (x, fps) the same at the input's fps; model_fill(x, fps) -> the model's fill as fix
-    makes it; map_takes: measure_on_takes'. -> (policy, a line for the report).
+    makes it; map_takes, keys, library: measure_on_takes'. -> (policy, a line for the report).
     Only the kinds of hole the recording has are measured (every_cell: all, for a run's policy in
     --mode both, whose jumps make holes of any kind); the others keep the fallback's numbers, the
     classical ones only where nothing of the recording could be measured. A kind with fewer than
@@ -176,7 +200,7 @@ def measure_policy(
     cells = None if every_cell else hole_kinds(tracks, fixer.skeleton, fixer.fps, gaps)
     if cells is not None and not cells:  # no hole to fill
         return fallback, None
-    measured, cut = measure_on_takes(takes, fixer.skeleton, gaps, cells, model_fill, map_takes)
+    measured, cut = measure_on_takes(takes, fixer.skeleton, gaps, cells, model_fill, map_takes, keys, library)
     asked = sorted(cells) if cells is not None else [(p, g) for p in PARTS for g in gaps]
     earned = {cell for cell in asked if cut.get(cell, 0) >= TRUSTED_HOLES}
 

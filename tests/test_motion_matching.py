@@ -1,0 +1,132 @@
+"""The motion-matching fills (fix/motion_matching.py): a hole filled from the moments of the
+library that look most like its surroundings, turned and shifted onto them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from mocapfix.core.skeleton import preset
+from mocapfix.evaluation.baselines import hermite_infill
+from mocapfix.fix.motion_matching import LIBRARY_S, MotionLibrary, match_fills
+
+BODY = preset("body21")
+
+
+def _walk(seconds: float, fps: float, seed: int, heading: float = 0.0, start=(0.0, 0.0)) -> np.ndarray:
+    """(T, 21, 3) a body that walks: joints swing on a 1.1-s cycle (each its own phase and size,
+    harmonics included, so no cubic draws a cycle) while the body travels 1.2 m/s along `heading`."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(round(seconds * fps))[:, None, None] / fps
+    rest = rng.normal(0, 0.3, (1, BODY.num_joints, 3)) + [0, 0, 1.0]
+    size, phase = rng.uniform(0.05, 0.3, (2, 1, BODY.num_joints, 3))
+    w = 2 * np.pi / 1.1
+    local = rest + size * np.sin(w * t + 6 * phase) + 0.3 * size * np.sin(2 * w * t + 3 * phase)
+    local[..., 0] += 1.2 * t[..., 0]
+    c, s = np.cos(heading), np.sin(heading)
+    out = local.copy()
+    out[..., 0] = c * local[..., 0] - s * local[..., 1] + start[0]
+    out[..., 1] = s * local[..., 0] + c * local[..., 1] + start[1]
+    return out
+
+
+def _hole(x: np.ndarray, frames: slice, joints=None) -> tuple[np.ndarray, np.ndarray]:
+    holed = x.copy()
+    holed[frames, slice(None) if joints is None else list(joints)] = np.nan
+    return holed, np.isfinite(holed).all(-1)
+
+
+def _hermite(x: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    return hermite_infill(torch.from_numpy(x)[None], torch.from_numpy(observed)[None])[0].numpy()
+
+
+def test_the_same_motion_elsewhere_turned_and_shifted_fills_the_hole_exactly():
+    """The library holds the take itself, turned 40 degrees and moved 5 m: both fills find it
+    (the turn and shift come out of the closed-form alignment) and put it back exactly."""
+    x = _walk(6.0, 30.0, seed=0)
+    library = _walk(6.0, 30.0, seed=0, heading=0.7, start=(3.0, -4.0))
+    holed, observed = _hole(x, slice(80, 107))  # 0.9 s of the whole body
+    hermite = _hermite(holed, observed)
+    fills = match_fills(holed, observed, hermite, library.astype(np.float32))
+    hole = ~observed
+    assert np.abs(hermite[hole] - x[hole]).max() > 0.05  # the cubic does not know the walk
+    for name, fill in fills.items():
+        assert np.abs(fill[hole] - x[hole]).max() < 1e-4, name
+
+
+def test_the_walk_of_the_take_itself_beats_the_cubic_over_a_long_hole():
+    """No library: the take's own other steps (observed around and away from the hole) fill a
+    0.9-s hole of the whole body far better than the cubic Hermite, and a 0.7-s hole of one leg
+    (the rest of the body, observed inside the hole, is matched too)."""
+    x = _walk(10.0, 60.0, seed=1)
+    for frames, joints in ((slice(300, 354), None), (slice(200, 242), BODY.groups["left_leg"])):
+        holed, observed = _hole(x, frames, joints)
+        hermite = _hermite(holed, observed)
+        fills = match_fills(holed, observed, hermite)
+        err = {name: np.linalg.norm(f[~observed] - x[~observed], axis=-1).mean() for name, f in fills.items()}
+        cubic = np.linalg.norm(hermite[~observed] - x[~observed], axis=-1).mean()
+        assert err["match"] < 0.2 * cubic and err["match_delta"] < 0.5 * cubic, (err, cubic)
+
+
+def test_what_is_observed_stays_and_what_cannot_be_matched_keeps_the_cubic():
+    x = _walk(4.0, 30.0, seed=2)
+    holed, observed = _hole(x, slice(0, 10))  # at the start: no data on one side
+    holed[50:60, BODY.groups["right_arm"]] = np.nan  # an ordinary arm hole
+    holed[:, 4] = np.nan  # the head never observed: nothing to match it with
+    observed = np.isfinite(holed).all(-1)
+    hermite = _hermite(holed, observed)
+    for name, fill in match_fills(holed, observed, hermite).items():
+        assert np.array_equal(fill[observed], holed[observed]), name
+        assert np.array_equal(fill[:10], hermite[:10]), name  # the border hole
+        assert np.array_equal(fill[:, 4], hermite[:, 4]), name  # the joint never seen
+        assert np.isfinite(fill[50:60]).all() and not np.array_equal(fill[50:60], hermite[50:60]), name
+
+
+def test_a_library_hides_the_take_it_is_asked_for_and_keeps_its_budget():
+    a, b = _walk(2.0, 30.0, seed=3), _walk(3.0, 60.0, seed=4)
+    library = MotionLibrary([(a, 30.0), (b, 60.0)], keys=["a", "b"])
+    frames, spans = library.frames(30.0)
+    assert spans == [(0, 60), (61, 151)]  # b at 30 fps: 90 frames, a NaN frame between the takes
+    assert np.isnan(frames[60]).all()
+    np.testing.assert_allclose(frames[61:151], b[::2], atol=1e-6)  # resampled to the asked fps
+    hidden = library.without("a", 30.0)
+    assert np.isnan(hidden[:60]).all() and np.array_equal(hidden[61:], frames[61:], equal_nan=True)
+    assert np.array_equal(library.without("c", 30.0), frames, equal_nan=True)  # not in the library: nothing hidden
+
+    many = MotionLibrary([(a, 30.0)] * int(2 * LIBRARY_S / 2.0))  # twice the budget
+    assert sum(len(x) / fps for x, fps in many.takes) <= LIBRARY_S
+    assert len(many.takes) >= LIBRARY_S / 2.0 - 1
+
+
+def test_the_recording_policy_never_searches_the_truth_of_its_cut_holes():
+    """A take that never repeats (every joint on its own random path): the motion-matching fills
+    of the holes cut into it cannot be exact, as they would be if the take's uncut copy in the
+    library were searched."""
+    from mocapfix.fix.recording_policy import measure_on_takes
+
+    rng = np.random.default_rng(5)
+    steps = rng.normal(0, 0.004, (600, BODY.num_joints, 3)).cumsum(0).cumsum(0) * 0.05
+    x = steps + rng.normal(0, 0.3, (1, BODY.num_joints, 3)) + [0, 0, 1.0]
+    table, holes = measure_on_takes([(x, 30.0), (x + [5.0, 0.0, 0.0], 30.0)], BODY, (0.5,), {("full", 0.5)})
+    assert holes[("full", 0.5)] >= 8
+    full = {m: e[0] for m, e in table.error_mm["full"].items()}
+    # the second take is the first moved 5 m: each one's cut holes are found in the other, uncut
+    assert full["match"] < 0.01 * full["hermite"]
+    one, _ = measure_on_takes([(x, 30.0)], BODY, (0.5,), {("full", 0.5)})
+    alone = {m: e[0] for m, e in one.error_mm["full"].items()}
+    assert alone["match"] > 0.3 * alone["hermite"] and alone["hermite"] > 1.0
+
+
+@pytest.mark.parametrize("fps", [30.0, 120.0])
+def test_holes_of_any_length_and_frame_rate_come_out_finite(fps):
+    x = _walk(5.0, fps, seed=6)
+    rng = np.random.default_rng(7)
+    holed = x.copy()
+    for _ in range(12):
+        s, n = int(rng.integers(1, len(x) - 40)), int(rng.integers(1, round(fps)))
+        holed[s : s + n, rng.choice(BODY.num_joints, 5, replace=False)] = np.nan
+    observed = np.isfinite(holed).all(-1)
+    hermite = _hermite(holed, observed)
+    for name, fill in match_fills(holed, observed, hermite).items():
+        assert np.isfinite(fill[1:-1]).all(), name
