@@ -130,3 +130,16 @@ def test_holes_of_any_length_and_frame_rate_come_out_finite(fps):
     hermite = _hermite(holed, observed)
     for name, fill in match_fills(holed, observed, hermite).items():
         assert np.isfinite(fill[1:-1]).all(), name
+
+
+def test_holes_shorter_than_the_minimum_keep_the_cubic_when_the_frame_rate_is_known():
+    x = _walk(6.0, 30.0, seed=8)
+    holed, observed = _hole(x, slice(40, 43))  # 0.1 s
+    holed[100:127] = np.nan  # 0.9 s
+    observed = np.isfinite(holed).all(-1)
+    hermite = _hermite(holed, observed)
+    with_fps, without = match_fills(holed, observed, hermite, fps=30.0), match_fills(holed, observed, hermite)
+    for name in with_fps:
+        assert np.array_equal(with_fps[name][40:43], hermite[40:43]), name
+        assert not np.array_equal(without[name][40:43], hermite[40:43]), name
+        assert np.array_equal(with_fps[name][100:127], without[name][100:127]), name

@@ -40,7 +40,10 @@ NEIGHBOURS = 16  # stretches averaged (4: 13.5 mm, 16: 10.7, 32: 11.4 at 0.5 s)
 # apart are near copies of each other, and the search is the fill's whole cost.
 STRIDE_PER_HOLE = 16
 CHUNK = 4096  # candidate starts compared at once (memory: CHUNK x points x 3 floats)
-LIBRARY_S = 600.0  # the most seconds of takes a library keeps (each hole's search scans them all)
+LIBRARY_S = 600.0
+# Holes shorter than this keep the Hermite fill: at 0.1 s the cubic is as good (CMU strangers:
+# 3.1 mm, match_delta 3.2, match 4.1), and a take with many dropped frames would search once each.
+MIN_HOLE_S = 0.2  # the most seconds of takes a library keeps (each hole's search scans them all)
 
 
 class MotionLibrary:
@@ -115,6 +118,8 @@ def _search(library: np.ndarray, frames, joints, query, need: np.ndarray, width:
         return []
     whole = np.isfinite(library[:, need]).all(-1).all(-1)  # (N + width - 1,)
     run = np.concatenate([[0], np.cumsum(whole)])
+    # float32 as the library: the gather and the sums below are the whole cost of the fill
+    query = query.astype(np.float32)
     q_xy = query[:, :2] - query[:, :2].mean(0)  # (P, 2)
 
     def compare(start: np.ndarray) -> list[tuple]:
@@ -130,7 +135,8 @@ def _search(library: np.ndarray, frames, joints, query, need: np.ndarray, width:
         d = (c_xy**2).sum((1, 2)) + (q_xy**2).sum() - 2 * np.hypot(dot, cross)
         d += ((c[..., 2] - query[None, :, 2]) ** 2).sum(1)
         best = np.argsort(d)[: 8 * k]
-        return [(d[i] / len(query), int(start[i]), float(np.arctan2(cross[i], dot[i])), centre[i]) for i in best]
+        angle = np.arctan2(cross[best], dot[best])
+        return [(float(d[i]) / len(query), int(start[i]), float(a), centre[i]) for i, a in zip(best, angle)]
 
     found = []
     for lo in range(0, N, CHUNK * stride):
@@ -143,20 +149,25 @@ def _search(library: np.ndarray, frames, joints, query, need: np.ndarray, width:
 
 
 def match_fills(
-    positions: np.ndarray, observed: np.ndarray, hermite: np.ndarray, library: np.ndarray | None = None
+    positions: np.ndarray,
+    observed: np.ndarray,
+    hermite: np.ndarray,
+    library: np.ndarray | None = None,
+    fps: float | None = None,
 ) -> dict[str, np.ndarray]:
     """positions: (T, J, 3) metres, NaN where missing; observed: (T, J) bool; hermite: (T, J, 3)
     its cubic Hermite fill (evaluation/baselines.py), what a hole nothing matches keeps;
     library: (N, J, 3) other takes at the same fps and joints (MotionLibrary.frames), the take
-    itself is always searched -> {"match", "match_delta"}: (T, J, 3) each, observed tokens as given.
-    A hole at the take's start or end (no data on one side) keeps the Hermite fill's answer."""
+    itself is always searched; fps: the take's, for MIN_HOLE_S (None: every hole is searched)
+    -> {"match", "match_delta"}: (T, J, 3) each, observed tokens as given. A hole at the take's
+    start or end (no data on one side), or shorter than MIN_HOLE_S, keeps the Hermite fill's answer."""
     T, J, _ = positions.shape
     x = np.where(observed[..., None], positions, np.nan).astype(np.float64)
     out = {name: hermite.astype(np.float64).copy() for name in FILLS}
     seen = observed.any(0)  # a joint never observed has nothing to match with
     sources = [x] + ([library] if library is not None and len(library) else [])
     for s, e in _runs(~observed[:, seen].all(1)):
-        if s == 0 or e == T:
+        if s == 0 or e == T or (fps is not None and e - s < MIN_HOLE_S * fps):
             continue
         n = e - s
         missing = ~observed[s:e].all(0) & seen  # (J,) observed at s - 1 and e (the run is maximal)

@@ -165,7 +165,7 @@ def measure_take(
             fills = {name: fill(holed, obs, skeleton.parents) for name, fill in CLASSICAL.items()}
             if library is not None:
                 searched = library.without(key, fps)  # this take is searched with its holes cut
-                found = match_fills(holed[0].numpy(), obs[0].numpy(), fills["hermite"][0].numpy(), searched)
+                found = match_fills(holed[0].numpy(), obs[0].numpy(), fills["hermite"][0].numpy(), searched, fps)
                 fills.update({name: torch.from_numpy(f)[None] for name, f in found.items()})
             if model_fill is not None:
                 fills["xmae"] = torch.from_numpy(model_fill(holed[0].numpy(), fps)).double()[None]
