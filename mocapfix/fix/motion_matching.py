@@ -14,9 +14,11 @@ out of one search (the recording's policy picks per kind of hole, fix/recording_
 - "match_delta": the cubic Hermite fill plus how far each neighbour's motion departs from its own
   Hermite fill (the same hole cut into it): a correction to the interpolation, which shrinks
   to the interpolation where the neighbours disagree.
-On CMU subjects 35-39 (whole takes, the other takes of the folder as the library; bench/match_fill.py)
-the full-body 0.5 / 0.9-s holes came out 10.7 / 21.7 mm for "match" against the cubic spline's
-21.7 / 57.4. The tuning below was done there, never on the stranger benchmark's takes.
+On CMU subjects 35-39 (the PFNN capture: a full-body hole in the middle of each of 32 takes,
+the folder's other takes searched) the 0.5 / 0.9-s holes came out 10.7 / 21.6 mm for "match"
+against the cubic spline's 21.7 / 57.4; on the CMU strangers with the same performers' other
+takes, "match_delta" wins (docs/results.md, "Motion matching"). The settings below were tuned on
+CMU 35-39, never on the stranger benchmark's takes.
 Classical in the sense of the test tables: no training, nothing learned beyond the recording.
 """
 
