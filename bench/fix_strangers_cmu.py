@@ -99,7 +99,9 @@ def main(argv=None) -> int:
                 )
             # the folder's policy and motion library: what `mocapfix fix FOLDER` measures and searches
             recordings = [[c] for c in holed_takes]
-            library = motion_library(recordings + extra, fixer)
+            library = motion_library(recordings, fixer)  # the folder's takes first, then the extra ones
+            if extra_library is not None:
+                library = extra_library.including(library.takes, library.keys)
             folder = None if args.model_only else measure_recordings(recordings, fixer, "infill", library=extra_library)
             for clip, holed_clip, hidden in zip(takes, holed_takes, hiddens):
                 truth = clip.positions.astype(np.float64)

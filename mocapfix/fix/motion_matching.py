@@ -42,10 +42,10 @@ NEIGHBOURS = 16  # stretches averaged (4: 13.5 mm, 16: 10.7, 32: 11.4 at 0.5 s)
 # apart are near copies of each other, and the search is the fill's whole cost.
 STRIDE_PER_HOLE = 16
 CHUNK = 4096  # candidate starts compared at once (memory: CHUNK x points x 3 floats)
-LIBRARY_S = 600.0
+LIBRARY_S = 600.0  # the most seconds of takes a library keeps (each hole's search scans them all)
 # Holes shorter than this keep the Hermite fill: at 0.1 s the cubic is as good (CMU strangers:
 # 3.1 mm, match_delta 3.2, match 4.1), and a take with many dropped frames would search once each.
-MIN_HOLE_S = 0.2  # the most seconds of takes a library keeps (each hole's search scans them all)
+MIN_HOLE_S = 0.2
 
 
 class MotionLibrary:
@@ -78,7 +78,8 @@ class MotionLibrary:
         if fps not in self._at:
             parts, spans, n = [], [], 0
             for x, f in self.takes:
-                y = x if f == fps else resample_frames(x, f, fps, int(np.floor((len(x) - 1) * fps / f + 1e-6)) + 1)
+                inside = int(np.floor((len(x) - 1) * fps / f + 1e-6)) + 1  # the instants within the take
+                y = x if f == fps else resample_frames(x, f, fps, inside)
                 parts += [y, np.full((1, *x.shape[1:]), np.nan, np.float32)]
                 spans.append((n, n + len(y)))
                 n += len(y) + 1

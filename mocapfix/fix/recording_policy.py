@@ -149,6 +149,7 @@ def measure_take(
         options.setdefault(group.split("_")[-1], []).append(list(members))
     observed = np.isfinite(x).all(-1)
     truth = torch.from_numpy(x.astype(np.float64))[None]
+    searched = None if library is None else library.without(key, fps)  # this take: searched with its holes cut
     cut: dict[tuple[str, float], int] = {}
     for part in PARTS:
         for gap in gaps_s:
@@ -163,8 +164,7 @@ def measure_take(
             holed = truth.masked_fill(torch.from_numpy(hidden)[None, ..., None], float("nan"))
             obs = torch.from_numpy(observed & ~hidden)[None]
             fills = {name: fill(holed, obs, skeleton.parents) for name, fill in CLASSICAL.items()}
-            if library is not None:
-                searched = library.without(key, fps)  # this take is searched with its holes cut
+            if searched is not None:
                 found = match_fills(holed[0].numpy(), obs[0].numpy(), fills["hermite"][0].numpy(), searched, fps)
                 fills.update({name: torch.from_numpy(f)[None] for name, f in found.items()})
             if model_fill is not None:
