@@ -8,8 +8,18 @@ import pytest
 import torch
 
 from mocapfix.core.skeleton import preset
+from mocapfix.data.augment import mirror_index
 from mocapfix.evaluation.baselines import hermite_infill
-from mocapfix.fix.motion_matching import LIBRARY_S, MotionLibrary, match_fills
+from mocapfix.fix.motion_matching import (
+    LIBRARY_S,
+    TEMPOS,
+    MotionLibrary,
+    _search,
+    _weights,
+    match_fills,
+    mirrored,
+    searchable,
+)
 
 BODY = preset("body21")
 
@@ -86,17 +96,92 @@ def test_what_is_observed_stays_and_what_cannot_be_matched_keeps_the_cubic():
 def test_a_library_hides_the_take_it_is_asked_for_and_keeps_its_budget():
     a, b = _walk(2.0, 30.0, seed=3), _walk(3.0, 60.0, seed=4)
     library = MotionLibrary([(a, 30.0), (b, 60.0)], keys=["a", "b"])
-    frames, spans = library.frames(30.0)
-    assert spans == [(0, 60), (61, 151)]  # b at 30 fps: 90 frames, a NaN frame between the takes
-    assert np.isnan(frames[60]).all()
-    np.testing.assert_allclose(frames[61:151], b[::2], atol=1e-6)  # resampled to the asked fps
-    hidden = library.without("a", 30.0)
-    assert np.isnan(hidden[:60]).all() and np.array_equal(hidden[61:], frames[61:], equal_nan=True)
-    assert np.array_equal(library.without("c", 30.0), frames, equal_nan=True)  # not in the library: nothing hidden
+    frames, spans = library.frames(30.0)[0].frames, library.frames(30.0)[1]
+    # a at 30 fps played at TEMPOS 1, 0.85, 1.15: 60 + 70 + 52 frames, a NaN frame after each copy
+    assert TEMPOS == (1.0, 0.85, 1.15) and spans == [(0, 184), (185, 461)]
+    assert np.isnan(frames[60]).all() and np.isnan(frames[184]).all()
+    np.testing.assert_allclose(frames[:60], a, atol=1e-6)
+    np.testing.assert_allclose(frames[185:275], b[::2], atol=1e-6)  # resampled to the asked fps
+    np.testing.assert_allclose(frames[61], a[0], atol=1e-6)  # slower: the same start, more frames
+    assert library.without("a", 30.0).hidden == (0, 184) and library.without("c", 30.0).hidden == (0, 0)
+
+    # the hidden take is never matched: its exact copy fills the hole only when it is not hidden
+    holed, observed = _hole(a, slice(25, 40))
+    hermite = _hermite(holed, observed)
+    hole = ~observed
+    found = match_fills(holed, observed, hermite, library.without("c", 30.0))["match"][hole]
+    hidden = match_fills(holed, observed, hermite, library.without("a", 30.0))["match"][hole]
+    assert np.abs(found - a[hole]).max() < 1e-4 < np.abs(hidden - a[hole]).max()
 
     many = MotionLibrary([(a, 30.0)] * int(2 * LIBRARY_S / 2.0))  # twice the budget
     assert sum(len(x) / fps for x, fps in many.takes) <= LIBRARY_S
     assert len(many.takes) >= LIBRARY_S / 2.0 - 1
+
+
+def test_a_mirrored_library_fills_from_the_mirror_image():
+    """The library holds only the take's mirror image (left and right swapped), turned and moved:
+    mirrored back by the library it fills a hole of the left leg exactly; not mirrored, it
+    cannot (the take never repeats: every joint on its own random path)."""
+    partner = mirror_index(BODY)
+    rng = np.random.default_rng(1)
+    x = rng.normal(0, 0.004, (180, BODY.num_joints, 3)).cumsum(0).cumsum(0) + rng.normal(0, 0.3, (BODY.num_joints, 3))
+    c, s = np.cos(2.0), np.sin(2.0)
+    image = mirrored(x @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]]) + [1.0, 2.0, 0.0], partner)
+    holed, observed = _hole(x, slice(80, 101), BODY.groups["left_leg"])
+    hermite = _hermite(holed, observed)
+    hole = ~observed
+    with_mirror = MotionLibrary([(image, 30.0)], mirror=partner).without(None, 30.0)
+    plain = MotionLibrary([(image, 30.0)]).without(None, 30.0)
+    for name in ("match", "match_delta"):
+        assert np.abs(match_fills(holed, observed, hermite, with_mirror)[name][hole] - x[hole]).max() < 1e-4
+        assert np.abs(match_fills(holed, observed, hermite, plain)[name][hole] - x[hole]).max() > 1e-2
+
+
+def test_the_search_scores_every_start_as_a_brute_force_alignment_does():
+    """_search's distances (correlations, read every step-th frame, then refined) against each
+    stretch gathered and aligned by brute force (every turn about z, 0.05 degrees apart)."""
+    rng = np.random.default_rng(8)
+    J, width = 5, 12
+    frames = rng.normal(0, 1.0, (300, J, 3)).cumsum(0) * 0.1 + [20.0, -30.0, 1.0]  # far from the origin
+    frames[[40, 41, 200]] = np.nan
+    frames[120, 2] = np.nan
+    offsets = np.array([0, 1, 3, 4, 7, 10, 11])
+    pts_f = np.repeat(offsets, J)
+    pts_j = np.tile(np.arange(J), len(offsets))
+    keep = rng.random(len(pts_f)) < 0.8
+    pts_f, pts_j = pts_f[keep], pts_j[keep]
+    query = frames[150 + pts_f, pts_j] + rng.normal(0, 0.05, (len(pts_f), 3))
+    need = np.zeros(J, bool)
+    need[2] = True
+    library = searchable(frames.astype(np.float32))
+    w = _weights(pts_f, pts_j, query, J)
+
+    angles = np.radians(np.arange(0, 360, 0.05))
+    q_xy = query[:, :2] - query[:, :2].mean(0)
+    brute = np.full(len(frames) - width + 1, np.inf)
+    for start in range(len(brute)):
+        if not np.isfinite(frames[start : start + width, 2]).all():
+            continue
+        c = frames[start + pts_f, pts_j]
+        if not np.isfinite(c).all():
+            continue
+        c_xy = c[:, :2] - c[:, :2].mean(0)
+        turned = np.stack(
+            [
+                np.cos(angles)[:, None] * c_xy[:, 0] - np.sin(angles)[:, None] * c_xy[:, 1],
+                np.sin(angles)[:, None] * c_xy[:, 0] + np.cos(angles)[:, None] * c_xy[:, 1],
+            ],
+            -1,
+        )
+        xy = ((turned - q_xy) ** 2).sum((1, 2)).min()
+        brute[start] = (xy + ((c[:, 2] - query[:, 2]) ** 2).sum()) / len(query)
+    for step in (1, 4):
+        found = _search(library, w, need, width, k=5, apart=6, step=step)
+        assert found[0][1] == int(np.argmin(brute)), step  # the best start, refined from the coarse grid
+        for d, start, _, _ in found:
+            np.testing.assert_allclose(d, brute[start], rtol=1e-4, atol=1e-7)
+        starts = [f[1] for f in found]
+        assert all(abs(p - q) > 6 for i, p in enumerate(starts) for q in starts[:i])  # apart
 
 
 def test_the_recording_policy_never_searches_the_truth_of_its_cut_holes():

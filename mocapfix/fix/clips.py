@@ -38,7 +38,7 @@ from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, excursions, policy_names, recording_step_floor
 from mocapfix.fix.fixers import Fixer, RotationFixer
 from mocapfix.fix.motion_matching import FILLS as MATCH_FILLS
-from mocapfix.fix.motion_matching import MotionLibrary, match_fills
+from mocapfix.fix.motion_matching import MotionLibrary, Searchable, match_fills, mirror_of
 from mocapfix.fix.recording_policy import measure_policy
 from mocapfix.fix.windowing import (
     blend_windows,
@@ -375,7 +375,7 @@ def motion_library(
             continue
         takes += [(x, c.fps) for x, c in zip(x_in, clips)]
         keys += take_keys(clips)
-    return MotionLibrary(takes, keys) if takes else None
+    return MotionLibrary(takes, keys, mirror_of(fixer.skeleton)) if takes else None
 
 
 def _fix_positions(
@@ -407,7 +407,7 @@ def _fix_positions(
     keys = take_keys(clips)
     if policy is not None and any(m in MATCH_FILLS for m in policy.methods()):
         own = [(x, c.fps) for x, c in zip(x_in, clips)]
-        library = MotionLibrary(own, keys) if library is None else library.including(own, keys)
+        library = MotionLibrary(own, keys, mirror_of(model)) if library is None else library.including(own, keys)
 
     # Which model frames need an estimate: infill only uses it at missing tokens and at the
     # observed frames next to them (anchors); the other modes use it wherever there is data.
@@ -652,18 +652,18 @@ def _policy_fill(
     fps: float,
     skeleton: Skeleton,
     counts: dict[str, int],
-    library: np.ndarray | None = None,
+    library: Searchable | None = None,
 ) -> np.ndarray:
     """x: (T, J, 3) one clip's data, obs: (T, J), model_fill: (T, J, 3) the model's fill -> each
     hole filled by the method the policy names for its length and part; counts[method] += tokens.
-    library: (N, J, 3) the other takes the motion-matching fills search (MotionLibrary.without)."""
+    library: the other takes the motion-matching fills search (MotionLibrary.without)."""
     xt, ot = torch.from_numpy(x)[None], torch.from_numpy(obs)[None]
     fills = {"xmae": torch.from_numpy(model_fill)[None]}
     methods = set(policy.methods())
     fills.update({m: CLASSICAL[m](xt, ot, skeleton.parents) for m in methods if m in CLASSICAL})
     if methods & set(MATCH_FILLS):
         hermite = fills["hermite"] if "hermite" in fills else CLASSICAL["hermite"](xt, ot, skeleton.parents)
-        found = match_fills(x, obs, hermite[0].numpy(), library, fps)
+        found = match_fills(x, obs, hermite[0].numpy(), library, fps, mirror_of(skeleton))
         fills.update({m: torch.from_numpy(f)[None] for m, f in found.items()})
     out, chosen = apply_fill_policy(policy, xt, ot, fills, fps, skeleton)
     names = policy_names(policy, fills)

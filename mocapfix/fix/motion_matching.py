@@ -24,9 +24,13 @@ Classical in the sense of the test tables: no training, nothing learned beyond t
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
 
+from mocapfix.core.skeleton import Skeleton
+from mocapfix.data.augment import mirror_index
 from mocapfix.evaluation.baselines import hermite_infill, lerp_infill
 from mocapfix.fix.windowing import resample_frames
 
@@ -38,23 +42,81 @@ MIN_CONTEXT = 2
 FRAMES_PER_SIDE = 8  # context frames compared (evenly spread; 16 gave the same)
 HOLE_FRAMES = 8  # hole frames whose observed joints are compared (a limb hole: the rest of the body)
 NEIGHBOURS = 16  # stretches averaged (4: 13.5 mm, 16: 10.7, 32: 11.4 at 0.5 s)
-# Candidate stretches start every hole/STRIDE_PER_HOLE frames (at least 1): neighbours a frame
-# apart are near copies of each other, and the search is the fill's whole cost.
+# Starts every hole/STRIDE_PER_HOLE frames are scored (at least 1), then every start around the
+# best of them: a stretch a frame later is nearly the same stretch, and the search is the cost.
 STRIDE_PER_HOLE = 16
-CHUNK = 4096  # candidate starts compared at once (memory: CHUNK x points x 3 floats)
+CHUNK = 16384  # starts scored at once (memory: CHUNK x 10 sums x the query's frames)
 LIBRARY_S = 600.0  # the most seconds of takes a library keeps (each hole's search scans them all)
 # Holes shorter than this keep the Hermite fill: at 0.1 s the cubic is as good (CMU strangers:
 # 3.1 mm, match_delta 3.2, match 4.1), and a take with many dropped frames would search once each.
 MIN_HOLE_S = 0.2
 
 
+class _Coordinates(NamedTuple):
+    """A source's frames as the search reads them: x, y, z, x^2 + y^2 and z^2 (N, J) in metres
+    (0 where missing, float64: the sums below subtract large numbers) and missing (N, J) 1.0
+    where a joint is missing. Made once per source and take, read by every hole's search."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    squares: np.ndarray  # (3, N, J): x^2 + y^2, z^2, missing
+    missing: np.ndarray
+
+
+def _coordinates(frames: np.ndarray) -> _Coordinates:
+    """frames: (N, J, 3) metres, NaN where missing."""
+    missing = ~np.isfinite(frames).all(-1)
+    c = np.where(missing[..., None], 0.0, frames).astype(np.float64)
+    x, y, z = (np.ascontiguousarray(c[..., i]) for i in range(3))
+    return _Coordinates(x, y, z, np.stack([x**2 + y**2, z**2, missing.astype(np.float64)]), missing)
+
+
+# Each library take is also searched mirrored (left and right swapped: a left leg's hole finds
+# the right leg's steps) and played 0.85x and 1.15x as fast (people walk at other paces than
+# the library's): on CMU 35-39, full-body 0.9-s holes 162.5 -> 145.0 mm (match_delta), 0.9-s leg
+# holes 227.9 -> 195.8, for 6x the frames searched.
+TEMPOS = (1.0, 0.85, 1.15)
+
+
+def mirror_of(skeleton: Skeleton) -> list[int] | None:
+    """Each joint's mirror partner (data/augment.py: mirror_index); None for a skeleton whose
+    sides do not pair up by name (it is searched as it is)."""
+    try:
+        return mirror_index(skeleton)
+    except ValueError:
+        return None
+
+
+def mirrored(x: np.ndarray, partner) -> np.ndarray:
+    """x: (T, J, 3), z up -> its mirror image: each joint swapped with its partner (data/augment.py:
+    mirror_index), x negated (a reflection in a vertical plane: any plane will do, the search
+    turns about z)."""
+    return x[:, partner] * np.array([-1.0, 1.0, 1.0], dtype=x.dtype)
+
+
+class Searchable(NamedTuple):
+    """Frames a hole's search reads: (N, J, 3) metres (NaN = missing), their coordinates as the
+    search reads them (made once, read by every hole) and a span of frames never matched
+    (first, end): a take hidden from its own search."""
+
+    frames: np.ndarray
+    coordinates: _Coordinates
+    hidden: tuple[int, int] = (0, 0)
+
+
+def searchable(frames: np.ndarray) -> Searchable:
+    return Searchable(frames, _coordinates(frames))
+
+
 class MotionLibrary:
     """Takes to match holes against, at one skeleton's joints: (T, J, 3) arrays in metres (NaN =
     missing) with their fps and a key each (a take of the recording being fixed is left out of
     its own search by key: its own data is searched as it is, holes and all). Over LIBRARY_S,
-    the first takes that fit are kept."""
+    the first takes that fit are kept. mirror: each joint's partner (mirror_of), to search each
+    take's mirror image too; None: not mirrored."""
 
-    def __init__(self, takes: list[tuple[np.ndarray, float]], keys: list | None = None):
+    def __init__(self, takes: list[tuple[np.ndarray, float]], keys: list | None = None, mirror=None):
         keys = list(range(len(takes))) if keys is None else list(keys)
         seconds = np.array([len(x) / fps for x, fps in takes])
         keep = np.arange(len(takes))
@@ -62,7 +124,8 @@ class MotionLibrary:
             keep = keep[np.cumsum(seconds) <= LIBRARY_S]
         self.takes = [(takes[i][0].astype(np.float32), float(takes[i][1])) for i in keep]
         self.keys = [keys[i] for i in keep]
-        self._at: dict[float, tuple[np.ndarray, list[tuple[int, int]]]] = {}
+        self.mirror = None if mirror is None else list(mirror)
+        self._at: dict[float, tuple[Searchable, list[tuple[int, int]]]] = {}
 
     def including(self, takes: list[tuple[np.ndarray, float]], keys: list) -> MotionLibrary:
         """A library of `takes` (those of its keys it does not hold yet) and then this one's (the
@@ -70,31 +133,33 @@ class MotionLibrary:
         new = [(t, k) for t, k in zip(takes, keys) if k not in self.keys]
         if not new:
             return self
-        return MotionLibrary([t for t, _ in new] + self.takes, [k for _, k in new] + self.keys)
+        return MotionLibrary([t for t, _ in new] + self.takes, [k for _, k in new] + self.keys, self.mirror)
 
-    def frames(self, fps: float) -> tuple[np.ndarray, list[tuple[int, int]]]:
-        """Every take at `fps`, one after another with a NaN frame between them (no stretch spans
-        two takes) -> (N, J, 3) and each take's (first, end) frame."""
+    def frames(self, fps: float) -> tuple[Searchable, list[tuple[int, int]]]:
+        """Every take at `fps` (then its mirror image, each at every tempo of TEMPOS), one after
+        another with a NaN frame between them (no stretch spans two) -> the frames and each
+        take's (first, end) frame, its copies included."""
         if fps not in self._at:
             parts, spans, n = [], [], 0
             for x, f in self.takes:
-                inside = int(np.floor((len(x) - 1) * fps / f + 1e-6)) + 1  # the instants within the take
-                y = x if f == fps else resample_frames(x, f, fps, inside)
-                parts += [y, np.full((1, *x.shape[1:]), np.nan, np.float32)]
-                spans.append((n, n + len(y)))
-                n += len(y) + 1
-            self._at[fps] = (np.concatenate(parts) if parts else np.zeros((0, 0, 3), np.float32), spans)
+                first = n
+                for copy in [x] + ([mirrored(x, self.mirror)] if self.mirror is not None else []):
+                    for tempo in TEMPOS:  # played `tempo` times as fast: as if recorded at f * tempo
+                        inside = int(np.floor((len(x) - 1) * fps / (f * tempo) + 1e-6)) + 1  # instants within the take
+                        y = copy if f * tempo == fps else resample_frames(copy, f * tempo, fps, inside)
+                        parts += [y, np.full((1, *x.shape[1:]), np.nan, np.float32)]
+                        n += len(y) + 1
+                spans.append((first, n - 1))
+            frames = np.concatenate(parts) if parts else np.zeros((0, 0, 3), np.float32)
+            self._at[fps] = (searchable(frames), spans)
         return self._at[fps]
 
-    def without(self, key, fps: float) -> np.ndarray:
-        """The library at fps with the take of `key` (if it holds one) hidden: NaN."""
-        frames, spans = self.frames(fps)
+    def without(self, key, fps: float) -> Searchable:
+        """The library at fps with the take of `key` (if it holds one) and its copies hidden."""
+        library, spans = self.frames(fps)
         if key not in self.keys:
-            return frames
-        first, end = spans[self.keys.index(key)]
-        frames = frames.copy()
-        frames[first:end] = np.nan
-        return frames
+            return library
+        return library._replace(hidden=spans[self.keys.index(key)])
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -110,65 +175,131 @@ def _spread(frames: np.ndarray, k: int) -> np.ndarray:
     return frames[np.round(np.linspace(0, len(frames) - 1, k)).astype(np.int64)]
 
 
-def _search(library: np.ndarray, frames, joints, query, need: np.ndarray, width: int, k: int, stride: int):
-    """The k best stretches of `library` (N, J, 3) of `width` frames -> list of (distance, start,
-    angle, centre): distance the mean squared distance (m^2) between query (P, 3) and the
-    stretch's tokens at (frames, joints) after the best turn about z and shift in x, y (angle
-    and the stretch's x, y centre); need (J,) the joints the stretch must hold in every frame.
-    Starts `stride` frames apart are compared, then every start around the best of them."""
-    N = len(library) - width + 1
+class _Weights(NamedTuple):
+    """A hole's query as weights on a source's coordinates: the query's points at each of U frame
+    offsets of the stretch, summed per joint (J, U, outputs) for each sum _distance needs."""
+
+    offsets: np.ndarray  # (U,) frames from the stretch's start
+    on_x: np.ndarray  # (J, U, 3): sum of x, its parts of the dot and cross products
+    on_y: np.ndarray  # (J, U, 3): the same for y
+    on_z: np.ndarray  # (J, U, 1): z times the query's z
+    counted: np.ndarray  # (J, U, 1): points, on x^2 + y^2, z^2 and missing
+    query: np.ndarray  # (P, 3)
+
+
+def _weights(frames: np.ndarray, joints: np.ndarray, query: np.ndarray, J: int) -> _Weights:
+    q = query.astype(np.float64)
+    q_xy = q[:, :2] - q[:, :2].mean(0)  # (P, 2)
+    offsets, at = np.unique(frames, return_inverse=True)
+
+    def summed(*values) -> np.ndarray:
+        w = np.zeros((J, len(offsets), len(values)))
+        for i, v in enumerate(values):
+            np.add.at(w[..., i], (joints, at), v)
+        return w
+
+    # dot = sum x qx + y qy, cross = sum x qy - y qx (q centred: the stretch's centre drops out)
+    on_x, on_y = summed(1.0, q_xy[:, 0], q_xy[:, 1]), summed(1.0, q_xy[:, 1], -q_xy[:, 0])
+    return _Weights(offsets, on_x, on_y, summed(q[:, 2]), summed(1.0), q)
+
+
+def _correlate(source: _Coordinates, w: _Weights, first: int, count: int, step: int) -> np.ndarray:
+    """The sums of the stretches starting at first + step * i, i < count -> (count, 10): sx,
+    dot x, cross x, sy, dot y, cross y, z qz, x^2 + y^2, z^2, missing points.
+    Each sum is a correlation over time (the points at one offset weigh one frame), so matrix
+    products score every start without gathering (starts, P, 3) stretches; with step > 1 the
+    offsets of one phase (offset % step) read every step-th frame, an exact score step times
+    cheaper."""
+    J = source.x.shape[1]
+    sums = np.zeros((count, 10))
+    for phase in np.unique(w.offsets % step):
+        us = np.flatnonzero(w.offsets % step == phase)
+        shift = w.offsets[us] // step  # (V,) rows of this phase's frames after each start's
+        blocks = [(source.x, w.on_x), (source.y, w.on_y), (source.z, w.on_z)]
+        for a in range(0, count, CHUNK):
+            b = min(count, a + CHUNK)
+            rows = slice(first + phase + step * a, first + phase + step * (b - 1 + shift[-1]) + 1, step)
+            per_row = np.concatenate(
+                [(c[rows] @ on[:, us].reshape(J, -1)).reshape(-1, len(us), on.shape[-1]) for c, on in blocks]
+                + [np.moveaxis(source.squares[:, rows] @ w.counted[:, us, 0], 0, -1)],
+                -1,
+            )  # (rows, V, 10)
+            for v, sh in enumerate(shift):
+                sums[a:b] += per_row[sh : sh + b - a, v]
+    return sums
+
+
+def _search(source: Searchable, w: _Weights, need: np.ndarray, width: int, k: int, apart: int, step: int):
+    """The k best stretches of `source` of `width` frames, their starts more than `apart` frames
+    from each other -> list of (distance, start, angle, centre): distance the mean squared
+    distance (m^2) between the query and the stretch's tokens at its points after the best turn
+    about z and shift in x, y (angle and the stretch's x, y centre); need (J,) the joints the
+    stretch must hold in every frame. Starts `step` frames apart are scored, then every start
+    around the best of them."""
+    N = len(source.frames) - width + 1
     if N <= 0:
         return []
-    whole = np.isfinite(library[:, need]).all(-1).all(-1)  # (N + width - 1,)
+    whole = ~source.coordinates.missing[:, need].any(-1)  # (N + width - 1,)
+    whole[source.hidden[0] : source.hidden[1]] = False
     run = np.concatenate([[0], np.cumsum(whole)])
-    # float32 as the library: the gather and the sums below are the whole cost of the fill
-    query = query.astype(np.float32)
-    q_xy = query[:, :2] - query[:, :2].mean(0)  # (P, 2)
+    q = w.query
+    P, q_xy = len(q), q[:, :2] - q[:, :2].mean(0)
+    d = np.full(N, np.inf)
+    angle, centre = np.zeros(N), np.zeros((N, 2))
 
-    def compare(start: np.ndarray) -> list[tuple]:
-        start = start[run[start + width] - run[start] == width]
-        c = library[start[:, None] + frames[None], joints[None]]  # (A, P, 3)
-        ok = np.isfinite(c).all((1, 2))
-        start, c = start[ok], c[ok]
-        centre = c[..., :2].mean(1)  # (A, 2)
-        c_xy = c[..., :2] - centre[:, None]
-        dot = np.einsum("apc,pc->a", c_xy, q_xy)
-        cross = np.einsum("ap,p->a", c_xy[..., 0], q_xy[:, 1]) - np.einsum("ap,p->a", c_xy[..., 1], q_xy[:, 0])
-        # min over the angle of |R c - q|^2 = |c|^2 + |q|^2 - 2 |(dot, cross)| (2D Procrustes)
-        d = (c_xy**2).sum((1, 2)) + (q_xy**2).sum() - 2 * np.hypot(dot, cross)
-        d += ((c[..., 2] - query[None, :, 2]) ** 2).sum(1)
-        best = np.argsort(d)[: 8 * k]
-        angle = np.arctan2(cross[best], dot[best])
-        return [(float(d[i]) / len(query), int(start[i]), float(a), centre[i]) for i, a in zip(best, angle)]
+    def score(first: int, count: int, step: int) -> None:
+        sums = _correlate(source.coordinates, w, first, count, step)
+        sx, dot_x, cross_x, sy, dot_y, cross_y, zq, xy2, z2, lost = sums.T
+        dot, cross = dot_x + dot_y, cross_x + cross_y
+        # min over the angle of |R (c - c_mean) - q|^2 = |c - c_mean|^2 + |q|^2 - 2 |(dot, cross)|
+        dist = xy2 - (sx**2 + sy**2) / P + (q_xy**2).sum() - 2 * np.hypot(dot, cross)
+        dist += z2 - 2 * zq + (q[:, 2] ** 2).sum()
+        at = first + step * np.arange(count)
+        dist[(lost > 0) | (run[at + width] - run[at] < width)] = np.inf
+        d[at], angle[at], centre[at] = np.maximum(dist, 0.0) / P, np.arctan2(cross, dot), np.stack([sx, sy], -1) / P
 
-    found = []
-    for lo in range(0, N, CHUNK * stride):
-        found += compare(np.arange(lo, min(N, lo + CHUNK * stride), stride))
-    if stride > 1 and found:  # the frames between the best starts
-        found.sort(key=lambda f: f[0])
-        near = np.unique(np.array([f[1] for f in found[: 2 * k]])[:, None] + np.arange(1 - stride, stride)[None])
-        found += compare(near[(near >= 0) & (near < N)])
-    return found
+    def best(n: int) -> list[int]:  # the best, then the best more than `apart` from it, ...
+        left, out = d.copy(), []
+        for _ in range(n):
+            i = int(np.argmin(left))
+            if not np.isfinite(left[i]):
+                break
+            out.append(i)
+            left[max(0, i - apart) : i + apart + 1] = np.inf
+        return out
+
+    score(0, (N - 1) // step + 1, step)
+    if step > 1:
+        for i in best(2 * k):
+            lo, hi = max(0, i - step + 1), min(N, i + step)
+            score(lo, hi - lo, 1)
+    return [(float(d[i]), i, float(angle[i]), centre[i]) for i in best(k)]
 
 
 def match_fills(
     positions: np.ndarray,
     observed: np.ndarray,
     hermite: np.ndarray,
-    library: np.ndarray | None = None,
+    library: Searchable | np.ndarray | None = None,
     fps: float | None = None,
+    mirror=None,
 ) -> dict[str, np.ndarray]:
     """positions: (T, J, 3) metres, NaN where missing; observed: (T, J) bool; hermite: (T, J, 3)
     its cubic Hermite fill (evaluation/baselines.py), what a hole nothing matches keeps;
-    library: (N, J, 3) other takes at the same fps and joints (MotionLibrary.frames), the take
-    itself is always searched; fps: the take's, for MIN_HOLE_S (None: every hole is searched)
-    -> {"match", "match_delta"}: (T, J, 3) each, observed tokens as given. A hole at the take's
-    start or end (no data on one side), or shorter than MIN_HOLE_S, keeps the Hermite fill's answer."""
+    library: other takes at the same fps and joints (MotionLibrary.without, or (N, J, 3) frames),
+    the take itself is always searched; fps: the take's, for MIN_HOLE_S (None: every hole is
+    searched); mirror: each joint's partner, to search the take's mirror image too (the
+    library's, MotionLibrary.mirror) -> {"match", "match_delta"}: (T, J, 3) each, observed tokens
+    as given. A hole at the take's start or end (no data on one side), or shorter than
+    MIN_HOLE_S, keeps the Hermite fill's answer."""
     T, J, _ = positions.shape
     x = np.where(observed[..., None], positions, np.nan).astype(np.float64)
     out = {name: hermite.astype(np.float64).copy() for name in FILLS}
     seen = observed.any(0)  # a joint never observed has nothing to match with
-    sources = [x] + ([library] if library is not None and len(library) else [])
+    takes = [x] + ([mirrored(x, mirror)] if mirror is not None else [])
+    if isinstance(library, np.ndarray):
+        library = searchable(library)
+    sources: list[Searchable] = []  # made at the first hole searched
     for s, e in _runs(~observed[:, seen].all(1)):
         if s == 0 or e == T or (fps is not None and e - s < MIN_HOLE_S * fps):
             continue
@@ -186,24 +317,22 @@ def match_fills(
         if len(query) < 3:
             continue
         width = hi - lo
+        if not sources:
+            sources = [searchable(t) for t in takes]
+            sources += [library] if library is not None and len(library.frames) else []
+        w = _weights(frames, joints, query, J)
+        step = max(1, n // STRIDE_PER_HOLE)
+        # the best NEIGHBOURS of all sources, no two of a source within half the hole of each other
         found = [
             (d, i, start, a, c)
-            for i, lib in enumerate(sources)
-            for d, start, a, c in _search(
-                lib, frames, joints, query, missing, width, NEIGHBOURS, max(1, n // STRIDE_PER_HOLE)
-            )
+            for i, source in enumerate(sources)
+            for d, start, a, c in _search(source, w, missing, width, NEIGHBOURS, n // 2, step)
         ]
-        found.sort(key=lambda f: f[0])
-        chosen: list[tuple] = []
-        for f in found:  # the best, then the best not overlapping it by half the hole, ...
-            if all(f[1] != c[1] or abs(f[2] - c[2]) > n // 2 for c in chosen):
-                chosen.append(f)
-                if len(chosen) == NEIGHBOURS:
-                    break
+        chosen = sorted(found, key=lambda f: f[0])[:NEIGHBOURS]
         if not chosen:
             continue
         # the neighbours turned and shifted onto the query: (K, width, J, 3)
-        seg = np.stack([sources[i][start : start + width] for _, i, start, _, _ in chosen]).astype(np.float64)
+        seg = np.stack([sources[i].frames[start : start + width] for _, i, start, _, _ in chosen]).astype(np.float64)
         angle = np.array([a for *_, a, _ in chosen])
         cos, sin = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
         centre = np.stack([c for *_, c in chosen])[:, None, None]  # (K, 1, 1, 2)

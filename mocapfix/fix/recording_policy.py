@@ -30,7 +30,7 @@ from mocapfix.evaluation.policy import (
     is_learned,
     token_parts,
 )
-from mocapfix.fix.motion_matching import MotionLibrary, match_fills
+from mocapfix.fix.motion_matching import MotionLibrary, match_fills, mirror_of
 
 HOLES_PER_CELL = 64  # the budget of holes cut into the recording per (part, gap): a model pass each kind
 # A hole is cut only where its joints are observed this long on both sides. Cut right next to
@@ -118,7 +118,7 @@ def measure_on_takes(
     calibration = Calibration(gaps_s)
     budget = -(-HOLES_PER_CELL // max(1, len(takes)))
     keys = list(range(len(takes))) if keys is None else list(keys)
-    library = MotionLibrary(takes, keys) if library is None else library.including(takes, keys)
+    library = MotionLibrary(takes, keys, mirror_of(skeleton)) if library is None else library.including(takes, keys)
     gaps = tuple(calibration.gaps_s)
     jobs = [(x, fps, skeleton, gaps, cells, budget, library, key) for (x, fps), key in zip(takes, keys)]
     if map_takes is None:
@@ -165,7 +165,8 @@ def measure_take(
             obs = torch.from_numpy(observed & ~hidden)[None]
             fills = {name: fill(holed, obs, skeleton.parents) for name, fill in CLASSICAL.items()}
             if searched is not None:
-                found = match_fills(holed[0].numpy(), obs[0].numpy(), fills["hermite"][0].numpy(), searched, fps)
+                hermite = fills["hermite"][0].numpy()
+                found = match_fills(holed[0].numpy(), obs[0].numpy(), hermite, searched, fps, library.mirror)
                 fills.update({name: torch.from_numpy(f)[None] for name, f in found.items()})
             if model_fill is not None:
                 fills["xmae"] = torch.from_numpy(model_fill(holed[0].numpy(), fps)).double()[None]
