@@ -3,6 +3,8 @@ library that look most like its surroundings, turned and shifted onto them."""
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 import torch
@@ -104,6 +106,9 @@ def test_a_library_hides_the_take_it_is_asked_for_and_keeps_its_budget():
     np.testing.assert_allclose(frames[185:275], b[::2], atol=1e-6)  # resampled to the asked fps
     np.testing.assert_allclose(frames[61], a[0], atol=1e-6)  # slower: the same start, more frames
     assert library.without("a", 30.0).hidden == (0, 184) and library.without("c", 30.0).hidden == (0, 0)
+    sent = pickle.loads(pickle.dumps(library))  # to a worker: the takes, not the searched frames
+    assert len(pickle.dumps(library)) < 1.2 * (a.nbytes + b.nbytes) / 2  # float64 walks -> float32 takes
+    np.testing.assert_array_equal(sent.frames(30.0)[0].frames, frames)
 
     # the hidden take is never matched: its exact copy fills the hole only when it is not hidden
     holed, observed = _hole(a, slice(25, 40))

@@ -53,14 +53,13 @@ MIN_HOLE_S = 0.2
 
 
 class _Coordinates(NamedTuple):
-    """A source's frames as the search reads them: x, y, z, x^2 + y^2 and z^2 (N, J) in metres
-    (0 where missing, float64: the sums below subtract large numbers) and missing (N, J) 1.0
-    where a joint is missing. Made once per source and take, read by every hole's search."""
+    """A source's frames as the search reads them: x, y, z (N, J) metres, 0 where missing
+    (float64: the sums below subtract large numbers), and missing (N, J) bool. Made once per
+    source, read by every hole's search."""
 
     x: np.ndarray
     y: np.ndarray
     z: np.ndarray
-    squares: np.ndarray  # (3, N, J): x^2 + y^2, z^2, missing
     missing: np.ndarray
 
 
@@ -68,8 +67,7 @@ def _coordinates(frames: np.ndarray) -> _Coordinates:
     """frames: (N, J, 3) metres, NaN where missing."""
     missing = ~np.isfinite(frames).all(-1)
     c = np.where(missing[..., None], 0.0, frames).astype(np.float64)
-    x, y, z = (np.ascontiguousarray(c[..., i]) for i in range(3))
-    return _Coordinates(x, y, z, np.stack([x**2 + y**2, z**2, missing.astype(np.float64)]), missing)
+    return _Coordinates(*(np.ascontiguousarray(c[..., i]) for i in range(3)), missing)
 
 
 # Each library take is also searched mirrored (left and right swapped: a left leg's hole finds
@@ -126,6 +124,11 @@ class MotionLibrary:
         self.keys = [keys[i] for i in keep]
         self.mirror = None if mirror is None else list(mirror)
         self._at: dict[float, tuple[Searchable, list[tuple[int, int]]]] = {}
+
+    def __getstate__(self) -> dict:
+        # a worker (fix --jobs) makes the searched frames again on first use: pickled, they
+        # would copy six times the takes, in float64, into every job
+        return {**self.__dict__, "_at": {}}
 
     def including(self, takes: list[tuple[np.ndarray, float]], keys: list) -> MotionLibrary:
         """A library of `takes` (those of its keys it does not hold yet) and then this one's (the
@@ -212,16 +215,19 @@ def _correlate(source: _Coordinates, w: _Weights, first: int, count: int, step: 
     cheaper."""
     J = source.x.shape[1]
     sums = np.zeros((count, 10))
+
     for phase in np.unique(w.offsets % step):
         us = np.flatnonzero(w.offsets % step == phase)
         shift = w.offsets[us] // step  # (V,) rows of this phase's frames after each start's
-        blocks = [(source.x, w.on_x), (source.y, w.on_y), (source.z, w.on_z)]
+        weights = (w.on_x, w.on_y, w.on_z)
         for a in range(0, count, CHUNK):
             b = min(count, a + CHUNK)
             rows = slice(first + phase + step * a, first + phase + step * (b - 1 + shift[-1]) + 1, step)
+            x, y, z = source.x[rows], source.y[rows], source.z[rows]
+            squares = np.stack([x**2 + y**2, z**2, source.missing[rows]])  # (3, rows, J)
             per_row = np.concatenate(
-                [(c[rows] @ on[:, us].reshape(J, -1)).reshape(-1, len(us), on.shape[-1]) for c, on in blocks]
-                + [np.moveaxis(source.squares[:, rows] @ w.counted[:, us, 0], 0, -1)],
+                [(c @ on[:, us].reshape(J, -1)).reshape(-1, len(us), on.shape[-1]) for c, on in zip((x, y, z), weights)]
+                + [np.moveaxis(squares @ w.counted[:, us, 0], 0, -1)],
                 -1,
             )  # (rows, V, 10)
             for v, sh in enumerate(shift):
