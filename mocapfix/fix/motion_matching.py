@@ -180,7 +180,7 @@ def _spread(frames: np.ndarray, k: int) -> np.ndarray:
 
 class _Weights(NamedTuple):
     """A hole's query as weights on a source's coordinates: the query's points at each of U frame
-    offsets of the stretch, summed per joint (J, U, outputs) for each sum _distance needs."""
+    offsets of the stretch, summed per joint (J, U, outputs) for each of _correlate's sums."""
 
     offsets: np.ndarray  # (U,) frames from the stretch's start
     on_x: np.ndarray  # (J, U, 3): sum of x, its parts of the dot and cross products
@@ -215,11 +215,10 @@ def _correlate(source: _Coordinates, w: _Weights, first: int, count: int, step: 
     cheaper."""
     J = source.x.shape[1]
     sums = np.zeros((count, 10))
-
+    weights = (w.on_x, w.on_y, w.on_z)
     for phase in np.unique(w.offsets % step):
         us = np.flatnonzero(w.offsets % step == phase)
         shift = w.offsets[us] // step  # (V,) rows of this phase's frames after each start's
-        weights = (w.on_x, w.on_y, w.on_z)
         for a in range(0, count, CHUNK):
             b = min(count, a + CHUNK)
             rows = slice(first + phase + step * a, first + phase + step * (b - 1 + shift[-1]) + 1, step)
