@@ -310,6 +310,20 @@ def test_fix_speed(tmp_path):
 
 
 @pytest.mark.slow
+def test_fix_library_cost(tmp_path, cmu_files):
+    """Two CMU takes holed, one short take as the library: each step timed."""
+    data, library = tmp_path / "data", tmp_path / "library"
+    for folder, f in [(data, cmu_files[0]), (data, cmu_files[1]), (library, cmu_files[2])]:
+        folder.mkdir(exist_ok=True)
+        (folder / f.name).symlink_to(f)
+    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
+    script = [sys.executable, str(REPO / "bench" / "fix_library_cost.py")]
+    args = ["--data", data, "--library", library, "--min-seconds", "0", "--part", "leg", "--gap", "0.5"]
+    run = subprocess.run(script + list(map(str, args)), env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "2 takes" in run.stdout and "library of 1 takes" in run.stdout and "total" in run.stdout
+
+
 def test_fix_bandai(tmp_path, bandai_dir):
     """The issue-5 scoring on Bandai's test split, with an untrained tiny model for Bandai's joints."""
     from mocapfix.data.datamodule import MotionDataModule

@@ -234,6 +234,21 @@ def _correlate(source: _Coordinates, w: _Weights, first: int, count: int, step: 
     return sums
 
 
+def _sums_at(source: _Coordinates, w: _Weights, starts: np.ndarray) -> np.ndarray:
+    """_correlate's sums for any starts (M,) -> (M, 10), each offset's frames gathered: what
+    refines a coarse search, a few hundred starts."""
+    sums = np.zeros((len(starts), 10))
+    for u, offset in enumerate(w.offsets):
+        rows = starts + offset
+        x, y, z = source.x[rows], source.y[rows], source.z[rows]  # (M, J)
+        sums[:, 0:3] += x @ w.on_x[:, u]
+        sums[:, 3:6] += y @ w.on_y[:, u]
+        sums[:, 6:7] += z @ w.on_z[:, u]
+        squares = np.stack([x**2 + y**2, z**2, source.missing[rows]], 1)  # (M, 3, J)
+        sums[:, 7:10] += (squares @ w.counted[:, u])[..., 0]
+    return sums
+
+
 def _search(source: Searchable, w: _Weights, need: np.ndarray, width: int, k: int, apart: int, step: int):
     """The k best stretches of `source` of `width` frames, their starts more than `apart` frames
     from each other -> list of (distance, start, angle, centre): distance the mean squared
@@ -252,14 +267,12 @@ def _search(source: Searchable, w: _Weights, need: np.ndarray, width: int, k: in
     d = np.full(N, np.inf)
     angle, centre = np.zeros(N), np.zeros((N, 2))
 
-    def score(first: int, count: int, step: int) -> None:
-        sums = _correlate(source.coordinates, w, first, count, step)
+    def score(at: np.ndarray, sums: np.ndarray) -> None:  # at: (M,) starts, sums: (M, 10) theirs
         sx, dot_x, cross_x, sy, dot_y, cross_y, zq, xy2, z2, lost = sums.T
         dot, cross = dot_x + dot_y, cross_x + cross_y
         # min over the angle of |R (c - c_mean) - q|^2 = |c - c_mean|^2 + |q|^2 - 2 |(dot, cross)|
         dist = xy2 - (sx**2 + sy**2) / P + (q_xy**2).sum() - 2 * np.hypot(dot, cross)
         dist += z2 - 2 * zq + (q[:, 2] ** 2).sum()
-        at = first + step * np.arange(count)
         dist[(lost > 0) | (run[at + width] - run[at] < width)] = np.inf
         d[at], angle[at], centre[at] = np.maximum(dist, 0.0) / P, np.arctan2(cross, dot), np.stack([sx, sy], -1) / P
 
@@ -273,11 +286,12 @@ def _search(source: Searchable, w: _Weights, need: np.ndarray, width: int, k: in
             left[max(0, i - apart) : i + apart + 1] = np.inf
         return out
 
-    score(0, (N - 1) // step + 1, step)
-    if step > 1:
-        for i in best(2 * k):
-            lo, hi = max(0, i - step + 1), min(N, i + step)
-            score(lo, hi - lo, 1)
+    count = (N - 1) // step + 1
+    score(step * np.arange(count), _correlate(source.coordinates, w, 0, count, step))
+    picks = best(2 * k) if step > 1 else []
+    if picks:  # every start around the best of them
+        near = np.unique(np.concatenate([np.arange(max(0, i - step + 1), min(N, i + step)) for i in picks]))
+        score(near, _sums_at(source.coordinates, w, near))
     return [(float(d[i]), i, float(angle[i]), centre[i]) for i in best(k)]
 
 
