@@ -309,7 +309,6 @@ def test_fix_speed(tmp_path):
     assert [x["case"] for x in r["rows"]] == ["denoise", "infill-gaps"] and r["rows"][0]["windows"] >= 2
 
 
-@pytest.mark.slow
 def test_fix_library_cost(tmp_path, cmu_files):
     """Two CMU takes holed, one short take as the library: each step timed."""
     data, library = tmp_path / "data", tmp_path / "library"
@@ -324,6 +323,7 @@ def test_fix_library_cost(tmp_path, cmu_files):
     assert "2 takes" in run.stdout and "library of 1 takes" in run.stdout and "total" in run.stdout
 
 
+@pytest.mark.slow
 def test_fix_bandai(tmp_path, bandai_dir):
     """The issue-5 scoring on Bandai's test split, with an untrained tiny model for Bandai's joints."""
     from mocapfix.data.datamodule import MotionDataModule
