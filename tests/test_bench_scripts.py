@@ -309,6 +309,7 @@ def test_fix_speed(tmp_path):
     assert [x["case"] for x in r["rows"]] == ["denoise", "infill-gaps"] and r["rows"][0]["windows"] >= 2
 
 
+@pytest.mark.slow
 def test_fix_library_cost(tmp_path, cmu_files):
     """Two CMU takes holed, one short take as the library: each step timed."""
     data, library = tmp_path / "data", tmp_path / "library"
