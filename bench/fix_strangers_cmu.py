@@ -116,14 +116,10 @@ def main(argv=None) -> int:
                     outputs[name] = fill(x, ~torch.isnan(x).any(-1), body.parents)[0].numpy()
                 observed = np.isfinite(holed).all(-1)
                 searched = library.without(take_keys([holed_clip])[0], clip.fps)  # as fix FOLDER searches
-                for name, found in match_fills(
-                    holed, observed, outputs["hermite"], searched, clip.fps, library.mirror
-                ).items():
+                for name, found in match_fills(holed, observed, outputs["hermite"], searched, clip.fps).items():
                     outputs[f"{name} (folder)"] = found
                 alone = None if extra_library is None else extra_library.without(None, clip.fps)
-                for name, found in match_fills(
-                    holed, observed, outputs["hermite"], alone, clip.fps, library.mirror
-                ).items():
+                for name, found in match_fills(holed, observed, outputs["hermite"], alone, clip.fps).items():
                     outputs[f"{name} (take alone)"] = found
                 for name, out in outputs.items():
                     err = np.linalg.norm(out[hidden] - truth[hidden], axis=-1)

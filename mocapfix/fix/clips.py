@@ -663,7 +663,7 @@ def _policy_fill(
     fills.update({m: CLASSICAL[m](xt, ot, skeleton.parents) for m in methods if m in CLASSICAL})
     if methods & set(MATCH_FILLS):
         hermite = fills["hermite"] if "hermite" in fills else CLASSICAL["hermite"](xt, ot, skeleton.parents)
-        found = match_fills(x, obs, hermite[0].numpy(), library, fps, mirror_of(skeleton))
+        found = match_fills(x, obs, hermite[0].numpy(), library, fps)
         fills.update({m: torch.from_numpy(f)[None] for m, f in found.items()})
     out, chosen = apply_fill_policy(policy, xt, ot, fills, fps, skeleton)
     names = policy_names(policy, fills)

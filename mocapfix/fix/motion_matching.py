@@ -97,12 +97,14 @@ def mirrored(x: np.ndarray, partner) -> np.ndarray:
 
 class Searchable(NamedTuple):
     """Frames a hole's search reads: (N, J, 3) metres (NaN = missing), their coordinates as the
-    search reads them (made once, read by every hole) and a span of frames never matched
-    (first, end): a take hidden from its own search."""
+    search reads them (made once, read by every hole), a span of frames never matched
+    (first, end): a take hidden from its own search, and the joint partners its takes were
+    mirrored by (MotionLibrary.mirror): the take being fixed is searched mirrored too."""
 
     frames: np.ndarray
     coordinates: _Coordinates
     hidden: tuple[int, int] = (0, 0)
+    mirror: list[int] | None = None
 
 
 def searchable(frames: np.ndarray) -> Searchable:
@@ -156,7 +158,7 @@ class MotionLibrary:
                         n += len(y) + 1
                 spans.append((first, n - 1))
             frames = np.concatenate(parts) if parts else np.zeros((0, 0, 3), np.float32)
-            self._at[fps] = (searchable(frames), spans)
+            self._at[fps] = (searchable(frames)._replace(mirror=self.mirror), spans)
         return self._at[fps]
 
     def without(self, key, fps: float) -> Searchable:
@@ -303,23 +305,22 @@ def match_fills(
     hermite: np.ndarray,
     library: Searchable | np.ndarray | None = None,
     fps: float | None = None,
-    mirror=None,
 ) -> dict[str, np.ndarray]:
     """positions: (T, J, 3) metres, NaN where missing; observed: (T, J) bool; hermite: (T, J, 3)
     its cubic Hermite fill (evaluation/baselines.py), what a hole nothing matches keeps;
     library: other takes at the same fps and joints (MotionLibrary.without, or (N, J, 3) frames),
-    the take itself is always searched; fps: the take's, for MIN_HOLE_S (None: every hole is
-    searched); mirror: each joint's partner, to search the take's mirror image too (the
-    library's, MotionLibrary.mirror) -> {"match", "match_delta"}: (T, J, 3) each, observed tokens
-    as given. A hole at the take's start or end (no data on one side), or shorter than
+    the take itself is always searched (mirrored too where the library's takes are); fps: the
+    take's, for MIN_HOLE_S (None: every hole is searched) -> {"match", "match_delta"}: (T, J, 3)
+    each, observed tokens as given. A hole at the take's start or end (no data on one side), or shorter than
     MIN_HOLE_S, keeps the Hermite fill's answer."""
     T, J, _ = positions.shape
     x = np.where(observed[..., None], positions, np.nan).astype(np.float64)
     out = {name: hermite.astype(np.float64).copy() for name in FILLS}
     seen = observed.any(0)  # a joint never observed has nothing to match with
-    takes = [x] + ([mirrored(x, mirror)] if mirror is not None else [])
     if isinstance(library, np.ndarray):
         library = searchable(library)
+    mirror = None if library is None else library.mirror
+    takes = [x] + ([mirrored(x, mirror)] if mirror is not None else [])
     sources: list[Searchable] = []  # made at the first hole searched
     for s, e in _runs(~observed[:, seen].all(1)):
         if s == 0 or e == T or (fps is not None and e - s < MIN_HOLE_S * fps):

@@ -165,8 +165,7 @@ def measure_take(
             obs = torch.from_numpy(observed & ~hidden)[None]
             fills = {name: fill(holed, obs, skeleton.parents) for name, fill in CLASSICAL.items()}
             if searched is not None:
-                hermite = fills["hermite"][0].numpy()
-                found = match_fills(holed[0].numpy(), obs[0].numpy(), hermite, searched, fps, library.mirror)
+                found = match_fills(holed[0].numpy(), obs[0].numpy(), fills["hermite"][0].numpy(), searched, fps)
                 fills.update({name: torch.from_numpy(f)[None] for name, f in found.items()})
             if model_fill is not None:
                 fills["xmae"] = torch.from_numpy(model_fill(holed[0].numpy(), fps)).double()[None]
