@@ -225,13 +225,20 @@ class OracleFixer:
         self.skeleton, self.fps, self.window = SMPL, 30.0, 30
 
     def estimate(self, positions, observed):
-        padded = np.concatenate([self.clean, np.repeat(self.clean[-1:], self.window, axis=0)])
+        padded = np.concatenate([self.clean, np.repeat(self.clean[-1:], self.window, axis=0)]).astype(np.float64)
         starts = np.lib.stride_tricks.sliding_window_view(padded, self.window, axis=0)[: len(self.clean)]
-        starts = np.moveaxis(starts, -1, 1)  # (S, W, J, 3): the clean window at every start
+        starts = np.moveaxis(starts, -1, 1).reshape(len(self.clean), -1)  # (S, W*J*3): the clean window at every start
+        windows = positions.numpy().astype(np.float64).reshape(len(positions), -1)  # (B, W*J*3)
+        seen = np.isfinite(windows)
+        given = np.where(seen, windows, 0.0)
+        # squared distances over each window's seen tokens to every start, as matrix products, pick
+        # the candidates; the L1 distance (one displaced joint cannot outweigh the rest) decides
+        squared = (starts**2) @ seen.T - 2 * starts @ given.T + (given**2).sum(1)  # (S, B)
+        candidates = np.argsort(squared, axis=0)[:8]  # (8, B)
         out = []
-        for window in positions.numpy():
-            seen = np.isfinite(window).all(-1)  # (W, J)
-            s = int(np.argmin(np.abs(starts[:, seen] - window[seen]).sum(axis=(1, 2))))
+        for b, window in enumerate(windows):
+            l1 = np.abs(starts[candidates[:, b]][:, seen[b]] - window[seen[b]]).sum(1)
+            s = int(candidates[np.argmin(l1), b])
             out.append(padded[s : s + self.window])
         return torch.from_numpy(np.stack(out)).float()
 

@@ -55,13 +55,15 @@ MIN_HOLE_S = 0.2
 
 
 class _Coordinates(NamedTuple):
-    """A source's frames as the search reads them: x, y, z (N, J) metres, 0 where missing
-    (float64: the sums below subtract large numbers), and missing (N, J) bool. Made once per
-    source, read by every hole's search."""
+    """A source's frames as the search reads them, each (N, J): x, y, z metres and squared
+    (x^2 + y^2 + z^2), 0 where missing (float64: the sums below subtract large numbers), and
+    missing (1.0 where missing, else 0; float32, exact for counts of points). Made once per source,
+    read by every hole's search."""
 
     x: np.ndarray
     y: np.ndarray
     z: np.ndarray
+    squared: np.ndarray
     missing: np.ndarray
 
 
@@ -69,7 +71,8 @@ def _coordinates(frames: np.ndarray) -> _Coordinates:
     """frames: (N, J, 3) metres, NaN where missing."""
     missing = ~np.isfinite(frames).all(-1)
     c = np.where(missing[..., None], 0.0, frames).astype(np.float64)
-    return _Coordinates(*(np.ascontiguousarray(c[..., i]) for i in range(3)), missing)
+    x, y, z = (np.ascontiguousarray(c[..., i]) for i in range(3))
+    return _Coordinates(x, y, z, x**2 + y**2 + z**2, missing.astype(np.float32))
 
 
 # Each library take is also searched mirrored (left and right swapped: a left leg's hole finds
@@ -190,7 +193,7 @@ class _Weights(NamedTuple):
     on_x: np.ndarray  # (J, U, 3): sum of x, its parts of the dot and cross products
     on_y: np.ndarray  # (J, U, 3): the same for y
     on_z: np.ndarray  # (J, U, 1): z times the query's z
-    counted: np.ndarray  # (J, U, 1): points, on x^2 + y^2, z^2 and missing
+    counted: np.ndarray  # (J, U, 1): points, on squared and (float32) missing
     query: np.ndarray  # (P, 3)
 
 
@@ -210,46 +213,49 @@ def _weights(frames: np.ndarray, joints: np.ndarray, query: np.ndarray, J: int) 
     return _Weights(offsets, on_x, on_y, summed(q[:, 2]), summed(1.0), q)
 
 
+# Which of _correlate's sums each coordinate feeds, by its weights.
+_SUMS = (
+    ("x", "on_x", slice(0, 3)),
+    ("y", "on_y", slice(3, 6)),
+    ("z", "on_z", slice(6, 7)),
+    ("squared", "counted", slice(7, 8)),
+)
+
+
 def _correlate(source: _Coordinates, w: _Weights, first: int, count: int, step: int) -> np.ndarray:
-    """The sums of the stretches starting at first + step * i, i < count -> (count, 10): sx,
-    dot x, cross x, sy, dot y, cross y, z qz, x^2 + y^2, z^2, missing points.
+    """The sums of the stretches starting at first + step * i, i < count -> (count, 9): sx,
+    dot x, cross x, sy, dot y, cross y, z qz, x^2 + y^2 + z^2, missing points.
     Each sum is a correlation over time (the points at one offset weigh one frame), so matrix
     products score every start without gathering (starts, P, 3) stretches; with step > 1 the
     offsets of one phase (offset % step) read every step-th frame, an exact score step times
     cheaper."""
     J = source.x.shape[1]
-    sums = np.zeros((count, 10))
-    weights = (w.on_x, w.on_y, w.on_z)
+    sums = np.zeros((count, 9))
+    counted32 = w.counted.astype(np.float32)
     for phase in np.unique(w.offsets % step):
         us = np.flatnonzero(w.offsets % step == phase)
         shift = w.offsets[us] // step  # (V,) rows of this phase's frames after each start's
         for a in range(0, count, CHUNK):
             b = min(count, a + CHUNK)
             rows = slice(first + phase + step * a, first + phase + step * (b - 1 + shift[-1]) + 1, step)
-            x, y, z = source.x[rows], source.y[rows], source.z[rows]
-            squares = np.stack([x**2 + y**2, z**2, source.missing[rows]])  # (3, rows, J)
-            per_row = np.concatenate(
-                [(c @ on[:, us].reshape(J, -1)).reshape(-1, len(us), on.shape[-1]) for c, on in zip((x, y, z), weights)]
-                + [np.moveaxis(squares @ w.counted[:, us, 0], 0, -1)],
-                -1,
-            )  # (rows, V, 10)
-            for v, sh in enumerate(shift):
-                sums[a:b] += per_row[sh : sh + b - a, v]
+            parts = [(getattr(source, c)[rows], getattr(w, on), cols) for c, on, cols in _SUMS]
+            parts.append((source.missing[rows], counted32, slice(8, 9)))
+            for values, on, cols in parts:
+                per_row = (values @ on[:, us].reshape(J, -1)).reshape(-1, len(us), on.shape[-1])  # (rows, V, k)
+                for v, sh in enumerate(shift):
+                    sums[a:b, cols] += per_row[sh : sh + b - a, v]
     return sums
 
 
 def _sums_at(source: _Coordinates, w: _Weights, starts: np.ndarray) -> np.ndarray:
-    """_correlate's sums for any starts (M,) -> (M, 10), each offset's frames gathered: what
+    """_correlate's sums for any starts (M,) -> (M, 9), each offset's frames gathered: what
     refines a coarse search, a few hundred starts."""
-    sums = np.zeros((len(starts), 10))
+    sums = np.zeros((len(starts), 9))
     for u, offset in enumerate(w.offsets):
         rows = starts + offset
-        x, y, z = source.x[rows], source.y[rows], source.z[rows]  # (M, J)
-        sums[:, 0:3] += x @ w.on_x[:, u]
-        sums[:, 3:6] += y @ w.on_y[:, u]
-        sums[:, 6:7] += z @ w.on_z[:, u]
-        squares = np.stack([x**2 + y**2, z**2, source.missing[rows]], 1)  # (M, 3, J)
-        sums[:, 7:10] += (squares @ w.counted[:, u])[..., 0]
+        for c, on, cols in _SUMS:
+            sums[:, cols] += getattr(source, c)[rows] @ getattr(w, on)[:, u]
+        sums[:, 8] += source.missing[rows] @ w.counted[:, u, 0]
     return sums
 
 
@@ -271,12 +277,13 @@ def _search(source: Searchable, w: _Weights, need: np.ndarray, width: int, k: in
     d = np.full(N, np.inf)
     angle, centre = np.zeros(N), np.zeros((N, 2))
 
-    def score(at: np.ndarray, sums: np.ndarray) -> None:  # at: (M,) starts, sums: (M, 10) theirs
-        sx, dot_x, cross_x, sy, dot_y, cross_y, zq, xy2, z2, lost = sums.T
+    def score(at: np.ndarray, sums: np.ndarray) -> None:  # at: (M,) starts, sums: (M, 9) theirs
+        sx, dot_x, cross_x, sy, dot_y, cross_y, zq, squared, lost = sums.T
         dot, cross = dot_x + dot_y, cross_x + cross_y
-        # min over the angle of |R (c - c_mean) - q|^2 = |c - c_mean|^2 + |q|^2 - 2 |(dot, cross)|
-        dist = xy2 - (sx**2 + sy**2) / P + (q_xy**2).sum() - 2 * np.hypot(dot, cross)
-        dist += z2 - 2 * zq + (q[:, 2] ** 2).sum()
+        # min over the angle of |R (c - c_mean) - q|^2 = |c - c_mean|^2 + |q|^2 - 2 |(dot, cross)|,
+        # in x, y; z as it is
+        dist = squared - (sx**2 + sy**2) / P + (q_xy**2).sum() - 2 * np.hypot(dot, cross)
+        dist += -2 * zq + (q[:, 2] ** 2).sum()
         dist[(lost > 0) | (run[at + width] - run[at] < width)] = np.inf
         d[at], angle[at], centre[at] = np.maximum(dist, 0.0) / P, np.arctan2(cross, dot), np.stack([sx, sy], -1) / P
 
@@ -362,17 +369,17 @@ def match_fills(
         xy = np.stack([cos * xy[..., 0] - sin * xy[..., 1], sin * xy[..., 0] + cos * xy[..., 1]], -1)
         seg[..., :2] = xy + query[:, :2].mean(0)
         weight = 1.0 / (np.array([d for d, *_ in chosen]) + 1e-8)
-        weight = torch.from_numpy(weight / weight.sum())[:, None, None, None]  # (K, 1, 1, 1)
-
-        window = torch.from_numpy(np.broadcast_to(x[lo:hi], seg.shape).copy())  # (K, width, J, 3)
-        obs = torch.from_numpy(np.broadcast_to(observed[lo:hi], seg.shape[:3]).copy())
-        seg_t = torch.from_numpy(seg)
+        # Both fills of a neighbour are linear in its frames (an interpolation between the same
+        # observed tokens, per joint; the hole's joints are whole in every neighbour): the
+        # weighted mean of the neighbours' fills is the fill of their weighted mean.
+        mean = torch.from_numpy(np.einsum("k,ktjc->tjc", weight / weight.sum(), seg))[None]  # (1, width, J, 3)
+        window = torch.from_numpy(x[lo:hi])[None]
+        obs = torch.from_numpy(observed[lo:hi])[None]
         # match: the residual to the data at observed tokens, interpolated over the hole (meets both ends)
-        residual = lerp_infill(torch.where(obs[..., None], window - seg_t, torch.nan), obs)
-        match = ((seg_t + residual) * weight).sum(0).numpy()
-        # match_delta: the Hermite fill plus each neighbour's departure from its own Hermite fill
-        own = hermite_infill(torch.where(obs[..., None], seg_t, torch.nan), obs)
-        delta = ((seg_t - own) * weight).sum(0).numpy() + hermite[lo:hi]
+        match = (mean + lerp_infill(torch.where(obs[..., None], window - mean, torch.nan), obs))[0].numpy()
+        # match_delta: the Hermite fill plus the neighbours' departure from their own Hermite fill
+        own = hermite_infill(torch.where(obs[..., None], mean, torch.nan), obs)
+        delta = (mean - own)[0].numpy() + hermite[lo:hi]
         hole = np.zeros((width, J), dtype=bool)
         hole[s - lo : e - lo] = ~observed[s:e] & missing
         out["match"][lo:hi][hole] = match[hole]
