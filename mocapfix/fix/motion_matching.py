@@ -219,6 +219,7 @@ _SUMS = (
     ("y", "on_y", slice(3, 6)),
     ("z", "on_z", slice(6, 7)),
     ("squared", "counted", slice(7, 8)),
+    ("missing", "counted", slice(8, 9)),
 )
 
 
@@ -231,17 +232,17 @@ def _correlate(source: _Coordinates, w: _Weights, first: int, count: int, step: 
     cheaper."""
     J = source.x.shape[1]
     sums = np.zeros((count, 9))
-    counted32 = w.counted.astype(np.float32)
     for phase in np.unique(w.offsets % step):
         us = np.flatnonzero(w.offsets % step == phase)
         shift = w.offsets[us] // step  # (V,) rows of this phase's frames after each start's
         for a in range(0, count, CHUNK):
             b = min(count, a + CHUNK)
             rows = slice(first + phase + step * a, first + phase + step * (b - 1 + shift[-1]) + 1, step)
-            parts = [(getattr(source, c)[rows], getattr(w, on), cols) for c, on, cols in _SUMS]
-            parts.append((source.missing[rows], counted32, slice(8, 9)))
-            for values, on, cols in parts:
-                per_row = (values @ on[:, us].reshape(J, -1)).reshape(-1, len(us), on.shape[-1])  # (rows, V, k)
+            for name, weights, cols in _SUMS:
+                values = getattr(source, name)[rows]  # (rows, J)
+                # in the values' precision: float32 for the missing counts (exact), else float64
+                on = getattr(w, weights)[:, us].astype(values.dtype, copy=False)  # (J, V, k)
+                per_row = (values @ on.reshape(J, -1)).reshape(-1, len(us), on.shape[-1])  # (rows, V, k)
                 for v, sh in enumerate(shift):
                     sums[a:b, cols] += per_row[sh : sh + b - a, v]
     return sums
@@ -253,9 +254,8 @@ def _sums_at(source: _Coordinates, w: _Weights, starts: np.ndarray) -> np.ndarra
     sums = np.zeros((len(starts), 9))
     for u, offset in enumerate(w.offsets):
         rows = starts + offset
-        for c, on, cols in _SUMS:
-            sums[:, cols] += getattr(source, c)[rows] @ getattr(w, on)[:, u]
-        sums[:, 8] += source.missing[rows] @ w.counted[:, u, 0]
+        for name, weights, cols in _SUMS:
+            sums[:, cols] += getattr(source, name)[rows] @ getattr(w, weights)[:, u]
     return sums
 
 
