@@ -1,7 +1,7 @@
 """Does a learned correction of the cubic Hermite carry from one studio to another?
 
 The simplest learned in-betweener: a ridge regression from the motion around a full-body hole
-(8 frames each side, turned to face +x, the Hermite's own fill of the hole) to the Hermite's
+(8 frames each side, turned about z to one heading, the Hermite's own fill of the hole) to the Hermite's
 error over the hole. Fitted and judged in four ways, at each hole length, everything at 30 fps on
 the 17 joints every source has (body21 without hands and toes: ReActIdle has no hands, CMU no
 toes), so neither frame rate nor rig differs between training and evaluation:
@@ -60,7 +60,8 @@ def windows(clips, keep: list[int], hole: int, stride: int) -> np.ndarray:
 
 class Holes:
     """A full-body hole in the middle of each window, the Hermite's fill, the features and target,
-    turned about z so the hips face +x at the last frame before the hole."""
+    turned about z so the line from the right hip to the left lies along +x at the last frame
+    before the hole (every window at one heading)."""
 
     def __init__(self, stretches: np.ndarray, hole: int, hips: tuple[int, int]):
         n, size, joints, _ = stretches.shape
