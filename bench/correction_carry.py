@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import time
 import zlib
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -39,7 +40,7 @@ LEFT_OUT = ("Hand_L", "Hand_R", "Toes_L", "Toes_R")
 
 def performer(clip) -> str:
     """The corpus' folder per performer: bandai1, reactidle003, cmu35 (bench/build_corpus.py)."""
-    return clip.source.replace("\\", "/").split("/")[-2]
+    return Path(clip.source).parent.name
 
 
 def studio(clip) -> str:
@@ -50,10 +51,10 @@ def windows(clips, keep: list[int], hole: int, stride: int) -> np.ndarray:
     """(N, 2 * CONTEXT + hole, J, 3) stretches of the kept joints with every joint observed."""
     size = 2 * CONTEXT + hole
     out = [
-        c.positions[s : s + size, keep]
+        w
         for c in clips
-        for s in range(0, len(c.positions) - size + 1, stride)
-        if not np.isnan(c.positions[s : s + size, keep]).any()
+        for w in (c.positions[s : s + size, keep] for s in range(0, len(c.positions) - size + 1, stride))
+        if not np.isnan(w).any()
     ]
     return np.stack(out).astype(np.float32)
 
@@ -76,10 +77,7 @@ class Holes:
         turn = np.zeros((n, 3, 3), np.float32)  # (N, 3, 3) rotation about z
         turn[:, 0, 0], turn[:, 0, 1], turn[:, 1, 0], turn[:, 1, 1], turn[:, 2, 2] = c, -s, s, c, 1
 
-        def facing(x):  # (N, T, J, 3) world -> facing frame
-            return np.einsum("nij,ntkj->ntki", turn, x - origin[:, None, None])
-
-        aligned = facing(base)
+        aligned = np.einsum("nij,ntkj->ntki", turn, base - origin[:, None, None])  # (N, T, J, 3) facing frame
         around = np.concatenate([aligned[:, :CONTEXT], aligned[:, CONTEXT + hole :]], axis=1)
         # features: the context and every third coordinate of the Hermite's fill of the hole
         inside = aligned[:, CONTEXT : CONTEXT + hole].reshape(n, -1)[:, ::3]
@@ -87,7 +85,7 @@ class Holes:
         truth = stretches[:, CONTEXT : CONTEXT + hole]
         self.base = base[:, CONTEXT : CONTEXT + hole]  # (N, hole, J, 3) world
         self.target = np.einsum("nij,ntkj->ntki", turn, truth - self.base).reshape(n, -1)  # facing frame
-        self.truth, self.turn, self.hole = truth, turn, hole
+        self.truth, self.turn = truth, turn
 
     def error_mm(self, model=None) -> float:
         """MPJPE (mm) over the hole of the Hermite, corrected by `model` (a fit_ridge output) if given."""
