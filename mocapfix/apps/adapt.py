@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -82,6 +83,7 @@ def adapt(args) -> Path:
 
     from mocapfix.data.datamodule import MotionDataModule
     from mocapfix.fix.fixers import read_checkpoint
+    from mocapfix.io.files import atomic_write
     from mocapfix.models.build import checkpoint_entry
     from mocapfix.pretrained import pretrained_path
     from mocapfix.training.xmae_module import XMAEModule
@@ -92,10 +94,7 @@ def adapt(args) -> Path:
     if kind != "xmae":
         raise ValueError(f"{start}: adapt fine-tunes XMAE checkpoints; this one holds {kind}")
     hp = ckpt["hyper_parameters"]
-    name = args.model or Path(args.ckpt).stem
-    out = Path(args.out) if args.out else Path("checkpoints") / "adapt" / f"{name}.ckpt"
-    if out.suffix != ".ckpt":
-        raise ValueError(f"--out {out}: give a .ckpt file name")
+    out = output_path(args, start)
 
     L.seed_everything(args.seed, verbose=False)
     fps, frames = float(hp["window_fps"]), int(hp["window_frames"])
@@ -154,12 +153,41 @@ def adapt(args) -> Path:
     }
     if module.fill_policy is not None:
         saved["fill_policy"] = module.fill_policy.to_dict()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    torch.save(saved, tmp)
-    tmp.replace(out)
+    # a temporary file of its own beside out, renamed over it: never written through a link
+    atomic_write(out, lambda f: torch.save(saved, f))
     print(f"adapted {trainer.global_step} steps on {sum(len(c) for c in data.clips.values())} takes")
     return out
+
+
+def output_path(args, start: str) -> Path:
+    """Where the adapted checkpoint goes: --out, or checkpoints/adapt/<model or checkpoint
+    name>.ckpt. Never one of adapt's inputs (the starting checkpoint, a take): an --out that is
+    one, by any name (a link, a hard link), is a ValueError; a default that is one moves to
+    <name>-adapted.ckpt beside it."""
+    inputs = [Path(start), *map(Path, args.inputs)]
+    if args.out:
+        out = Path(args.out)
+        if out.suffix != ".ckpt":
+            raise ValueError(f"--out {out}: give a .ckpt file name")
+        if out.is_dir():
+            raise ValueError(f"--out {out}: is a folder; give a .ckpt file name")
+        if any(_same_file(out, p) for p in inputs):
+            raise ValueError(f"--out {out}: is the checkpoint adapt starts from, or one of its inputs; give another")
+        return out
+    name = args.model or Path(args.ckpt).stem
+    out = Path("checkpoints") / "adapt" / f"{name}.ckpt"
+    while any(_same_file(out, p) for p in inputs):
+        out = out.with_name(f"{out.stem}-adapted.ckpt")
+    return out
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two names are one file: the same inode (links, hard links, other spellings of the
+    path), or, while either does not exist yet, the same resolved path."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (or cannot be read): compare where the names lead
+        return a.resolve() == b.resolve()
 
 
 def _source(inputs: list[str], source: str) -> str:

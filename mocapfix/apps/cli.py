@@ -12,7 +12,6 @@ and LightningCLI merges them in that order.
 from __future__ import annotations
 
 import os
-import pickle
 import signal
 import sys
 from pathlib import Path
@@ -191,12 +190,35 @@ def _lightning_cli(args: list[str]):
                 )
             elif ckpt_path and ckpt_path not in ("last", "best", "hpc", "registry") and not Path(ckpt_path).is_file():
                 raise ValueError(f"{ckpt_path}: no such checkpoint file")
+            if ckpt_path and Path(ckpt_path).is_file():
+                self._model_from_checkpoint(ckpt_path)
+
+        def _model_from_checkpoint(self, ckpt_path: str) -> None:
+            """The model settings a checkpoint saved, over the config's: LightningCLI's
+            _parse_ckpt_path, except that the checkpoint's class is one of mocapfix's own
+            (training/registry.py), never a module imported by the name the file gives."""
+            import torch
+            from jsonargparse import ArgumentError
+
+            from mocapfix.training.registry import checked_hyperparameters
+
             try:
-                super()._parse_ckpt_path()
-            except (pickle.UnpicklingError, RuntimeError, EOFError) as e:  # torch.load of a file that is not one
+                ckpt = torch.load(ckpt_path, weights_only=True, map_location="cpu")
+            except Exception as e:  # not a zip/pickle, truncated, or objects that are not plain values
                 raise ValueError(
                     f"{ckpt_path}: not a checkpoint that torch.load reads safely ({type(e).__name__}; weights_only)"
-                ) from e
+                ) from None
+            hparams = checked_hyperparameters(ckpt_path, ckpt.get("hyper_parameters") if isinstance(ckpt, dict) else 0)
+            if not hparams:
+                return
+            # jsonargparse would print its usage and the settings it was given, then exit: one line instead
+            exit_on_error, self.parser.exit_on_error = self.parser.exit_on_error, False
+            try:
+                self.config = self.parser.parse_object({self.config.subcommand: {"model": hparams}}, self.config)
+            except ArgumentError as e:  # its message quotes the settings: none of the file's contents on the line
+                raise ValueError(f"{ckpt_path}: the checkpoint's model settings do not fit its model class") from e
+            finally:
+                self.parser.exit_on_error = exit_on_error
 
         def instantiate_trainer(self, **kwargs):
             cfg = self.config[self.subcommand]

@@ -131,7 +131,11 @@ class DVAEDenoiseModule(L.LightningModule):
                 raise ValueError(
                     f"{prior_ckpt}: no such prior checkpoint (train the prior first: configs/motion_dvae*.yaml)"
                 )
-            prior = contextvars.Context().run(MotionDVAEModule.load_from_checkpoint, prior_ckpt, map_location="cpu")
+            # plain values only (a checkpoint runs no code); Lightning builds no class the file names
+            # but MotionDVAEModule (or an imported subclass)
+            prior = contextvars.Context().run(
+                MotionDVAEModule.load_from_checkpoint, prior_ckpt, map_location="cpu", weights_only=True
+            )
             # plain values only (no Lightning bookkeeping keys): the checkpoint stays weights_only-loadable
             self.hparams.prior_hparams = {k: v for k, v in prior.hparams.items() if not k.startswith("_")}
         else:
