@@ -63,10 +63,11 @@ class Skeleton:
 
     def descendants(self, joint: int) -> list[int]:
         """The joint and every joint below it, in skeleton order."""
-        out = [joint]
+        out, inside = [joint], {joint}  # the set: a rig of thousands of joints stays linear
         for j in range(joint + 1, self.num_joints):
-            if self.parents[j] in out:
+            if self.parents[j] in inside:
                 out.append(j)
+                inside.add(j)
         return out
 
     def subset(self, keep: list[int]) -> Skeleton:

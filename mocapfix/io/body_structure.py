@@ -28,6 +28,7 @@ Labels are the vocabulary of io/joint_names.py ("pelvis", "spine_2of3", "neck", 
 
 from __future__ import annotations
 
+import heapq
 import warnings
 from dataclasses import dataclass
 
@@ -37,7 +38,20 @@ GROUP_FRACTION = 0.2  # leaves closer than this fraction of the longest path are
 SHARE_FRACTION = 0.02  # a bone shorter than this fraction of the longest path: a share/helper bone
 PASSENGER_DEG = 3.0  # a joint within this of the line between its neighbours in every frame: a twist bone
 MAX_FRAMES = 240  # frames the structure is read from (evenly spaced)
+# ... and at most this many joint positions in all: a rig of thousands of joints (markers, props, a
+# hostile file) is read from fewer frames, so that reading it stays within memory (2,000 joints:
+# 240 frames; 10,000 joints: 48 frames), never fewer than MIN_FRAMES
+MAX_JOINT_FRAMES = 480_000
+MIN_FRAMES = 16
 HEAD_END_FRACTION = 0.17  # a head leaf this far (x the leg) past its parent is the head's end, not the head
+# Two bodies under one root: the rig is cut at bones with at least BODY_LEAVES leaves on either
+# side (the most even cuts first, at most BODY_CUTS of them); where two parts read as bodies whose
+# legs are within BODY_SIZE_FACTOR of each other, the file holds two people or more (a hand with
+# five fingers can read as a small body; its "legs" are a tenth of the body's)
+BODY_LEAVES = 5
+BODY_CUTS = 4
+BODY_SIZE_FACTOR = 2.0
+TWO_BODIES = "holds two or more bodies under one root; mocapfix fixes one person per file: split it"
 
 
 @dataclass
@@ -46,26 +60,122 @@ class BodyStructure:
     up: np.ndarray  # (3,) unit vector, pelvis to chest, in the positions' axes
 
 
-def body_structure(parents, positions: np.ndarray, names=None) -> BodyStructure | None:
+def body_structure(parents, positions: np.ndarray, names=None, source=None) -> BodyStructure | None:
     """parents: (J,) with parents[j] < j; positions: (T, J, 3) in any unit and axes, NaN =
     missing; names: (J,) joint names, for sides only -> BodyStructure, or None where the tree is
-    not a humanoid's (fewer than five extremities, a limb too short to hold its joints)."""
+    not a humanoid's (fewer than five extremities, a limb too short to hold its joints).
+
+    A rig holding two bodies (two people under one root) is a MotionFileError naming source (the
+    file): read as one, its legs would be labelled arms and its unit guessed wrong.
+    Time and memory are linear in the joints (times the frames read, at most MAX_JOINT_FRAMES)."""
+    from mocapfix.core.clip import MotionFileError
+
     parents = np.asarray(parents, dtype=np.int64)
     J = len(parents)
-    pos = np.asarray(positions, dtype=np.float64)
-    if pos.ndim != 3 or pos.shape[1] != J or J < 5:
+    if np.ndim(positions) != 3 or np.shape(positions)[1] != J or J < 5:
         return None
-    pos = pos[np.unique(np.linspace(0, len(pos) - 1, min(len(pos), MAX_FRAMES)).round().astype(int))]
+    T = len(positions)
+    frames = max(MIN_FRAMES, min(MAX_FRAMES, MAX_JOINT_FRAMES // J))
+    pos = np.asarray(positions)[np.unique(np.linspace(0, T - 1, min(T, frames)).round().astype(int))]
+    pos = pos.astype(np.float64)  # (T', J, 3)
+    tree = _Tree(parents, _bone_lengths(parents, pos))
+    if _two_bodies(tree, pos, names):
+        raise MotionFileError(source if source is not None else "the rig", TWO_BODIES)
+    return _read_body(tree, pos, names)
+
+
+def _bone_lengths(parents: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """pos: (T, J, 3) -> (J,) each joint's distance to its parent, median over the frames (0 for
+    the root, for joints never seen, and for a "bone" whose length changes: a trajectory, a root
+    carrying the body, not a bone)."""
+    bone = np.zeros(len(parents))
+    child = np.flatnonzero(parents >= 0)
     with warnings.catch_warnings(), np.errstate(invalid="ignore"):
         warnings.simplefilter("ignore", RuntimeWarning)
-        bone = np.zeros(J)
-        child = np.flatnonzero(parents >= 0)
         d = np.linalg.norm(pos[:, child] - pos[:, parents[child]], axis=-1)  # (T, J-1)
         bone[child] = np.nan_to_num(np.nanmedian(d, axis=0))
-        # a "bone" whose length changes is a trajectory (a root carrying the body), not a bone
-        spread = np.nanpercentile(d, 90, axis=0) - np.nanpercentile(d, 10, axis=0)
+        low, high = column_percentiles(d, (10, 90))
+        spread = high - low
         bone[child[np.nan_to_num(spread) > 0.25 * bone[child] + 1e-12]] = 0.0
-    tree = _Tree(parents, bone)
+    return bone
+
+
+def column_percentiles(x: np.ndarray, percents) -> list[np.ndarray]:
+    """x: (T, N), NaN = missing -> per percent, (N,) the column's percentile over its other values
+    (as np.nanpercentile, linear; NaN for a column without one). np.nanpercentile goes column by
+    column in Python: seconds for a rig of 10,000 joints."""
+    ordered = np.sort(x, axis=0)  # NaN last
+    last = np.maximum((~np.isnan(ordered)).sum(axis=0) - 1, 0)  # (N,) the last value's row
+    columns = np.arange(x.shape[1])
+    out = []
+    with np.errstate(invalid="ignore"):
+        for q in percents:
+            at = q / 100.0 * last
+            lo = np.floor(at).astype(np.int64)
+            a, b, t = ordered[lo, columns], ordered[np.minimum(lo + 1, last), columns], at - lo
+            step = b - a  # numpy's interpolation, from whichever end is nearer (the same at inf)
+            out.append(np.where(t >= 0.5, b - step * (1 - t), a + step * t))
+    return out
+
+
+def _two_bodies(tree: _Tree, pos: np.ndarray, names) -> bool:
+    """Whether the rig holds two bodies or more: two parts of it, each below a cut (or one below
+    and the rest of the rig), read as bodies of a like size (BODY_LEAVES, BODY_CUTS,
+    BODY_SIZE_FACTOR). Ordinary rigs have no such cut and cost nothing."""
+    J = len(tree.parents)
+    leaves_under = np.zeros(J, dtype=np.int64)
+    leaves_under[tree.leaves] = 1
+    for j in range(J - 1, 0, -1):
+        if tree.parents[j] >= 0:
+            leaves_under[tree.parents[j]] += leaves_under[j]
+    total = len(tree.leaves)
+
+    def evenness(j: int) -> int:
+        return int(min(leaves_under[j], total - leaves_under[j]))
+
+    # the top joint of each set of leaves: a chain of joints above the same leaves is one cut
+    cuts = [j for j in range(J) if tree.parents[j] >= 0 and evenness(j) >= BODY_LEAVES]
+    cuts = [j for j in cuts if leaves_under[tree.parents[j]] > leaves_under[j]]
+    bodies: list[tuple[np.ndarray, float]] = []  # (J,) bool of the part, its leg length
+    for j in sorted(cuts, key=evenness, reverse=True)[:BODY_CUTS]:
+        below = tree.below(j)
+        if any((below & part).any() for part, _ in bodies):
+            continue  # inside (or around) a part already read as a body
+        leg = _leg_length(tree, pos, names, below)
+        if leg > 0:
+            bodies.append((below, leg))
+    if len(bodies) == 1:  # one body below a cut: is the rest of the rig another?
+        rest = ~bodies[0][0]
+        leg = _leg_length(tree, pos, names, rest)
+        if leg > 0:
+            bodies.append((rest, leg))
+    legs = sorted(leg for _, leg in bodies)
+    return any(b <= BODY_SIZE_FACTOR * a for a, b in zip(legs, legs[1:]))
+
+
+def _leg_length(tree: _Tree, pos: np.ndarray, names, part: np.ndarray) -> float:
+    """part: (J,) bool, the joints of a connected part of the rig -> the length along the bones
+    from the hip to the ankle of the body it reads as, 0.0 when it reads as none."""
+    joints = np.flatnonzero(part)
+    index = np.full(len(tree.parents), -1)
+    index[joints] = np.arange(len(joints))
+    above = tree.parents[joints]
+    parents = np.where(above >= 0, index[np.maximum(above, 0)], -1)  # the part's top: its root
+    bone = np.where(parents >= 0, tree.bone[joints], 0.0)
+    sub = _Tree(parents, bone)
+    body = _read_body(sub, pos[:, joints], None if names is None else [names[j] for j in joints])
+    if body is None:
+        return 0.0
+    legs = [
+        sub.depth[body.labels.index(f"{side}_ankle")] - sub.depth[body.labels.index(f"{side}_thigh")]
+        for side in ("left", "right")
+    ]
+    return float(np.median(legs))
+
+
+def _read_body(tree: _Tree, pos: np.ndarray, names) -> BodyStructure | None:
+    """The body of a rig: tree with its bone lengths, pos: (T, J, 3) (body_structure)."""
+    J = len(tree.parents)
     tips = _extremities(tree)
     if tips is None:
         return None
@@ -110,33 +220,70 @@ def body_structure(parents, positions: np.ndarray, names=None) -> BodyStructure 
 
 
 class _Tree:
-    """The joint tree with bone lengths: depths, paths, distances along the bones."""
+    """The joint tree with bone lengths: depths, paths, distances along the bones. Everything here
+    costs time and memory linear in the joints (a rig may have thousands of leaves: markers,
+    props, a hostile file), or linear in the length of the paths it walks."""
 
     def __init__(self, parents: np.ndarray, bone: np.ndarray):
         self.parents, self.bone = parents, bone
         J = len(parents)
-        self.depth = np.zeros(J)
-        self.ancestors = np.zeros((J, J), dtype=bool)  # ancestors[j, a]: a is j or above it
+        self.depth = np.zeros(J)  # along the bones from the root
+        self.level = np.zeros(J, dtype=np.int64)  # joints above
         self.children: list[list[int]] = [[] for _ in range(J)]
         for j in range(J):
             p = parents[j]
             if p >= 0:
                 self.depth[j] = self.depth[p] + bone[j]
-                self.ancestors[j] = self.ancestors[p]
+                self.level[j] = self.level[p] + 1
                 self.children[p].append(j)
-            self.ancestors[j, j] = True
         self.leaves = [j for j in range(J) if not self.children[j]]
-        self.diameter = float(self.distances(self.leaves, self.leaves).max()) if self.leaves else 0.0
+        self.diameter = self._longest_leaf_path()
 
-    def distances(self, a: list[int], b: list[int]) -> np.ndarray:
-        """(len(a), len(b)) lengths of the paths along the bones."""
-        common = self.ancestors[a][:, None, :] & self.ancestors[b][None, :, :]  # (A, B, J)
-        lca_depth = np.where(common, self.depth, -np.inf).max(-1)
-        return self.depth[a][:, None] + self.depth[b][None, :] - 2 * lca_depth
+    def _longest_leaf_path(self) -> float:
+        """The longest path between two leaves: its top joint joins the two deepest branches
+        below it (heights from the leaves up, children after their parents)."""
+        height = np.zeros(len(self.parents))  # the longest way down from a joint to a leaf
+        longest = 0.0
+        for j in range(len(self.parents) - 1, -1, -1):
+            down = sorted((self.bone[c] + height[c] for c in self.children[j]), reverse=True)[:2]
+            height[j] = down[0] if down else 0.0
+            if len(down) == 2:
+                longest = max(longest, down[0] + down[1])
+        return float(longest)
 
     def lca(self, a: int, b: int) -> int:
-        common = np.flatnonzero(self.ancestors[a] & self.ancestors[b])
-        return int(common.max())  # the deepest common ancestor comes last (parents before children)
+        while self.level[a] > self.level[b]:
+            a = int(self.parents[a])
+        while self.level[b] > self.level[a]:
+            b = int(self.parents[b])
+        while a != b:
+            a, b = int(self.parents[a]), int(self.parents[b])
+        return a
+
+    def distances(self, a: list[int], b: list[int]) -> np.ndarray:
+        """(len(a), len(b)) lengths of the paths along the bones; for a few joints (a walk per pair)."""
+        return np.array([[self.depth[x] + self.depth[y] - 2 * self.depth[self.lca(x, y)] for y in b] for x in a])
+
+    def below(self, top: int) -> np.ndarray:
+        """(J,) bool: top and every joint under it."""
+        inside = np.zeros(len(self.parents), dtype=bool)
+        inside[top] = True
+        for j in range(top + 1, len(self.parents)):  # parents come before their children
+            inside[j] = self.parents[j] >= 0 and inside[self.parents[j]]
+        return inside
+
+    def distances_from(self, a: int) -> np.ndarray:
+        """(J,) the length of the path along the bones from a to every joint."""
+        on_path = np.zeros(len(self.parents), dtype=bool)  # a and the joints above it
+        j = a
+        while j >= 0:
+            on_path[j] = True
+            j = int(self.parents[j])
+        meet = np.arange(len(self.parents))  # where each joint's way up meets a's
+        for j in range(len(self.parents)):
+            if not on_path[j] and self.parents[j] >= 0:
+                meet[j] = meet[self.parents[j]]
+        return self.depth + self.depth[a] - 2 * self.depth[meet]
 
     def path(self, a: int, b: int) -> list[int]:
         """Joints from a to b along the tree, both included."""
@@ -156,30 +303,104 @@ class _Tree:
 
 def _extremities(tree: _Tree) -> list[int] | None:
     """Five tips (one leaf per extremity) or None."""
-    leaves = tree.leaves
-    if len(leaves) < 5 or tree.diameter <= 0:
+    if len(tree.leaves) < 5 or tree.diameter <= 0:
         return None
-    dist = tree.distances(leaves, leaves)
-    group = list(range(len(leaves)))  # single linkage: union-find over close leaves
+    tips = _group_tips(tree, GROUP_FRACTION * tree.diameter)
+    tips = _pruned(tree, tips, 5)
+    return tips if len(tips) == 5 else None
 
-    def find(i):
-        while group[i] != i:
-            group[i] = group[group[i]]
-            i = group[i]
-        return i
 
-    for i, k in zip(*np.nonzero(dist < GROUP_FRACTION * tree.diameter)):
-        group[find(i)] = find(k)
+def _group_tips(tree: _Tree, radius: float) -> list[int]:
+    """Single linkage of the leaves closer than radius along the bones -> one tip per group (its
+    leaf farthest from the root), groups in the order of their first leaf.
+
+    Without comparing leaves pairwise: two leaves are closer than radius exactly when the balls of
+    radius / 2 around them meet, so the groups are the connected parts of the tree that lie
+    within radius / 2 of some leaf. A bone lies wholly within them when the nearest leaves of its
+    two ends and the bone itself add up to less than radius."""
+    J = len(tree.parents)
+    near = np.zeros(J)  # distance to the nearest leaf: first below each joint, then anywhere
+    for j in range(J - 1, -1, -1):
+        if tree.children[j]:
+            near[j] = min(tree.bone[c] + near[c] for c in tree.children[j])
+    for j in range(J):
+        p = tree.parents[j]
+        if p >= 0:
+            near[j] = min(near[j], tree.bone[j] + near[p])
+    group = np.arange(J)
+    for j in range(J):
+        p = tree.parents[j]
+        if p >= 0 and near[p] + tree.bone[j] + near[j] < radius:
+            group[j] = group[p]
     tips: dict[int, int] = {}
-    for i, leaf in enumerate(leaves):  # a group's tip: its leaf farthest from the root along the bones
-        g = find(i)
+    for leaf in tree.leaves:  # in joint order: a group's first leaf comes first
+        g = int(group[leaf])
         if g not in tips or tree.depth[leaf] > tree.depth[tips[g]]:
             tips[g] = leaf
-    tips_list = list(tips.values())
-    while len(tips_list) > 5:
-        branch = _branch_lengths(tree.distances(tips_list, tips_list))
-        tips_list.pop(int(np.argmin(branch)))
-    return tips_list if len(tips_list) == 5 else None
+    return list(tips.values())
+
+
+def _pruned(tree: _Tree, tips: list[int], keep: int) -> list[int]:
+    """tips pruned, shortest branch first, until `keep` remain. A tip's branch is the path from it
+    to where the tree spanned by the other tips begins; removing a tip lengthens the branches
+    that met it there. Kept in the order given; ties go to the tip given first.
+
+    On the tree spanned by the tips with its joints of two bones merged away (tips and forks
+    left), a tip's branch is its one bone: a heap of branches and a merge per removal make this
+    n log n in the tips."""
+    n = len(tips)
+    if n <= keep:
+        return list(tips)
+    J = len(tree.parents)
+    count = np.zeros(J, dtype=np.int64)  # tips under each joint
+    count[tips] = 1
+    for j in range(J - 1, 0, -1):
+        if tree.parents[j] >= 0:
+            count[tree.parents[j]] += count[j]
+    # The spanned tree: joints with a tip under them and one outside, and the lowest joint with all
+    # of them under it (its top). Kept of it: tips, forks and its top.
+    spanned = (count > 0) & (count < n)
+    forks = np.zeros(J, dtype=np.int64)
+    for j in np.flatnonzero(spanned):
+        forks[tree.parents[j]] += 1
+    top = int(np.flatnonzero((count == n) & (forks >= 2))[-1])
+    kept = (spanned & (forks >= 2)) | np.isin(np.arange(J), tips)
+    kept[top] = True
+    links: dict[int, dict[int, float]] = {int(j): {} for j in np.flatnonzero(kept)}
+    nearest_kept = np.full(J, -1)  # the joint itself if kept, else the nearest kept joint above it
+    for j in range(J):
+        p = tree.parents[j]
+        if j != top and spanned[j]:
+            above = int(nearest_kept[p])
+            if kept[j]:
+                links[j][above] = links[above][j] = tree.depth[j] - tree.depth[above]
+        nearest_kept[j] = j if kept[j] else nearest_kept[p] if p >= 0 else -1
+    is_tip = {int(t): k for k, t in enumerate(tips)}  # tip -> its place in the order given
+
+    def merge_away(j: int) -> None:
+        """j has two bones left and is no tip: one bone from its two neighbours instead."""
+        (a, la), (b, lb) = links.pop(j).items()
+        del links[a][j], links[b][j]
+        links[a][b] = links[b][a] = la + lb
+        for t in (a, b):
+            if t in is_tip:
+                heapq.heappush(heap, (la + lb, is_tip[t], t))
+
+    heap = [(next(iter(links[t].values())), k, t) for k, t in enumerate(tips)]
+    heapq.heapify(heap)
+    if len(links[top]) == 2:
+        merge_away(top)
+    alive = n
+    while alive > keep:
+        length, _, t = heapq.heappop(heap)
+        if t not in links or next(iter(links[t].values())) != length:
+            continue  # removed, or its branch has grown since this entry
+        (fork,) = links.pop(t)
+        del links[fork][t]
+        alive -= 1
+        if len(links[fork]) == 2 and fork not in is_tip:
+            merge_away(fork)
+    return [t for t in tips if t in links]
 
 
 def _branch_lengths(d: np.ndarray) -> np.ndarray:
@@ -307,8 +528,9 @@ def _head_joint(tree: _Tree, neck_chain: list[int], head_tip: int, leg: float, n
     (more than HEAD_END_FRACTION of a leg) or is named an end (HeadTop_End): then its parent is."""
     from mocapfix.io.joint_names import side_and_word
 
-    near = tree.distances(tree.leaves, [head_tip])[:, 0] < GROUP_FRACTION * tree.diameter
-    leaves = [leaf for leaf, n in zip(tree.leaves, near) if n and tree.ancestors[leaf, neck_chain[0]]]
+    near = tree.distances_from(head_tip) < GROUP_FRACTION * tree.diameter  # (J,)
+    inside = tree.below(neck_chain[0])
+    leaves = [leaf for leaf in tree.leaves if near[leaf] and inside[leaf]]
     if len(leaves) >= 2:
         top = leaves[0]
         for leaf in leaves[1:]:
