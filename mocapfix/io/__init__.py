@@ -132,7 +132,7 @@ def _checked(clip: Clip) -> Clip:
     check_frame_rate(clip.source or clip.name, clip.fps)
     names, parents = clip.skeleton.joint_names, clip.skeleton.parents
     if not clip.skeleton.labels:  # the BVH reader placed them already (it needs them for the unit)
-        structure = body_structure(parents, clip.positions, names)
+        structure = body_structure(parents, clip.positions, names, source=clip.source or clip.name)
         if structure is not None:
             clip = clip.replace(skeleton=clip.skeleton.with_labels(structure.labels))
     stature = stature_m(clip.positions, names, parents, clip.skeleton.labels)

@@ -83,7 +83,7 @@ def read_bvh(
 
     # Which joint is which from the rig's structure (names only confirm): the unit and the up
     # axis then come from the legs and the trunk, whatever the exporter called them.
-    structure = body_structure(parents, pos, names)
+    structure = body_structure(parents, pos, names, source=path)
     labels = structure.labels if structure is not None else None
     unit = resolve_unit(path, unit, None, pos, names, parents, labels)
     up_axis = guess_up_axis(pos, names, parents, labels) if up_axis == "auto" else str(up_axis).lower()
