@@ -46,3 +46,29 @@ def cmu_files() -> list[Path]:
     if not files:
         pytest.skip(f"CMU sample not found at {CMU_DIR} (expected ../shared/data/cmu-sample beside the repository)")
     return files
+
+
+REPO = Path(__file__).resolve().parents[1]
+# What runs write in the folder they run in; a test writes them under tmp_path (monkeypatch.chdir
+# or explicit paths), never into the checkout
+RUN_OUTPUTS = ("logs", "checkpoints", "mlruns", ".cache/mocapfix")
+
+
+def _run_output_folders() -> dict[str, int]:
+    """Every folder under the checkout's RUN_OUTPUTS with its modification time: a file made,
+    removed or renamed in a folder changes the folder's time (files themselves are not read, so a
+    checkout with many logs stays cheap to check)."""
+    found = {}
+    for name in RUN_OUTPUTS:
+        for folder, _, _ in os.walk(REPO / name):
+            found[folder] = os.stat(folder).st_mtime_ns
+    return found
+
+
+@pytest.fixture(autouse=True)
+def _nothing_written_into_the_checkout():
+    before = _run_output_folders()
+    yield
+    after = _run_output_folders()
+    changed = sorted(f for f in before.keys() | after.keys() if before.get(f) != after.get(f))
+    assert not changed, f"the test wrote into the checkout: {', '.join(changed)} (write under tmp_path)"

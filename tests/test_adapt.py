@@ -16,6 +16,12 @@ from mocapfix.pretrained import pretrained_path
 from mocapfix.training.xmae_module import XMAEModule
 
 
+@pytest.fixture(autouse=True)
+def _run_in_tmp_path(tmp_path, monkeypatch):
+    """adapt writes its logs (logs/adapt/) and data cache (.cache/mocapfix/) in the folder it runs in."""
+    monkeypatch.chdir(tmp_path)
+
+
 def _body21_takes(folder, n=6, seconds=4.0):
     """Synthetic takes on the shipped model's 21 joints, as positions files (another body than
     Bandai's actors: the synthetic generator's proportions)."""

@@ -142,3 +142,62 @@ def test_adapt_from_a_checkpoint_at_its_default_output_writes_beside_it(tmp_path
     (adapted,) = set(start.parent.glob("*.ckpt")) - {start}
     assert f"adapted model: {adapted.relative_to(tmp_path)}" in out
     assert torch.load(adapted, weights_only=True)["adapted_from"] == "checkpoints/adapt/mine.ckpt"
+
+
+def _claim(roots: list[str], start, queue) -> None:
+    from mocapfix.training.run_dirs import claim_version
+
+    start.wait()
+    queue.put(claim_version([Path(r) for r in roots]))
+
+
+def test_runs_started_together_claim_distinct_folders(tmp_path):
+    import multiprocessing
+
+    from mocapfix.training.run_dirs import claim_version
+
+    roots = [tmp_path / "logs" / "exp", tmp_path / "checkpoints" / "exp"]
+    (roots[1] / "version_2").mkdir(parents=True)  # an earlier run's checkpoints, its logs deleted
+    ctx = multiprocessing.get_context("fork")
+    start, queue = ctx.Event(), ctx.Queue()
+    workers = [ctx.Process(target=_claim, args=([str(r) for r in roots], start, queue)) for _ in range(4)]
+    for w in workers:
+        w.start()
+    start.set()  # all at once
+    claimed = sorted(queue.get(timeout=30) for _ in workers)
+    for w in workers:
+        w.join(timeout=30)
+    assert claimed == [3, 4, 5, 6]  # each its own N, none the earlier run's
+    assert claim_version(roots) == 7
+    for n in [*claimed, 7]:
+        assert all((r / f"version_{n}").is_dir() for r in roots)
+    # a folder another process made meanwhile (here: before the next claim) is never taken
+    (roots[0] / "version_8").mkdir()
+    assert claim_version(roots) == 9 and not (roots[1] / "version_8").exists()
+
+
+def test_two_fits_of_one_experiment_keep_each_runs_checkpoints_and_config(tmp_path, monkeypatch, capsys):
+    from cli_utils import SMALL_DATA, TINY
+
+    monkeypatch.chdir(tmp_path)
+    common = ["fit", "--config", str(CONFIGS / "xmae.yaml"), *TINY, *SMALL_DATA, *QUIET, "--experiment", "e"]
+    common += ["--trainer.val_check_interval", "1", "--model.init_args.calibration_windows", "0"]
+    assert main([*common, "--trainer.max_steps", "1"]) == 0
+    assert main([*common, "--trainer.max_steps", "2"]) == 0
+    runs = tmp_path / "checkpoints" / "e"
+    steps = [torch.load(runs / f"version_{n}" / "last.ckpt", weights_only=True)["global_step"] for n in (0, 1)]
+    assert steps == [1, 2]
+    assert all((tmp_path / "logs" / "e" / f"version_{n}" / "config.yaml").is_file() for n in (0, 1))
+    # checkpoints/<experiment>/last.ckpt: the last written, what --ckpt_path last resumes
+    assert torch.load(runs / "last.ckpt", weights_only=True)["global_step"] == 2
+    assert (runs / "last.ckpt").resolve() == (runs / "version_1" / "last.ckpt").resolve()
+    assert "checkpoints/e/version_1/last.ckpt" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("content", [[1, 2], {"hyper_parameters": [1]}, {"hyper_parameters": {}, "state_dict": {}}])
+def test_a_checkpoint_that_is_not_a_training_runs_is_one_line(tmp_path, monkeypatch, capsys, content):
+    monkeypatch.chdir(tmp_path)
+    torch.save(content, tmp_path / "odd.ckpt")
+    capsys.readouterr()
+    assert main(["test", "--config", str(CONFIGS / "xmae.yaml"), *QUIET, "--ckpt_path", "odd.ckpt"]) == 2
+    _one_error_line(capsys.readouterr().err, "odd.ckpt")

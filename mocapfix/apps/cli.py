@@ -88,22 +88,25 @@ def expand_configs(args: list[str]) -> list[str]:
 
 
 LOGGERS = ("tensorboard", "csv", "mlflow")
+# a run's version_N, from the process that claimed it to the processes DDP starts from it
+RUN_VERSION_ENV = "MOCAPFIX_RUN_VERSION"
 
 
-def make_logger(kind: str, experiment: str):
+def make_logger(kind: str, experiment: str, version: int | None = None):
     """The run's logger: TensorBoard (scalars, hyperparameters, figures) or CSV (scalars and
     hyperparameters only: no figures) in logs/<experiment>/version_N, or MLflow (its own store,
-    ./mlruns by default; the experiment by name). A fit's hyperparameters beside its results
+    ./mlruns by default; the experiment by name). version: the run's N, claimed by
+    run_dirs.claim_version (None: Lightning's next free one). A fit's hyperparameters beside its results
     (TensorBoard's HPARAMS tab): training/tracking.py."""
     if kind == "tensorboard":
         from mocapfix.training.tracking import StepsTensorBoardLogger
 
         # default_hp_metric: Lightning's hp_metric card, a constant -1 (RunSummary logs real ones)
-        return StepsTensorBoardLogger(save_dir="logs", name=experiment, default_hp_metric=False)
+        return StepsTensorBoardLogger(save_dir="logs", name=experiment, version=version, default_hp_metric=False)
     if kind == "csv":
         from lightning.pytorch.loggers import CSVLogger
 
-        return CSVLogger(save_dir="logs", name=experiment)
+        return CSVLogger(save_dir="logs", name=experiment, version=version)
     if kind == "mlflow":
         import importlib.util
 
@@ -117,9 +120,10 @@ def make_logger(kind: str, experiment: str):
 
 def _lightning_cli(args: list[str]):
     import torch
-    from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, ProgressBar, TQDMProgressBar
+    from lightning.pytorch.callbacks import LearningRateMonitor, ProgressBar, TQDMProgressBar
     from lightning.pytorch.cli import LightningCLI
     from lightning.pytorch.loggers import TensorBoardLogger
+    from lightning.pytorch.utilities import rank_zero_only
     from lightning.pytorch.utilities.exceptions import SIGTERMException
 
     from mocapfix.apps.console import quiet_lightning
@@ -128,6 +132,7 @@ def _lightning_cli(args: list[str]):
     from mocapfix.training.monitor_check import MonitorCheck
     from mocapfix.training.predictions import WritePredictions
     from mocapfix.training.rng_state import RNGStateInCheckpoint
+    from mocapfix.training.run_dirs import RunCheckpoint, claim_version, is_last_link, resolve_last
     from mocapfix.training.time_schedule import FitScheduleToTime
     from mocapfix.training.tracking import RunSummary
 
@@ -147,7 +152,7 @@ def _lightning_cli(args: list[str]):
                 "--experiment",
                 type=str,
                 default="default",
-                help="run name: logs/<experiment>/version_N and checkpoints/<experiment>/",
+                help="run name: logs/<experiment>/version_N and checkpoints/<experiment>/version_N, a new N each run",
             )
             parser.add_argument(
                 "--checkpoint_every_n_steps",
@@ -180,8 +185,12 @@ def _lightning_cli(args: list[str]):
             cfg = self.config.get(self.config.get("subcommand") or "", None)
             ckpt_path = cfg.get("ckpt_path") if cfg is not None else None
             last = Path("checkpoints") / cfg.experiment / "last.ckpt"
+            if ckpt_path and ckpt_path != "last" and is_last_link(Path(ckpt_path)) and Path(ckpt_path).is_file():
+                last, ckpt_path = Path(ckpt_path), "last"
             if ckpt_path == "last" and last.is_file():
-                cfg.ckpt_path = ckpt_path = str(last)
+                # the run's own file behind the experiment's last.ckpt link (training/run_dirs.py):
+                # `validate` writes its fill policy into that file, and the link keeps leading to it
+                cfg.ckpt_path = ckpt_path = str(resolve_last(last.parent))
             elif ckpt_path == "last" and self.config.get("subcommand") != "fit":
                 # fit starts afresh without one; evaluating an untrained model would look like a result
                 raise ValueError(
@@ -209,6 +218,12 @@ def _lightning_cli(args: list[str]):
                     f"{ckpt_path}: not a checkpoint that torch.load reads safely ({type(e).__name__}; weights_only)"
                 ) from None
             hparams = checked_hyperparameters(ckpt_path, ckpt.get("hyper_parameters") if isinstance(ckpt, dict) else 0)
+            if "pytorch-lightning_version" not in ckpt or not isinstance(ckpt.get("state_dict"), dict):
+                # Lightning's loader would stop on a KeyError (adapt's and the benchmarks' files are such)
+                raise ValueError(
+                    f"{ckpt_path}: not a checkpoint of a training run (no Lightning state); "
+                    "mocapfix fix --ckpt reads weights-only checkpoints"
+                )
             if not hparams:
                 return
             # jsonargparse would print its usage and the settings it was given, then exit: one line instead
@@ -225,17 +240,24 @@ def _lightning_cli(args: list[str]):
             name = cfg.experiment
             trainer_cfg = cfg.trainer
             extra = []
-            # Default tracking and checkpoints, unless the config brings its own.
+            # Default tracking and checkpoints, unless the config brings its own: in the run's own
+            # folders, logs/<experiment>/version_N and checkpoints/<experiment>/version_N, which
+            # no other run shares (training/run_dirs.py)
+            own_logs = trainer_cfg.get("logger") in (None, True) and cfg.logger in ("tensorboard", "csv")
+            checkpointing = trainer_cfg.get("enable_checkpointing", True) is not False
+            roots = [Path("logs") / name] if own_logs else []
+            roots += [Path("checkpoints") / name] if checkpointing and self.subcommand == "fit" else []
+            version = self._run_version(roots) if roots and not trainer_cfg.get("fast_dev_run") else None
             if trainer_cfg.get("logger") in (None, True):
-                kwargs["logger"] = make_logger(cfg.logger, name)
-            if trainer_cfg.get("enable_checkpointing", True) is not False:
-                dirpath = Path("checkpoints") / name
-                # last.ckpt is always the newest state of this experiment, the file the docs and
-                # configs name (e.g. the denoising stage's prior_ckpt). With Lightning's version
-                # counter a second writer (the every-N callback, or a new fit of the same
-                # experiment) would write last-v1.ckpt beside it and leave last.ckpt stale.
+                kwargs["logger"] = make_logger(cfg.logger, name, version)
+            if checkpointing:
+                experiment_dir = Path("checkpoints") / name
+                dirpath = experiment_dir / f"version_{version}" if version is not None else experiment_dir
+                # last.ckpt is always the newest state of this run (checkpoints/<experiment>/
+                # last.ckpt links to it). With Lightning's version counter a second writer (the
+                # every-N callback) would write last-v1.ckpt beside it and leave last.ckpt stale.
                 extra.append(
-                    ModelCheckpoint(
+                    RunCheckpoint(
                         dirpath=dirpath,
                         filename="best-{epoch}-{step}",
                         monitor=cfg.monitor,
@@ -246,10 +268,10 @@ def _lightning_cli(args: list[str]):
                     )
                 )
                 extra.append(MonitorCheck(cfg.monitor))
-                extra.append(CheckpointOnInterrupt(dirpath / "last.ckpt"))
+                extra.append(CheckpointOnInterrupt(dirpath / "last.ckpt", link_from=experiment_dir))
                 if cfg.checkpoint_every_n_steps:
                     extra.append(
-                        ModelCheckpoint(
+                        RunCheckpoint(
                             dirpath=dirpath,
                             every_n_train_steps=cfg.checkpoint_every_n_steps,
                             save_top_k=0,
@@ -279,6 +301,17 @@ def _lightning_cli(args: list[str]):
                 extra.append(TQDMProgressBar(refresh_rate=1 if on_cpu else 20))
             kwargs["callbacks"] = configured + extra
             return super().instantiate_trainer(**kwargs)
+
+        def _run_version(self, roots: list[Path]) -> int | None:
+            """This run's N: claimed by the first process; the processes DDP starts from it
+            inherit it through the environment (other launchers start every process at once:
+            there the others' folders are rank 0's, which Lightning hands them where they matter)."""
+            if rank_zero_only.rank != 0 or os.environ.get("NODE_RANK", "0") != "0":
+                inherited = os.environ.get(RUN_VERSION_ENV)
+                return int(inherited) if inherited is not None and inherited.isdigit() else None
+            version = claim_version(roots)
+            os.environ[RUN_VERSION_ENV] = str(version)
+            return version
 
         def after_fit(self):
             t = self.trainer
@@ -339,6 +372,7 @@ def _lightning_cli(args: list[str]):
             )
     finally:
         sys.argv = argv_before
+        os.environ.pop(RUN_VERSION_ENV, None)  # for this run's DDP processes only, not the next run
 
 
 def _own_error(e: ValueError) -> BaseException:

@@ -10,6 +10,8 @@ import lightning as L
 from lightning.pytorch.trainer.states import TrainerFn
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 
+from mocapfix.training.run_dirs import point_last
+
 
 class CheckpointOnInterrupt(L.Callback):
     """Ctrl-C, or SIGTERM (a scheduler's time limit, a preempted machine), during `fit`: writes
@@ -19,8 +21,10 @@ class CheckpointOnInterrupt(L.Callback):
     process writes it alone (the strategies mocapfix configures keep whole weights on every
     process)."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, link_from: str | Path | None = None):
+        """link_from: the experiment's folder, whose last.ckpt then links to path (run_dirs.py)."""
         self.path = Path(path)
+        self.link_from = Path(link_from) if link_from is not None else None
 
     def on_sanity_check_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._own_sigterm(trainer)
@@ -65,3 +69,5 @@ class CheckpointOnInterrupt(L.Callback):
                 # timeout. Without sharded state, the first process holds everything to save.
                 checkpoint = trainer._checkpoint_connector.dump_checkpoint()
                 trainer.strategy.checkpoint_io.save_checkpoint(checkpoint, self.path)
+            if trainer.is_global_zero and self.link_from is not None and self.path.parent != self.link_from:
+                point_last(self.link_from, self.path)
