@@ -273,7 +273,7 @@ def _error_cases() -> dict[str, tuple[str | None, str]]:
         "no_frame_time": (hier + header.replace("Frame Time: 0.04\n", "") + "\n".join(rows), "Frame Time"),
         "bad_channel": (
             hier.replace("Xrotation Zrotation Yrotation", "Xrotation Zrotation Wrotation") + header + "\n".join(rows),
-            "Wrotation",
+            "is not one of Xposition",  # the line's number, not its text
         ),
         "unbalanced": (hier.rstrip().rstrip("}") + header + "\n".join(rows), "HIERARCHY"),
     }

@@ -617,13 +617,28 @@ POOLED_FILES = 32  # files of a run its fill policy is measured over (evenly spr
 
 def _library_takes(paths: list[str], source: str, err, read_options: dict) -> list[list[Clip]]:
     """The recordings of fix --library (files or folders); one that cannot be read is a warning
-    line and is left out (the library is evidence, not work to do)."""
+    line and is left out (the library is evidence, not work to do), and so is a folder that cannot
+    be listed (the file system root, too many files: list_motion_files)."""
+
+    def left_out(e: MotionFileError) -> None:
+        print(f"warning: --library: {' '.join(str(e).split())} (left out)", file=err)
+
     recordings = []
-    for path, _ in _inputs(paths, source, err)[0] if paths else []:
+    for given in paths:
         try:
-            recordings.append(read_motion(path, source, **read_options))
-        except Exception as e:  # noqa: BLE001 -- any unreadable file: said in one line, left out
-            print(f"warning: --library: {_one_line(path, e)} (left out)", file=err)
+            listed = list_motion_files(given, source, on_error=left_out)
+        except MotionFileError as e:
+            left_out(e)
+            continue
+        if Path(given).is_dir():  # as for inputs: earlier outputs in a folder are not takes
+            listed = [f for f in listed if not f.stem.endswith(FIXED)]
+            if not listed:
+                left_out(MotionFileError(given, "no motion files in this folder"))
+        for path in listed:
+            try:
+                recordings.append(read_motion(path, source, **read_options))
+            except Exception as e:  # noqa: BLE001 -- any unreadable file: said in one line, left out
+                print(f"warning: --library: {_one_line(path, e)} (left out)", file=err)
     return recordings
 
 

@@ -13,6 +13,8 @@ import logging
 import os
 from pathlib import Path
 
+import numpy as np
+
 from mocapfix.core.clip import MAX_FPS, MIN_FPS, Clip, MotionFileError, check_frame_rate, shown
 
 log = logging.getLogger(__name__)
@@ -83,7 +85,7 @@ def detect_source(path) -> str:
     if suffix == ".csv":
         return "positions"
     if suffix == ".npz":
-        from mocapfix.io.npz import load_npz
+        from mocapfix.io.npz import listed_keys, load_npz
 
         with load_npz(path) as data:
             keys = set(data.files)
@@ -95,7 +97,7 @@ def detect_source(path) -> str:
             return "positions"
         raise MotionFileError(
             path,
-            f"npz with unknown keys ({', '.join(sorted(keys)) or 'none'}); expected "
+            f"npz with unknown keys ({listed_keys(list(keys))}); expected "
             "positions (positions file), positions_3d (Human3.6M) or poses+trans (AMASS)",
         )
     raise MotionFileError(path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz")
@@ -118,8 +120,11 @@ def read_motion(path, source: str = "auto", **options) -> list[Clip]:
         source = detect_source(path)
     reader = _reader(source)
     accepted = inspect.signature(reader).parameters
-    clips = reader(path, **{k: v for k, v in options.items() if k in accepted})
-    return [_checked(c) for c in clips]
+    # A file's numbers can be anything (1e308, inf): the readers make such values missing and say
+    # so; numpy's overflow warnings on the way would be lines of noise before that one message.
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        clips = reader(path, **{k: v for k, v in options.items() if k in accepted})
+        return [_checked(c) for c in clips]
 
 
 def _checked(clip: Clip) -> Clip:
@@ -153,17 +158,30 @@ def _checked(clip: Clip) -> Clip:
     return clip
 
 
-def list_motion_files(path, source: str = "auto", on_error=None) -> list[Path]:
+# A folder of takes holds thousands of files (AMASS: about 18,000 with its folders). A walk that
+# meets more entries than this is not in one (`--library ~`, a whole disk): it stops and says so.
+MAX_FOLDER_ENTRIES = 100_000
+
+
+def list_motion_files(path, source: str = "auto", on_error=None, max_entries: int = MAX_FOLDER_ENTRIES) -> list[Path]:
     """A file -> [it]; a folder -> its motion files for `source` (recursive, sorted, by extension).
     A subfolder that cannot be read is a MotionFileError, or on_error(that error) and the walk
-    goes on (fix and inspect report it and run the other files)."""
+    goes on (fix and inspect report it and run the other files).
+
+    The walk is bounded: links to folders are not followed (a link cycle cannot trap it), only
+    regular files are listed (a FIFO or a link to a device is not a take), a file system root is
+    refused at once, and a folder with more than max_entries files and folders below it is a
+    MotionFileError as soon as the walk has counted them."""
     path = Path(path)
     if source not in SOURCES:
         raise MotionFileError(path, f"unknown source type {source!r}; known: {', '.join(SOURCES)}")
-    if path.is_file():
-        return [path]
     if not path.is_dir():
+        if os.path.lexists(path):  # a file, or something that is not one: its reader says which
+            return [path]
         raise MotionFileError(path, "no such file or folder")
+    real = path.resolve()
+    if real == Path(real.anchor):
+        raise MotionFileError(path, "the file system root is not a folder of takes: name the folder that holds them")
     exts = _EXTENSIONS[source]
 
     def unreadable(e: OSError):  # rglob would skip such a folder without a word
@@ -172,7 +190,16 @@ def list_motion_files(path, source: str = "auto", on_error=None) -> list[Path]:
             raise error
         on_error(error)
 
-    found = [Path(root) / name for root, _, names in os.walk(path, onerror=unreadable) for name in names]
+    found, seen = [], 0
+    for root, folders, names in os.walk(path, onerror=unreadable):  # followlinks=False: no cycles
+        seen += len(folders) + len(names)
+        if seen > max_entries:
+            raise MotionFileError(
+                path,
+                f"more than {max_entries:,} files and folders below this folder, not a folder of takes: "
+                "name the folder that holds them",
+            )
+        found.extend(Path(root) / name for name in names)
     return sorted(
         p
         for p in found

@@ -19,14 +19,16 @@ stdout.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.skeleton import PRESETS
-from mocapfix.io.npz import load_npz, npz_array, npz_object
+from mocapfix.io.npz import load_npz, npz_array, npz_object, one_line
 from mocapfix.io.restricted_pickle import RefusedPickle, load_arrays
+from mocapfix.io.untrusted import open_regular, quoted
 
 NUM_BODY_JOINTS = 22
 # Standard AMASS split (sub-dataset folder names; newer releases renamed some: both listed).
@@ -117,16 +119,19 @@ def read_model_arrays(model_file: Path, keys: tuple[str, ...]) -> dict:
             present = [k for k in keys if k in z.files]
         return {k: npz_object(model_file, k, encoding="latin1") for k in present}
     try:
-        with open(model_file, "rb") as f:
+        with open_regular(model_file, "body model file") as f:
             raw = load_arrays(f, encoding="latin1")  # the official SMPL pickles are Python 2's
     except RefusedPickle as e:
         chumpy = "chumpy" in str(e)
         hint = " (the official SMPL pickles hold chumpy arrays: convert the model to .npz)" if chumpy else ""
         raise MotionFileError(
-            model_file, f"a pickle that imports {e}, not a dict of arrays: refused, nothing was run{hint}"
+            model_file,
+            f"a pickle that imports {quoted(str(e), 80)}, not a dict of arrays: refused, nothing was run{hint}",
         ) from None
+    except MotionFileError:
+        raise
     except Exception as e:
-        raise MotionFileError(model_file, f"not a readable body model ({type(e).__name__}: {e})") from None
+        raise MotionFileError(model_file, f"not a readable body model ({one_line(e)})") from None
     if not isinstance(raw, dict):
         raise MotionFileError(model_file, "not an SMPL-family model (not a dict of arrays)")
     return {k: raw[k] for k in keys if k in raw}
@@ -220,13 +225,17 @@ def read_amass(path, body_model_path: str | None = None, gender: str | None = No
     if trans.dtype.kind not in "iuf" or trans.shape != (T, 3):
         raise MotionFileError(path, f"trans must be ({T}, 3), got {trans.shape}")
     if fps.size != 1 or fps.dtype.kind not in "iuf" or not float(fps.reshape(())) > 0:
-        raise MotionFileError(path, f"mocap framerate must be one positive number, got {fps!r}")
+        raise MotionFileError(
+            path, f"mocap framerate must be one positive number, got {fps.dtype} of shape {fps.shape}"
+        )
     if betas is None:
         raise MotionFileError(path, "no betas (body shape)")
     betas = _body_shape(path, betas)
     gender = (gender or file_gender or "").lower()
     if not gender:
         raise MotionFileError(path, "no gender in the file: pass gender= ('male', 'female' or 'neutral')")
+    if not re.fullmatch(r"[a-z]{1,20}", gender):  # it becomes part of a model file's path: a word, no "../"
+        raise MotionFileError(path, f"gender {quoted(gender)} is not a word such as 'male', 'female' or 'neutral'")
     model_type = (
         surface
         if surface in ("smpl", "smplh", "smplx")

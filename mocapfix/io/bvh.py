@@ -23,11 +23,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapfix.core.clip import Clip, MotionFileError, check_frame_rate
+from mocapfix.core.clip import Clip, MotionFileError, check_frame_rate, shown
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.io.body_structure import body_structure, limb_groups
 from mocapfix.io.conventions import guess_up_axis, metres_per_unit, resolve_unit
 from mocapfix.io.files import atomic_write
+from mocapfix.io.untrusted import check_size, file_size, open_regular, quoted
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +76,8 @@ def read_bvh(
         data, filled = _interpolated(data), int((~np.isfinite(data)).sum())
     T, J = data.shape[0], len(names)
     if encoding != "utf-8":
-        log.warning("warning: %s: not UTF-8 text; joint names read as Latin-1 (%s)", path, ", ".join(names[:3]))
+        shown_names = ", ".join(quoted(n) for n in names[:3])  # the file's text: escaped, short
+        log.warning("warning: %s: not UTF-8 text; joint names read as Latin-1 (%s)", shown(path), shown_names)
 
     with np.errstate(invalid="ignore", over="ignore"):  # non-finite channels: those joints are missing (below)
         local_r, local_t = _local_transforms(offsets, channels, data)
@@ -122,7 +124,8 @@ def read_bvh(
 
     unknown = [n for n in list(keep_joints or []) + list(drop_joints or []) if n not in names]
     if unknown:
-        raise MotionFileError(path, f"joints {unknown} not in this file (joints: {', '.join(names)})")
+        listed = ", ".join(quoted(n) for n in names[:12]) + (f" and {J - 12} more" if J > 12 else "")
+        raise MotionFileError(path, f"joints {unknown} not in this file ({J} joints: {listed})")
     keep = [
         j for j, n in enumerate(names) if (not keep_joints or n in set(keep_joints)) and n not in set(drop_joints or [])
     ]
@@ -152,7 +155,7 @@ def read_bvh(
             above.insert(0, names[a])
             a = parents[a]
         clip.meta["no_rotations"] = (
-            f"joint {names[j]!r} has a time-varying translation (up to {dev[j]:.3g} m); "
+            f"joint {quoted(names[j])} has a time-varying translation (up to {dev[j]:.3g} m); "
             f"drop_joints={above} makes it the root"
         )
     else:
@@ -314,15 +317,17 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
         local = Gp_T @ G[:, j]  # (T, 3, 3)
         trans = (Gp_T @ (P[:, j] - (P[:, p] if p >= 0 else 0.0))[..., None])[..., 0]  # (T, 3)
         rot = [(col, axis) for col, (axis, kind) in channels[j] if kind == "rotation"]
-        if len(rot) != 3:
-            raise MotionFileError(
-                path, f"joint {names[j]!r} of {template.name} has {len(rot)} rotation channels; a rotation needs 3"
-            )
-        with warnings.catch_warnings():  # gimbal lock still gives angles that rebuild the same matrix
-            warnings.simplefilter("ignore", UserWarning)
-            euler = Rotation.from_matrix(local).as_euler("".join(a for _, a in rot).upper(), degrees=True)
-        for i, (col, _) in enumerate(rot):
-            out[:, col] = euler[:, i]
+        if rot:
+            # A joint with fewer than 3 rotation channels (legal BVH) turns about those axes only:
+            # Euler angles in its order, the axes it lacks last, whose angles (0 for a rotation the
+            # file can hold) are dropped. The FK check below refuses a rotation it cannot hold.
+            order = "".join(a for _, a in rot)
+            order += "".join(a for a in "xyz" if a not in order)
+            with warnings.catch_warnings():  # gimbal lock: scipy sets the last angle to 0, as wanted here
+                warnings.simplefilter("ignore", UserWarning)
+                euler = Rotation.from_matrix(local).as_euler(order.upper(), degrees=True)
+            for i, (col, _) in enumerate(rot):
+                out[:, col] = euler[:, i]
         for col, (axis, kind) in channels[j]:
             if kind == "position":
                 out[:, col] = trans[:, "xyz".index(axis)] - (base["xyz".index(axis)] if j == 0 else 0.0)
@@ -333,12 +338,24 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
     err = np.linalg.norm(check - clip_pos[:, list(of_clip.values())], axis=-1).max(axis=0) * scale  # (Jc,) metres
     if not np.all(err < FK_TOLERANCE_M):
         worst = list(of_clip)[int(np.nanargmax(np.nan_to_num(err, nan=np.inf)))]
-        raise MotionFileError(
-            path,
-            f"cannot write the motion in {template.name}'s hierarchy: joint {names[worst]!r} "
-            f"would be {np.nanmax(err):.3g} m off (its translation has no channels?)",
+        # The joint above it (or itself) that the file lets turn about fewer than 3 axes, if any.
+        stiff, a = None, parents[worst]
+        while a >= 0 and stiff is None:
+            turns = sum(kind == "rotation" for _, (_, kind) in channels[a])
+            stiff = (a, turns) if turns < 3 else None
+            a = parents[a]
+        why = (
+            f"{quoted(names[stiff[0]])} has {stiff[1]} rotation channels here, too few to turn it as the motion does"
+            if stiff is not None
+            else "its translation has no channels?"
         )
-    hierarchy, _, _, encoding = _sections(template)
+        # Named by the template: the problem is its hierarchy (path may be a temporary file).
+        raise MotionFileError(
+            template,
+            f"cannot write the motion in this file's hierarchy: joint {quoted(names[worst])} would be "
+            f"{np.nanmax(err):.3g} m off ({why}); write .npz or .csv",
+        )
+    hierarchy, _, _, encoding, _ = _sections(template)
     body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in out.tolist())
     text = f"HIERARCHY{hierarchy}MOTION\nFrames: {T}\nFrame Time: {frame_time:.8g}\n{body}\n"
     atomic_write(path, lambda f: f.write(text.encode(encoding)))  # joint names as the input spelled them
@@ -368,127 +385,152 @@ def _text(path: Path) -> tuple[str, str]:
     """The file's text and its encoding ("utf-8", or "latin-1" for bytes that are not UTF-8: every
     byte is a Latin-1 character, so a joint name never turns into U+FFFD and is written back as
     it was read). A file whose start is not a BVH's (binary, or no HIERARCHY line) is refused
-    from its first bytes, before the rest is read."""
+    from its first bytes, before the rest is read; what is not a regular file (a FIFO, a device)
+    before any. Line ends come back as "\\n" whatever the file used ("\\r\\n", or old Mac "\\r")."""
     try:
-        with open(path, "rb") as f:
-            head = f.read(SNIFF_BYTES)
+        with open_regular(path, "BVH file") as f:
+            size = file_size(f)
+            check_size(path, size, "BVH file")
+            head = f.read(min(SNIFF_BYTES, size))
             if not head.strip():
                 raise MotionFileError(path, "empty file")
             start = head[3:] if head.startswith(b"\xef\xbb\xbf") else head  # a UTF-8 byte order mark
-            if b"\0" in head or re.search(rb"^\s*HIERARCHY\b", start, re.M) is None:
+            if b"\0" in head or re.search(rb"^\s*HIERARCHY\b", start.replace(b"\r", b"\n"), re.M) is None:
                 raise MotionFileError(path, "not a BVH file (no HIERARCHY line at its start)")
-            raw = start + f.read()
-    except FileNotFoundError:
-        raise MotionFileError(path, "file not found") from None
-    except OSError as e:  # a folder, no permission, ...
+            raw = start + f.read(size - len(head))  # no further than the size: the file may be growing
+    except OSError as e:  # an I/O error while reading
         raise MotionFileError(path, f"cannot read ({e.strerror or type(e).__name__})") from None
+    if b"\r" in raw:
+        raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     try:
         return raw.decode("utf-8"), "utf-8"
     except UnicodeDecodeError:
         return raw.decode("latin-1"), "latin-1"
 
 
-def _sections(path: Path) -> tuple[str, str, int, str]:
-    """(hierarchy text, motion text, 0-based line of MOTION, encoding) or a MotionFileError."""
+def _sections(path: Path) -> tuple[str, str, int, str, int]:
+    """(hierarchy text, motion text, 0-based line of MOTION, encoding, 1-based line of HIERARCHY)
+    or a MotionFileError."""
     text, encoding = _text(path)
     h = re.search(r"^\s*HIERARCHY\b", text, re.M)
     m = re.search(r"^\s*MOTION\b", text, re.M)
     if m is None or m.start() < h.start():
         raise MotionFileError(path, "no MOTION section after HIERARCHY")
-    return text[h.end() : m.start()], text[m.end() :], text.count("\n", 0, m.end()), encoding
+    hierarchy_line = text.count("\n", 0, h.end()) + 1
+    return text[h.end() : m.start()], text[m.end() :], text.count("\n", 0, m.end()), encoding, hierarchy_line
 
 
-def _parse_hierarchy(path: Path, text: str):
-    """-> names, parents, offsets (J, 3), channels [[(column, (axis, kind))]], end sites {joint: offset}, columns."""
-    # Braces may share a line with other tokens; give them their own lines.
-    lines = [ln.strip() for ln in text.replace("{", "\n{\n").replace("}", "\n}\n").splitlines() if ln.strip()]
+def _parse_hierarchy(path: Path, text: str, first_line: int = 1):
+    """-> names, parents, offsets (J, 3), channels [[(column, (axis, kind))]], end sites {joint: offset}, columns.
+
+    text: the HIERARCHY section, whose first line is line `first_line` of the file. Messages name
+    a line by its number and a joint by its (shortened, escaped) name, never the line's text."""
     names, parents, offsets, channels, end_sites = [], [], [], [], {}
     stack: list[int] = []  # open blocks: joint index, or -2 for an End Site
     pending = None  # joint or End Site declared, its "{" not yet seen
     col = 0
-    for ln in lines:
-        word, rest = (ln.split(None, 1) + [""])[:2]  # tabs or spaces after the keyword
-        if word in ("ROOT", "JOINT"):
-            if word == "ROOT" and names:
-                raise MotionFileError(path, "more than one ROOT (several skeletons in one file are not supported)")
-            if word == "JOINT" and not stack:
-                raise MotionFileError(path, f"JOINT {rest.strip()} outside the ROOT block")
-            if not rest.strip():
-                raise MotionFileError(path, f"{word} without a name")
-            if stack and stack[-1] == -2:
-                raise MotionFileError(path, "JOINT inside an End Site block")
-            names.append(rest.strip())
-            parents.append(stack[-1] if stack else -1)
-            offsets.append(None)
-            channels.append([])
-            pending = len(names) - 1
-        elif ln.replace(" ", "").lower() == "endsite":
-            if not stack or stack[-1] < 0:
-                raise MotionFileError(path, "End Site outside a joint")
-            pending = -2
-        elif word == "{":
-            if pending is None:
-                raise MotionFileError(path, "'{' without a ROOT, JOINT or End Site before it")
-            stack.append(pending)
-            if pending == -2:
-                end_sites.setdefault(names[stack[-2]], (0.0, 0.0, 0.0))
-            pending = None
-        elif word == "}":
-            if not stack:
-                raise MotionFileError(path, "unbalanced '}' in HIERARCHY")
-            stack.pop()
-        elif word == "OFFSET":
-            vals = rest.split()
-            try:
-                o = tuple(float(v) for v in vals)
-            except ValueError:
-                raise MotionFileError(path, f"non-numeric OFFSET {rest.strip()!r}") from None
-            if len(o) != 3 or not np.isfinite(o).all():
-                raise MotionFileError(path, f"OFFSET needs 3 finite numbers, got {rest.strip()!r}")
-            if not stack:
-                raise MotionFileError(path, "OFFSET outside a joint")
-            if stack[-1] == -2:
-                end_sites[names[stack[-2]]] = o
+    for k, line in enumerate(text.split("\n")):
+        at = f"line {first_line + k}"
+        # Braces may share a line with other tokens; give them their own pieces.
+        for ln in line.replace("{", "\n{\n").replace("}", "\n}\n").split("\n"):
+            ln = ln.strip()
+            if not ln:
+                continue
+            word, rest = (ln.split(None, 1) + [""])[:2]  # tabs or spaces after the keyword
+            if word in ("ROOT", "JOINT"):
+                if word == "ROOT" and names:
+                    raise MotionFileError(
+                        path, f"{at}: more than one ROOT (several skeletons in one file are not supported)"
+                    )
+                if word == "JOINT" and not stack:
+                    raise MotionFileError(path, f"{at}: JOINT outside the ROOT block")
+                if not rest.strip():
+                    raise MotionFileError(path, f"{at}: {word} without a name")
+                if stack and stack[-1] == -2:
+                    raise MotionFileError(path, f"{at}: JOINT inside an End Site block")
+                names.append(rest.strip())
+                parents.append(stack[-1] if stack else -1)
+                offsets.append(None)
+                channels.append([])
+                pending = len(names) - 1
+            elif ln.replace(" ", "").lower() == "endsite":
+                if not stack or stack[-1] < 0:
+                    raise MotionFileError(path, f"{at}: End Site outside a joint")
+                pending = -2
+            elif word == "{":
+                if pending is None:
+                    raise MotionFileError(path, f"{at}: '{{' without a ROOT, JOINT or End Site before it")
+                stack.append(pending)
+                if pending == -2:
+                    end_sites.setdefault(names[stack[-2]], (0.0, 0.0, 0.0))
+                pending = None
+            elif word == "}":
+                if not stack:
+                    raise MotionFileError(path, f"{at}: unbalanced '}}' in HIERARCHY")
+                stack.pop()
+            elif word == "OFFSET":
+                try:
+                    o = tuple(float(v) for v in rest.split())
+                except ValueError:
+                    raise MotionFileError(path, f"{at}: OFFSET has a value that is not a number") from None
+                if len(o) != 3 or not np.isfinite(o).all():
+                    raise MotionFileError(path, f"{at}: OFFSET needs 3 finite numbers, got {len(o)} values")
+                if not stack:
+                    raise MotionFileError(path, f"{at}: OFFSET outside a joint")
+                if stack[-1] == -2:
+                    end_sites[names[stack[-2]]] = o
+                else:
+                    offsets[stack[-1]] = o
+            elif word == "CHANNELS":
+                if not stack or stack[-1] < 0:
+                    raise MotionFileError(path, f"{at}: CHANNELS outside a joint")
+                toks = rest.split()
+                j = stack[-1]
+                if not toks or not toks[0].isdigit() or int(toks[0]) != len(toks) - 1:
+                    raise MotionFileError(
+                        path, f"{at}: joint {quoted(names[j])}: CHANNELS count does not match the channel names"
+                    )
+                seen = set()
+                for i, name in enumerate(toks[1:], 1):
+                    m = _CHANNEL.match(name)
+                    if m is None:
+                        raise MotionFileError(
+                            path,
+                            f"{at}: joint {quoted(names[j])}: channel {i} is not one of "
+                            "Xposition ... Zposition, Xrotation ... Zrotation",
+                        )
+                    key = (m.group(1).lower(), m.group(2).lower())
+                    if key in seen:
+                        raise MotionFileError(path, f"{at}: joint {quoted(names[j])}: channel {name} given twice")
+                    seen.add(key)
+                    channels[j].append((col, key))
+                    col += 1
             else:
-                offsets[stack[-1]] = o
-        elif word == "CHANNELS":
-            if not stack or stack[-1] < 0:
-                raise MotionFileError(path, "CHANNELS outside a joint")
-            toks = rest.split()
-            j = stack[-1]
-            if not toks or not toks[0].isdigit() or int(toks[0]) != len(toks) - 1:
-                raise MotionFileError(path, f"joint {names[j]!r}: CHANNELS count does not match the channel names")
-            seen = set()
-            for name in toks[1:]:
-                m = _CHANNEL.match(name)
-                if m is None:
-                    raise MotionFileError(path, f"joint {names[j]!r}: unknown channel {name!r}")
-                key = (m.group(1).lower(), m.group(2).lower())
-                if key in seen:
-                    raise MotionFileError(path, f"joint {names[j]!r}: channel {name} given twice")
-                seen.add(key)
-                channels[j].append((col, key))
-                col += 1
-        else:
-            raise MotionFileError(path, f"unexpected line in HIERARCHY: {ln[:60]!r}")
+                raise MotionFileError(
+                    path, f"{at}: not a HIERARCHY line (ROOT, JOINT, End Site, OFFSET, CHANNELS or a brace)"
+                )
     if not names:
         raise MotionFileError(path, "HIERARCHY has no ROOT joint")
     if stack or pending is not None:
         raise MotionFileError(path, "HIERARCHY ends inside an open block (missing '}')")
     missing = [n for n, o in zip(names, offsets) if o is None]
     if missing:
-        raise MotionFileError(path, f"joint {missing[0]!r} has no OFFSET")
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:  # joints are found by name (mapping, keep_joints, write_bvh_like): one must not stand for two
-        n = names.count(twice[0])
-        raise MotionFileError(path, f"joint name {twice[0]!r} is used by {n} joints; names must be unique")
+        raise MotionFileError(path, f"joint {quoted(missing[0])} has no OFFSET")
+    # Joints are found by name (mapping, keep_joints, write_bvh_like): one must not stand for two.
+    seen_names: set[str] = set()
+    for n in names:  # one pass: a rig of 10,000 joints is checked in milliseconds
+        if n in seen_names:
+            raise MotionFileError(
+                path, f"joint name {quoted(n)} is used by {names.count(n)} joints; names must be unique"
+            )
+        seen_names.add(n)
     return names, parents, np.array(offsets, dtype=np.float64), channels, end_sites, col
 
 
 def _parse(path: Path):
     """-> names, parents, offsets (J, 3), channels, data (T, columns) float64, frame time (s)."""
-    hier, motion, motion_line, encoding = _sections(path)
-    names, parents, offsets, channels, _, ncol = _parse_hierarchy(path, hier)
+    hier, motion, motion_line, encoding, hierarchy_line = _sections(path)
+    names, parents, offsets, channels, _, ncol = _parse_hierarchy(path, hier, hierarchy_line)
 
     mf = re.search(r"^\s*Frames\s*:\s*(\S+)", motion, re.M)
     mt = re.search(r"^\s*Frame\s+Time\s*:\s*(\S+)", motion, re.M)
@@ -496,15 +538,23 @@ def _parse(path: Path):
         raise MotionFileError(path, "no 'Frames:' line after MOTION")
     if mt is None:
         raise MotionFileError(path, "no 'Frame Time:' line after MOTION")
+
+    def line_of(match) -> int:  # 1-based line of a match in `motion`
+        return motion_line + motion.count("\n", 0, match.start(1)) + 1
+
     try:
-        n_frames, frame_time = int(mf.group(1)), float(mt.group(1))
+        n_frames = int(mf.group(1))
     except ValueError:
-        raise MotionFileError(path, f"bad 'Frames: {mf.group(1)}' or 'Frame Time: {mt.group(1)}'") from None
+        raise MotionFileError(path, f"line {line_of(mf)}: 'Frames:' is not a whole number") from None
+    try:
+        frame_time = float(mt.group(1))
+    except ValueError:
+        raise MotionFileError(path, f"line {line_of(mt)}: 'Frame Time:' is not a number of seconds") from None
     if n_frames <= 0:
         raise MotionFileError(path, f"Frames: {n_frames} (no motion)")
     if not (np.isfinite(frame_time) and frame_time > 0):
-        raise MotionFileError(path, f"Frame Time must be positive, got {mt.group(1)}")
-    frame_time = 1.0 / check_frame_rate(path, _frame_rate(mt.group(1)), f"Frame Time {mt.group(1)} s is")
+        raise MotionFileError(path, f"Frame Time must be positive, got {frame_time:g}")
+    frame_time = 1.0 / check_frame_rate(path, _frame_rate(mt.group(1)), f"Frame Time {frame_time:g} s is")
 
     # The frame rows start after whichever of the two header lines comes last; rows[0] is the rest
     # of that header line (normally empty). Line numbers in messages count from 1 in the file.
@@ -531,13 +581,13 @@ def _parse(path: Path):
     try:
         data = np.array(block.split(), dtype=np.float64).reshape(n_frames, ncol)
     except ValueError:
-        for i in nonempty:
-            for tok in rows[i].split():
+        for frame, i in enumerate(nonempty):
+            for v, tok in enumerate(rows[i].split(), 1):
                 try:
                     float(tok)
                 except ValueError:
                     raise MotionFileError(
-                        path, f"line {first_line + i} (frame {nonempty.index(i)}): non-numeric value {tok[:20]!r}"
+                        path, f"line {first_line + i} (frame {frame}): non-numeric value (value {v} of the row)"
                     ) from None
         raise MotionFileError(path, "non-numeric frame values") from None
     return names, parents, offsets, channels, data, frame_time, encoding

@@ -23,6 +23,7 @@ import numpy as np
 
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.skeleton import guess_groups
+from mocapfix.io.untrusted import quoted
 
 # metres per unit. "asf": the Acclaim ASF/AMC convention of the CMU database and every BVH
 # converted from it (":units length 0.45": a unit is 1/0.45 inch, 0.0564 m), the largest public
@@ -88,7 +89,7 @@ def parse_unit(value, path="", where: str = "option") -> Unit | None:
     if not (math.isfinite(metres) and metres > 0):
         raise MotionFileError(
             path,
-            f"unknown unit {value!r} (from {where}): give a name ({', '.join(NAMED_UNITS)}) "
+            f"unknown unit {quoted(value)} (from {where}): give a name ({', '.join(NAMED_UNITS)}) "
             "or the metres per file unit as a positive number (e.g. 0.0564)",
         )
     return Unit(f"{metres:g}", metres, where)

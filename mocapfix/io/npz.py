@@ -14,32 +14,36 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+from numpy.lib.npyio import NpzFile
 
 from mocapfix.core.clip import MotionFileError
 from mocapfix.io.restricted_pickle import RefusedPickle, load_arrays
+from mocapfix.io.untrusted import open_regular, printable, quoted
 
 
-def load_npz(path: Path):
-    """np.load(path) of an .npz archive (never unpickling) -> NpzFile, or a MotionFileError."""
+def load_npz(path: Path, what: str = "npz file"):
+    """An .npz archive (np.load's NpzFile, never unpickling), or a MotionFileError. Read from the
+    file open_regular opened (a FIFO or a device is refused before a byte is read); a zip archive
+    is read by seeking within the file's size."""
     path = Path(path)
+    f = open_regular(path, what)
     try:
-        with open(path, "rb") as f:
-            magic = f.read(6)
-    except FileNotFoundError:
-        raise MotionFileError(path, "no such file") from None
-    except OSError as e:
-        raise MotionFileError(path, f"cannot read ({e.strerror or type(e).__name__})") from None
-    if magic.startswith(b"\x93NUMPY"):
-        raise MotionFileError(path, "a single .npy array, not an .npz archive of named arrays (np.savez writes one)")
-    if not magic.startswith(b"PK"):  # else np.load tries pickle and blames allow_pickle
-        raise MotionFileError(path, "not an npz file (an .npz is a zip archive of .npy arrays)")
-    try:
-        data = np.load(path, allow_pickle=False)
+        magic = f.read(6)
+        if magic.startswith(b"\x93NUMPY"):
+            raise MotionFileError(
+                path, "a single .npy array, not an .npz archive of named arrays (np.savez writes one)"
+            )
+        if not magic.startswith(b"PK"):  # else np.load tries pickle and blames allow_pickle
+            raise MotionFileError(path, "not an npz file (an .npz is a zip archive of .npy arrays)")
+        f.seek(0)
+        # NpzFile owns f from here: closing the archive closes the file.
+        return NpzFile(f, own_fid=True, allow_pickle=False)
+    except MotionFileError:
+        f.close()
+        raise
     except Exception as e:  # BadZipFile, EOFError, OSError, ValueError ...
+        f.close()
         raise MotionFileError(path, f"not a readable npz file ({one_line(e)})") from None
-    if not isinstance(data, np.lib.npyio.NpzFile):
-        raise MotionFileError(path, "not an npz archive")
-    return data
 
 
 def npz_array(path: Path, data, key: str) -> np.ndarray:
@@ -72,7 +76,7 @@ def npz_object(path: Path, key: str, encoding: str = "ASCII"):
         except Exception as e:
             raise MotionFileError(path, f"cannot read array {key!r} ({one_line(e)})") from None
     try:  # an object array: the member is an .npy header followed by a pickle
-        with zipfile.ZipFile(path) as z, z.open(f"{key}.npy") as f:
+        with open_regular(path) as raw, zipfile.ZipFile(raw) as z, z.open(f"{key}.npy") as f:
             version = np.lib.format.read_magic(f)
             read_header = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
             if version not in read_header:
@@ -83,7 +87,8 @@ def npz_object(path: Path, key: str, encoding: str = "ASCII"):
         raise
     except RefusedPickle as e:
         raise MotionFileError(
-            path, f"array {key!r} is a pickle that imports {e} (not an array): refused, nothing was run"
+            path,
+            f"array {key!r} is a pickle that imports {quoted(str(e), 80)} (not an array): refused, nothing was run",
         ) from None
     except Exception as e:
         raise MotionFileError(path, f"cannot read array {key!r} ({one_line(e)})") from None
@@ -92,7 +97,15 @@ def npz_object(path: Path, key: str, encoding: str = "ASCII"):
     return obj
 
 
-def one_line(e: BaseException) -> str:
-    """An exception as "Type: message" on one line."""
-    text = " ".join(str(e).split())
+def one_line(e: BaseException, limit: int = 160) -> str:
+    """An exception as "Type: message" on one short line. The message of a library's exception
+    can quote the file (a member name, a header): non-printable characters come escaped and it
+    is cut at `limit` characters."""
+    text = printable(e, limit)
     return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
+def listed_keys(files: list[str], most: int = 8) -> str:
+    """An archive's member names for a message: quoted (they are the file's text), at most `most`."""
+    shown_keys = ", ".join(quoted(k, 30) for k in sorted(files)[:most])
+    return (shown_keys + (f" and {len(files) - most} more" if len(files) > most else "")) or "none"

@@ -44,8 +44,9 @@ from mocapfix.core.clip import Clip, MotionFileError, check_frame_rate
 from mocapfix.core.skeleton import PRESETS, Skeleton, guess_groups
 from mocapfix.io.conventions import from_z_up, guess_up_axis, parse_unit, resolve_unit, to_z_up
 from mocapfix.io.files import atomic_write
-from mocapfix.io.npz import load_npz, npz_array
+from mocapfix.io.npz import listed_keys, load_npz, npz_array
 from mocapfix.io.npz import one_line as _one_line
+from mocapfix.io.untrusted import printable, quoted, read_bytes
 
 UP_AXES = ("z", "y")
 _SPECIAL_COLUMNS = ("person", "frame", "time")
@@ -91,7 +92,7 @@ def _resolve_up(path, up_opt, up_file, raw, skeleton) -> str:
         if up is not None and up != "auto":
             up = str(up).lower()
             if up not in UP_AXES:
-                raise MotionFileError(path, f"unknown up axis {up!r} (from {source}); use 'z' or 'y'")
+                raise MotionFileError(path, f"unknown up axis {quoted(up)} (from {source}); use 'z' or 'y'")
             return up
     return guess_up_axis(raw, skeleton.joint_names, skeleton.parents)
 
@@ -153,7 +154,7 @@ def read_positions_npz(
     path = Path(path)
     with load_npz(path) as data:
         if "positions" not in data.files:
-            raise MotionFileError(path, f"no 'positions' array (keys: {', '.join(data.files) or 'none'})")
+            raise MotionFileError(path, f"no 'positions' array (keys: {listed_keys(data.files)})")
         raw = npz_array(path, data, "positions")
         if raw.dtype.kind not in "iuf":
             raise MotionFileError(path, f"positions must be numbers, got dtype {raw.dtype}")
@@ -215,7 +216,7 @@ def _joint_columns(path, header: list[str]) -> tuple[dict, list[str], list[int]]
         key = h.strip().lower()
         if key in _SPECIAL_COLUMNS:
             if key in special:
-                raise MotionFileError(path, f"column {key!r} appears twice")
+                raise MotionFileError(path, f"column {quoted(key)} appears twice")
             special[key] = c
         else:
             rest.append(c)
@@ -233,16 +234,21 @@ def _joint_columns(path, header: list[str]) -> tuple[dict, list[str], list[int]]
             and [c.lower() for c in cols[1:]] == [m.group(1).lower() + "_y", m.group(1).lower() + "_z"]
         )
         if not ok:
-            raise MotionFileError(path, f"columns {cols} are not <joint>_x,<joint>_y,<joint>_z")
+            raise MotionFileError(
+                path,
+                f"header columns {triple[0] + 1} to {triple[0] + len(triple)} are not <joint>_x,<joint>_y,<joint>_z",
+            )
         names.append(m.group(1))
         x_cols.append(triple[0])
     if len(set(names)) != len(names):
-        raise MotionFileError(path, "a joint name appears twice in the header")
+        twice = next(n for k, n in enumerate(names) if n in names[:k])
+        raise MotionFileError(path, f"joint {quoted(twice)} appears twice in the header")
     return special, names, x_cols
 
 
-def _to_float(path, cells: np.ndarray, header: list[str], cols: list[int], first_line: int) -> np.ndarray:
-    """cells: (N, C) strings -> (N, C) float64; '' and 'nan' -> NaN; anything else non-numeric is an error."""
+def _to_float(path, cells: np.ndarray, header: list[str], cols: list[int], lines: list[int]) -> np.ndarray:
+    """cells: (N, C) strings -> (N, C) float64; '' and 'nan' -> NaN; anything else non-numeric is
+    an error naming its line (lines: (N,) the file's line number of each row) and column."""
     try:  # fast path: numpy parses " 1.5" and "nan" itself; only blank cells need a word
         return np.where(cells == "", "nan", cells).astype(np.float64)
     except ValueError:
@@ -258,8 +264,7 @@ def _to_float(path, cells: np.ndarray, header: list[str], cols: list[int], first
                     float(cells[r, c])
                 except ValueError:
                     raise MotionFileError(
-                        path,
-                        f"line {first_line + r}: column {header[cols[c]]!r} has {str(cells[r, c])!r}, not a number",
+                        path, f"line {lines[r]}: column {cols[c] + 1} ({quoted(header[cols[c]])}) is not a number"
                     ) from None
         raise
 
@@ -285,7 +290,9 @@ def _fps_from_times(path, times: np.ndarray, frame: np.ndarray, person: np.ndarr
     resolution: seconds the time text resolves (0.001 for ms), for snapping to a whole fps."""
     order = np.lexsort((frame, person))
     t, f, p = times[order], frame[order], person[order]
-    dt, df = np.diff(t), np.diff(f)
+    with np.errstate(over="ignore", invalid="ignore"):  # times of +-1e308: an infinite step, left out below
+        dt = np.diff(t)
+    df = np.diff(f)
     ok = (np.diff(p) == 0) & (df > 0) & np.isfinite(dt) & (dt > 0)
     if not ok.any():
         raise MotionFileError(path, "no '# fps=' line and too few times in the time column to tell the fps")
@@ -323,19 +330,26 @@ def read_positions_csv(
 ) -> list[Clip]:
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise MotionFileError(path, "no such file") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise MotionFileError(path, f"cannot read as text ({_one_line(e)})") from None
+        raw_text = read_bytes(path, "CSV file")  # a regular file only, no further than its size
+    except OSError as e:
+        raise MotionFileError(path, f"cannot read ({e.strerror or type(e).__name__})") from None
+    try:
+        text = raw_text.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise MotionFileError(path, f"cannot read as text: not UTF-8 (byte {e.start})") from None
+    del raw_text
     lines = text.splitlines()
     comments, start = _parse_comments(path, lines)
     if start >= len(lines):
         raise MotionFileError(path, "empty file" if not comments else "no header row")
     rows = []  # (line number, cells)
-    for k, cells in enumerate(csv.reader(lines[start:])):
-        if cells and (len(cells) > 1 or cells[0].strip()):
-            rows.append((start + k + 1, cells))
+    reader = csv.reader(lines[start:])
+    try:
+        for k, cells in enumerate(reader):
+            if cells and (len(cells) > 1 or cells[0].strip()):
+                rows.append((start + k + 1, cells))
+    except csv.Error as e:  # a cell over csv's field limit (128 KiB), a NUL byte: never a table of numbers
+        raise MotionFileError(path, f"line {start + reader.line_num}: not CSV ({printable(e, 60)})") from None
     header = [h.strip() for h in rows[0][1]]
     special, names, x_cols = _joint_columns(path, header)
     data_rows = rows[1:]
@@ -345,10 +359,10 @@ def read_positions_csv(
         if len(cells) != len(header):
             raise MotionFileError(path, f"line {line} has {len(cells)} cells, the header has {len(header)}")
     cells = np.array([c for _, c in data_rows], dtype=str)  # (N, C)
-    first_line = data_rows[0][0]
+    lines_of_rows = [line for line, _ in data_rows]
     J = len(names)
     coord_cols = [c + k for c in x_cols for k in range(3)]
-    xyz = _to_float(path, cells[:, coord_cols], header, coord_cols, first_line).reshape(-1, J, 3)
+    xyz = _to_float(path, cells[:, coord_cols], header, coord_cols, lines_of_rows).reshape(-1, J, 3)
     xyz[np.isnan(xyz).any(axis=-1)] = np.nan  # a joint with a missing coordinate is missing
 
     # people: one clip per label, numeric labels in numeric order
@@ -369,10 +383,11 @@ def read_positions_csv(
 
     times = None
     if "time" in special:
-        times = _to_float(path, cells[:, [special["time"]]], header, [special["time"]], first_line)[:, 0]
+        times = _to_float(path, cells[:, [special["time"]]], header, [special["time"]], lines_of_rows)[:, 0]
     if "frame" in special:
-        f = _to_float(path, cells[:, [special["frame"]]], header, [special["frame"]], first_line)[:, 0]
-        bad = ~np.isfinite(f) | (f != np.round(f))
+        f = _to_float(path, cells[:, [special["frame"]]], header, [special["frame"]], lines_of_rows)[:, 0]
+        with np.errstate(invalid="ignore"):
+            bad = ~(np.abs(f) < 1e15) | (f != np.round(f))  # also NaN; 1e300 would not cast to int64
         if bad.any():
             raise MotionFileError(path, f"line {data_rows[int(np.argmax(bad))][0]}: frame must be an integer")
         frame = f.astype(np.int64)
@@ -380,14 +395,13 @@ def read_positions_csv(
         frame = np.zeros(N, dtype=np.int64)
         for p in range(len(uniq)):
             frame[person == p] = np.arange((person == p).sum())
-    if fps is None:
-        fps = (
-            comments["fps"]
-            if "fps" in comments
-            else _fps_from_times(path, times, frame, person, _time_resolution(cells[:, special["time"]]))
-            if times is not None
-            else None
-        )
+    if fps is None and "fps" in comments:
+        try:
+            fps = float(comments["fps"])
+        except ValueError:
+            raise MotionFileError(path, "'# fps=' is not a number") from None
+    if fps is None and times is not None:
+        fps = _fps_from_times(path, times, frame, person, _time_resolution(cells[:, special["time"]]))
     if fps is None:
         raise MotionFileError(path, "no fps: add a '# fps=30' line or a time column in seconds")
     fps = _check_fps(path, fps)
@@ -403,7 +417,7 @@ def read_positions_csv(
     if dup.size:
         line = data_rows[int(np.nonzero(key == dup[0])[0][1])][0]
         raise MotionFileError(
-            path, f"line {line}: person {uniq[dup[0] // T]} frame {dup[0] % T + first_frame} appears twice"
+            path, f"line {line}: person {quoted(uniq[dup[0] // T])} frame {dup[0] % T + first_frame} appears twice"
         )
     raw = np.full((P * T, J, 3), np.nan)
     raw[key] = xyz
@@ -419,9 +433,7 @@ def read_positions_csv(
         try:
             parents = [int(v) for v in comments["parents"].split(",")]
         except ValueError:
-            raise MotionFileError(
-                path, f"'# parents=' must be comma-separated ints, got {comments['parents']!r}"
-            ) from None
+            raise MotionFileError(path, "'# parents=' must be comma-separated ints") from None
     skel = skeleton_from(path, names, parents, J, groups)
     layout = [
         {
