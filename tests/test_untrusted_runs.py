@@ -176,20 +176,24 @@ def test_runs_started_together_claim_distinct_folders(tmp_path):
     assert claim_version(roots) == 9 and not (roots[1] / "version_8").exists()
 
 
-def test_two_fits_of_one_experiment_keep_each_runs_checkpoints_and_config(tmp_path, monkeypatch, capsys):
+def test_a_fit_keeps_out_of_another_runs_folders(tmp_path, monkeypatch, capsys):
+    """Another run of the experiment (started at the same time: its folder exists, its logs not
+    yet) keeps its last.ckpt and config; this one writes its own, and last.ckpt leads to it."""
     from cli_utils import SMALL_DATA, TINY
 
     monkeypatch.chdir(tmp_path)
-    common = ["fit", "--config", str(CONFIGS / "xmae.yaml"), *TINY, *SMALL_DATA, *QUIET, "--experiment", "e"]
-    common += ["--trainer.val_check_interval", "1", "--model.init_args.calibration_windows", "0"]
-    assert main([*common, "--trainer.max_steps", "1"]) == 0
-    assert main([*common, "--trainer.max_steps", "2"]) == 0
     runs = tmp_path / "checkpoints" / "e"
-    steps = [torch.load(runs / f"version_{n}" / "last.ckpt", weights_only=True)["global_step"] for n in (0, 1)]
-    assert steps == [1, 2]
-    assert all((tmp_path / "logs" / "e" / f"version_{n}" / "config.yaml").is_file() for n in (0, 1))
+    (runs / "version_0").mkdir(parents=True)
+    (runs / "version_0" / "last.ckpt").write_bytes(b"theirs")
+    (tmp_path / "logs" / "e").mkdir(parents=True)
+    args = ["fit", "--config", str(CONFIGS / "xmae.yaml"), *TINY, *SMALL_DATA, *QUIET, "--experiment", "e"]
+    args += ["--trainer.max_steps", "1", "--trainer.val_check_interval", "1"]
+    assert main([*args, "--model.init_args.calibration_windows", "0"]) == 0
+    assert (runs / "version_0" / "last.ckpt").read_bytes() == b"theirs"
+    assert torch.load(runs / "version_1" / "last.ckpt", weights_only=True)["global_step"] == 1
+    assert (tmp_path / "logs" / "e" / "version_1" / "config.yaml").is_file()
+    assert not (tmp_path / "logs" / "e" / "version_0").exists()
     # checkpoints/<experiment>/last.ckpt: the last written, what --ckpt_path last resumes
-    assert torch.load(runs / "last.ckpt", weights_only=True)["global_step"] == 2
     assert (runs / "last.ckpt").resolve() == (runs / "version_1" / "last.ckpt").resolve()
     assert "checkpoints/e/version_1/last.ckpt" in capsys.readouterr().out
 
