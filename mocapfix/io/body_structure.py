@@ -104,6 +104,8 @@ def column_percentiles(x: np.ndarray, percents) -> list[np.ndarray]:
     """x: (T, N), NaN = missing -> per percent, (N,) the column's percentile over its other values
     (as np.nanpercentile, linear; NaN for a column without one). np.nanpercentile goes column by
     column in Python: seconds for a rig of 10,000 joints."""
+    if len(x) == 0:
+        return [np.full(x.shape[1], np.nan) for _ in percents]
     ordered = np.sort(x, axis=0)  # NaN last
     last = np.maximum((~np.isnan(ordered)).sum(axis=0) - 1, 0)  # (N,) the last value's row
     columns = np.arange(x.shape[1])
