@@ -68,6 +68,7 @@ def test_workers_shards_and_resume_write_what_one_process_writes(takes, tmp_path
         (resumed / name).write_bytes(reference[name])
     stale = resumed / f".{Path(names[2]).stem}.12345.partial.npz"
     stale.write_bytes(b"half")
+    (resumed / f".{names[2]}.lock").write_bytes(b"")  # a killed run leaves its (unlocked) lock file too
     capsys.readouterr()
     assert _fix(takes, resumed, "--jobs", "1", "--resume") == 0
     assert _outputs(resumed) == reference and not stale.exists()

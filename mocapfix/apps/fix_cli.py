@@ -11,6 +11,7 @@ never over an existing file without --force.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import math
@@ -26,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from mocapfix.apps.processes import die_with_parent
 from mocapfix.core.clip import Clip, MotionFileError, shown
 from mocapfix.core.ik import ik_error_mm, inverse_kinematics
 from mocapfix.core.render import holes_map, render, tracks_for
@@ -37,7 +39,7 @@ from mocapfix.fix.recording_policy import measure_take
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import read_bvh, write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
-from mocapfix.io.files import atomic_write, claimed, publish
+from mocapfix.io.files import atomic_write, check_output, claimed, staged, writing
 from mocapfix.io.joint_names import check_joint_map, read_joint_map
 from mocapfix.io.npz import load_npz, npz_array
 from mocapfix.io.positions import write_clips, write_positions
@@ -228,10 +230,19 @@ def _inputs(
 ) -> tuple[list[tuple[Path, Path | None]], bool]:
     """(file, path relative to the folder it was found in, None for files given by name);
     earlier outputs inside folders are skipped: *.fixed.* files, and the --out-dir folder when it
-    is inside an input folder (else every rerun would fix the last run's outputs again). A
+    is inside an input folder (else every rerun would fix the last run's outputs again). A file
+    found twice (a folder and a file in it, both given) is one input, the first. A
     folder that cannot be read is an error line; the files around it still run."""
     files, failed = [], False
     skip = Path(out_dir).resolve() if out_dir else None
+    seen: set[Path] = set()
+
+    def new(f: Path) -> bool:
+        key = f.resolve()
+        if key in seen:
+            return False
+        seen.add(key)
+        return True
 
     def unreadable(e: MotionFileError):
         nonlocal failed
@@ -252,10 +263,94 @@ def _inputs(
             if not found:
                 print(f"error: {shown(p)}: no motion files in this folder", file=err)
                 failed = True
-            files.extend((f, f.relative_to(p)) for f in found)
-        else:
+            files.extend((f, f.relative_to(p)) for f in found if new(f))
+        elif new(p):
             files.append((p, None))  # a missing file fails in read_motion, with the others still run
     return files, failed
+
+
+def renders_of(target: Path) -> list[Path]:
+    """What fix --render writes beside an output: the animation and the joints x time map."""
+    return [target.with_suffix(".gif"), target.with_suffix(".holes.png")]
+
+
+def planned_output(path: Path, rel: Path | None, out: Path | None, out_dir: Path | None) -> Path:
+    """Where an input's output will go, from its name alone (output_path knows for sure only once
+    the file is read): BVH stays .bvh, .csv stays .csv, everything else becomes .npz. The one
+    guess that can miss, a BVH without usable rotations written as .npz, is checked again when
+    it is known (RunPlan.problem)."""
+    suffix = {".bvh": ".bvh", ".csv": ".csv"}.get(path.suffix.lower(), ".npz")
+    if out is not None:
+        return out
+    if out_dir is not None:
+        return out_dir / (rel if rel is not None else Path(path.name)).with_suffix(suffix)
+    return path.with_name(path.stem + FIXED + suffix)
+
+
+def _file_id(path: Path) -> tuple[int, int] | None:
+    """(device, inode) of the file at path (through links), None where there is none."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
+
+
+@dataclasses.dataclass(frozen=True)
+class RunPlan:
+    """A run's inputs and the outputs they are to get, known before any work (plan_run), so that
+    no output of the run is another input of it, or the output of two inputs; checked again per
+    file with the output it really gets (problem). Plain values: it travels to worker processes."""
+
+    outputs: dict[str, str]  # resolved output path -> the input it is for, as listed
+    inputs: dict[str, str]  # resolved input path -> the input as listed
+    input_files: dict[tuple[int, int], str]  # (device, inode) of each input -> the input as listed
+
+    def problem(self, path: Path, output: Path) -> str | None:
+        """Why input `path` must not write `output` (one line, naming both), or None."""
+        which = self.inputs.get(str(output.resolve()))
+        if which is None:
+            known = _file_id(output)
+            which = self.input_files.get(known) if known is not None else None
+        if which is not None:
+            if which == str(path):
+                return f"{shown(path)}: output {shown(output)} is the input; fix never overwrites its input"
+            return (
+                f"{shown(path)}: output {shown(output)} is the input {shown(which)} of this run; "
+                "fix never overwrites an input, not even with --force"
+            )
+        owner = self.outputs.get(str(output.resolve()))
+        if owner is not None and owner != str(path):
+            return (
+                f"{shown(output)}: the output of both {shown(owner)} and {shown(path)}; one output per input "
+                "(fix them into separate --out-dir folders)"
+            )
+        return None
+
+
+def plan_run(
+    files: list[tuple[Path, Path | None]], out: Path | None, out_dir: Path | None, render_gif: bool
+) -> tuple[RunPlan, list[str]]:
+    """The run's plan, and a line per problem with it: an output that is an input of the run
+    (by path, through links, or the same file under another name), or the output of two inputs
+    (same-named takes of two folders into one --out-dir). Any problem stops the run before any
+    file is fixed: with --force an input would be lost, without it one of two results."""
+    inputs = {str(p.resolve()): str(p) for p, _ in files}
+    input_files = {}
+    for p, _ in files:
+        known = _file_id(p)
+        if known is not None:
+            input_files.setdefault(known, str(p))
+    plan, problems = RunPlan({}, inputs, input_files), []
+    for path, rel in files:
+        target = planned_output(path, rel, out, out_dir)
+        for output in [target, *(renders_of(target) if render_gif else [])]:
+            problem = plan.problem(path, output)
+            if problem is not None:
+                problems.append(problem)
+            else:
+                plan.outputs[str(output.resolve())] = str(path)
+    return plan, problems
 
 
 def fix_files(
@@ -312,13 +407,18 @@ def fix_files(
             file=err,
         )
     files, failed = _inputs(paths, source, err, out_dir)
+    plan, problems = plan_run(files, Path(out) if out else None, Path(out_dir) if out_dir else None, render_gif)
+    if problems:  # before any work: nothing of the run is written
+        for line in problems:
+            print(f"error: {line}", file=err)
+        return 1
     extra = _library_takes(library or [], source, err, read_options)
     mine = shard_of(files, shard)  # the policy below is the whole run's, whichever shard this is
     jobs = min(jobs, len(mine)) if jobs else default_jobs(device, len(mine))
     pool = None
     if jobs > 1:  # each worker loads the model once and serves both the measuring and the files
         threads = max(1, torch.get_num_threads() // jobs)
-        init = (ckpt, device, precision, threads, overlap, batch_size)
+        init = (ckpt, device, precision, threads, overlap, batch_size, os.getpid(), plan)
         pool = ProcessPoolExecutor(jobs, get_context("spawn"), _start_worker, init)
     try:
         map_takes = (lambda work: list(pool.map(_measure_take, work))) if pool else None
@@ -360,9 +460,8 @@ def fix_files(
             print(outcome.text, file=err if outcome.status == "failed" else out_stream, flush=True)
 
         if pool is None:
-            written: dict[Path, Path] = {}
             for path, rel in files:
-                report(fix_one(path, rel, fixer, settings, err, written))
+                report(fix_one(path, rel, fixer, settings, err, plan))
         else:
             for outcome in run_in_workers(pool, files, settings, err):
                 report(outcome)
@@ -408,9 +507,10 @@ class _Skipped(Exception):
     pass
 
 
-def fix_one(path: Path, rel: Path | None, fixer, s: RunSettings, err, written: dict[Path, Path]) -> FileOutcome:
-    """One input file read, fixed and written (its output whole under its final name, or not
-    at all). written: outputs of this process's run so far (two inputs cannot share one)."""
+def fix_one(path: Path, rel: Path | None, fixer, s: RunSettings, err, plan: RunPlan | None = None) -> FileOutcome:
+    """One input file read, fixed and written: its output (and with --render its pictures) whole
+    under its final name, or none of them. plan: the run's (plan_run), which the output this
+    file really gets is checked against again (never an input, never another input's output)."""
     mode, source, joint_map, read_options, measured = s.mode, s.source, s.joint_map, s.read_options, s.measured
     out, out_dir, force, overlap, batch_size, progress = s.out, s.out_dir, s.force, s.overlap, s.batch_size, s.progress
     t0 = time.perf_counter()
@@ -431,19 +531,20 @@ def fix_one(path: Path, rel: Path | None, fixer, s: RunSettings, err, written: d
             rel,
             rotations or reference is not None,
         )
-        resolved = target.resolve()
-        if resolved == path.resolve():
-            raise MotionFileError(path, f"output {shown(target)} is the input; fix never overwrites its input")
-        if resolved in written:
-            first = shown(written[resolved])
-            raise MotionFileError(path, f"output {shown(target)} was already written for {first}")
-        if s.resume and target.exists() and not force:  # written whole under its name: complete
+        outputs = [target, *(renders_of(target) if s.render_gif else [])]
+        plan = plan or plan_run([(path, rel)], None, None, False)[0]  # a file fixed alone: its own
+        for output in outputs:
+            problem = plan.problem(path, output)
+            if problem is not None:
+                raise MotionFileError(path, problem.removeprefix(f"{shown(path)}: "))
+        if s.resume and os.path.lexists(target) and not force:  # written whole under its name: complete
+            _clear_stale(outputs)
             raise _Skipped(f"{shown(target)} exists (--resume)")
-        with claimed(target, path):  # one run per output: a second one to the same -o fails here
-            for stale in target.parent.glob(f".{target.stem}.*.partial{target.suffix}"):
-                stale.unlink(missing_ok=True)  # a killed run's (this run holds the output's lock)
-            if target.exists() and not force:
-                raise MotionFileError(path, f"output {shown(target)} exists (use --force to overwrite)")
+        with contextlib.ExitStack() as claims:
+            for output in outputs:  # one run per output: a second one to the same -o fails here
+                claims.enter_context(claimed(output, path))  # and a killed run's temporary files go
+            for output in outputs:  # an existing file (without --force), a folder, a link: before the work
+                check_output(output, force, path)
             seconds = sum(c.duration_s for c in clips)
             show = progress == "always" or (
                 progress == "auto" and (getattr(err, "isatty", lambda: False)() or seconds >= LONG_INPUT_S)
@@ -475,23 +576,24 @@ def fix_one(path: Path, rel: Path | None, fixer, s: RunSettings, err, written: d
                     f"BVH by inverse kinematics onto the input's skeleton: its bone lengths moved joints "
                     f"{ik_mean:.1f} mm on average from the model's positions (max {ik_max:.1f} mm)"
                 )
-            # Written beside the target under a hidden name, then moved into place without
-            # overwriting (unless --force): a file that appeared meanwhile is never lost.
-            staged = target.with_name(f".{target.stem}.{os.getpid()}.partial{target.suffix}")
-            try:
-                write_output(staged, fixed, clips, path)
-                publish(staged, target, replace=force)
-            except FileExistsError:
-                raise MotionFileError(
-                    path, f"output {shown(target)} appeared while fixing (another program?); kept, nothing written"
-                ) from None
-            finally:
-                staged.unlink(missing_ok=True)
-        written[resolved] = path
-        if s.render_gif:  # the first person: a preview, not a report of every clip
-            tracks = tracks_for(clips[0], [(target.name, fixed[0])])
-            render(tracks, clips[0].skeleton.limbs, clips[0].fps, target.with_suffix(".gif"))
-            holes_map(tracks, clips[0].skeleton.joint_names, clips[0].fps, target.with_suffix(".holes.png"))
+            # Written beside the outputs under hidden names, then moved into place together without
+            # overwriting (unless --force): a file that appeared meanwhile is never lost, and a
+            # failure (a full disk) leaves none of them, so a rerun starts clean.
+            with staged(outputs, force, path) as temps:
+                with writing(target, path):
+                    try:
+                        write_output(temps[0], fixed, clips, path)
+                    except MotionFileError as e:  # name the output, not its temporary file
+                        if Path(e.path) != temps[0]:
+                            raise
+                        raise MotionFileError(path, f"cannot write output {shown(target)}: {e.problem}") from None
+                if s.render_gif:  # the first person: a preview, not a report of every clip
+                    gif, holes = outputs[1:]
+                    tracks = tracks_for(clips[0], [(target.name, fixed[0])])
+                    with writing(gif, path):
+                        render(tracks, clips[0].skeleton.limbs, clips[0].fps, gif, write_to=temps[1])
+                    with writing(holes, path):
+                        holes_map(tracks, clips[0].skeleton.joint_names, clips[0].fps, holes, write_to=temps[2])
     except _Skipped as e:
         return FileOutcome("skipped", f"{shown(path)}: skipped, {e}")
     except Exception as e:  # one bad file must not stop the others
@@ -585,16 +687,35 @@ def default_jobs(device: str, files: int) -> int:
 _WORKER: dict = {}
 
 
-def _start_worker(ckpt: str, device: str, precision: str, threads: int, overlap: float, batch_size: int) -> None:
+def _clear_stale(outputs: list[Path]) -> None:
+    """A killed run's temporary files beside outputs that are complete (--resume skips them):
+    claiming an output removes them; one another run holds is left to that run."""
+    for output in outputs:
+        with contextlib.suppress(MotionFileError, OSError), claimed(output):
+            pass
+
+
+def _start_worker(
+    ckpt: str,
+    device: str,
+    precision: str,
+    threads: int,
+    overlap: float,
+    batch_size: int,
+    parent: int,
+    plan: RunPlan,
+) -> None:
+    die_with_parent(parent)  # first: a run killed while this worker starts must not leave it
     # each worker its share of the cores: N workers x all cores each would fight over them
     torch.set_num_threads(threads)
+    _WORKER["plan"] = plan
     _WORKER["fixer"] = fixer = load_fixer(ckpt, device, precision)
     _WORKER["model_fill"] = model_fill(fixer, overlap, batch_size)
 
 
 def _work(item: tuple[Path, Path | None, RunSettings]) -> FileOutcome:
     path, rel, settings = item
-    return fix_one(path, rel, _WORKER["fixer"], settings, sys.stderr, {})
+    return fix_one(path, rel, _WORKER["fixer"], settings, sys.stderr, _WORKER["plan"])
 
 
 def _measure_take(job: tuple):

@@ -12,6 +12,7 @@ docs                              where the documentation (mocapfix/docs) is ins
 from __future__ import annotations
 
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -76,8 +77,65 @@ class _StderrHandler(logging.StreamHandler):
         pass
 
 
+class _ReaderMayLeave:
+    """A text stream (sys.stdout, sys.stderr) that goes quiet when its reader goes away
+    (`mocapfix fix takes/ ... | head -1`): the work goes on, outputs are still written, and what
+    would have been printed is dropped, instead of a BrokenPipeError stopping the run halfway."""
+
+    def __init__(self, stream):
+        self._stream, self._gone = stream, False
+
+    def write(self, text: str) -> int:
+        if not self._gone:
+            try:
+                return self._stream.write(text)
+            except BrokenPipeError:
+                self._went_away()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self._gone:
+            try:
+                self._stream.flush()
+            except BrokenPipeError:
+                self._went_away()
+
+    def _went_away(self) -> None:
+        self._gone = True
+        # The interpreter flushes the real stream once more at exit, and that flush would fail
+        # the same way (Python's docs, "Note on SIGPIPE"): its descriptor now points at devnull.
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(devnull, self._stream.fileno())
+            finally:
+                os.close(devnull)
+        except (OSError, ValueError, AttributeError):  # a stream without a descriptor (a test's)
+            pass
+
+    def __getattr__(self, name):  # isatty, fileno, encoding...: the stream's own
+        return getattr(self._stream, name)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    command = argv[0] if argv else None
+    streams = sys.stdout, sys.stderr
+    if command not in LIGHTNING_COMMANDS:  # Lightning's console (rich) keeps the real streams
+        sys.stdout, sys.stderr = _ReaderMayLeave(sys.stdout), _ReaderMayLeave(sys.stderr)
+    try:
+        return _main(argv)
+    except BrokenPipeError:  # a stream left unwrapped: stop quietly (Python's docs, "Note on SIGPIPE")
+        _ReaderMayLeave(streams[0])._went_away()
+        return 1
+    finally:
+        for stream in (sys.stdout, sys.stderr):  # what is still buffered, while a closed reader is quiet
+            if isinstance(stream, _ReaderMayLeave):
+                stream.flush()
+        sys.stdout, sys.stderr = streams
+
+
+def _main(argv: list[str]) -> int:
     # Our own progress lines (parsing, cache, windows); Lightning configures its own loggers.
     logger = logging.getLogger("mocapfix")
     if not any(isinstance(h, _StderrHandler) for h in logger.handlers):  # once, however often main runs

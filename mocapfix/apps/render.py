@@ -1,6 +1,10 @@
 """`mocapfix render INPUT [FIXED ...] -o OUT.gif|mp4|png`: a recording beside fix's outputs of it,
 front and side views, filled and replaced tokens in their own colours, a time bar of the holes
-(core/render.py). Any file fix reads; the first person of each unless --person."""
+(core/render.py). Any file fix reads; the first person of each unless --person.
+
+The output is drawn into a temporary file beside it and moved into place whole: a failure (a full
+disk) leaves no partial file and an existing output as it was; an existing file is replaced, a
+link or a folder at the output's name is refused."""
 
 from __future__ import annotations
 
@@ -12,6 +16,7 @@ from pathlib import Path
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.render import render, tracks_for
 from mocapfix.io import add_read_arguments, frame_rate, read_motion
+from mocapfix.io.files import check_output, claimed, staged, writing
 
 
 def render_files(
@@ -24,7 +29,8 @@ def render_files(
     person: int = 0,
     **read_options,
 ) -> Path:
-    """Read, match and draw; MotionFileError (one line) for what a user can mend."""
+    """Read, match and draw; MotionFileError (one line) for what a user can mend, an error
+    writing the output (OSError) included."""
     clips = read_motion(input_path, **read_options)
     if not 0 <= person < len(clips):
         raise MotionFileError(input_path, f"--person {person}: the file has {len(clips)} clip(s)")
@@ -35,9 +41,15 @@ def render_files(
         if person >= len(other):
             raise MotionFileError(p, f"--person {person}: the file has {len(other)} clip(s)")
         fixed.append((Path(p).name, other[person]))
+    out = Path(out)
     try:
         tracks = tracks_for(base.replace(name=Path(input_path).name), fixed)
-        return render(tracks, base.skeleton.limbs, base.fps, Path(out), start_s, duration_s, fps)
+        with claimed(out), writing(out):  # a second render to out fails at once; a killed one's temporary files go
+            check_output(out, replace=True)
+            with staged([out], replace=True) as [temp]:
+                return render(tracks, base.skeleton.limbs, base.fps, out, start_s, duration_s, fps, write_to=temp)
+    except MotionFileError:
+        raise
     except ValueError as e:
         raise MotionFileError(input_path, str(e)) from None
 

@@ -102,8 +102,11 @@ class _Scene:
         cols, rows = len(tracks), len(VIEWS)
         self.fig = plt.figure(figsize=(panel_in * cols, panel_in * rows + 0.5), dpi=80)
         grid = self.fig.add_gridspec(rows + 1, cols, height_ratios=[panel_in] * rows + [0.35])
-        x0 = tracks[0].positions
-        self.zmin, self.zmax = np.nanmin(x0[..., 2]) - 0.05, np.nanmax(x0[..., 2]) + 0.15
+        # the heights shown: the input's; where the input has none (every token missing), a fixed one's
+        heights = next((z[np.isfinite(z)] for z in (t.positions[..., 2] for t in tracks) if np.isfinite(z).any()), None)
+        if heights is None:  # render() draws nothing then; a scene by itself gets a unit's room
+            heights = np.zeros(1)
+        self.zmin, self.zmax = heights.min() - 0.05, heights.max() + 0.15
         self.axes, self.bones, self.points = [], [], []
         for r, view in enumerate(VIEWS):
             for c, tr in enumerate(tracks):
@@ -174,11 +177,15 @@ def render(
     duration_s: float | None = None,
     out_fps: float | None = None,
     strip_frames: int = 8,
+    write_to: Path | None = None,
 ) -> Path:
     """Draw tracks (tracks_for) to out: .gif (Pillow), .mp4 (ffmpeg, which must be on the PATH) or
     .png (a filmstrip: strip_frames frames across the span, one column each, recordings and
-    views as rows). out_fps: the animation's frame rate (default: the recording's, at most 30)."""
+    views as rows). out_fps: the animation's frame rate (default: the recording's, at most 30).
+    write_to: the file actually written, with out's extension (a temporary file beside out that
+    the caller moves into place: io/files.py staged); messages name out."""
     out = Path(out)
+    written = Path(write_to) if write_to is not None else out
     suffix = out.suffix.lower()
     if suffix not in (".gif", ".mp4", ".png"):
         raise ValueError(f"{out}: render writes .gif, .mp4 or .png")
@@ -188,17 +195,20 @@ def render(
     frames = _span(len(tracks[0].positions), fps, start_s, duration_s, out_fps)
     if not any(np.isfinite(t.positions[frames]).any() for t in tracks):
         raise ValueError("no joint is observed in any frame drawn: nothing to draw")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    written.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".png":
-        return _filmstrip(tracks, limbs, fps, frames, out, strip_frames)
+        _filmstrip(tracks, limbs, fps, frames, written, strip_frames)
+        return out
     scene = _Scene(tracks, limbs, fps, frames)
     scene.fig.tight_layout()
     writer = animation.PillowWriter(fps=out_fps) if suffix == ".gif" else animation.FFMpegWriter(fps=out_fps)
-    with writer.saving(scene.fig, str(out), dpi=scene.fig.dpi):
-        for f in frames:
-            scene.set_frame(int(f))
-            writer.grab_frame()
-    plt.close(scene.fig)
+    try:
+        with writer.saving(scene.fig, str(written), dpi=scene.fig.dpi):
+            for f in frames:
+                scene.set_frame(int(f))
+                writer.grab_frame()
+    finally:  # a failed write (a full disk) must not leave the figure open either
+        plt.close(scene.fig)
     return out
 
 
@@ -217,14 +227,15 @@ def _filmstrip(tracks: list[Track], limbs, fps: float, frames: np.ndarray, out: 
     blank = np.full_like(images[0], 255)
     images += [blank] * (-len(images) % STRIP_COLUMNS)
     rows = [np.concatenate(images[i : i + STRIP_COLUMNS], axis=1) for i in range(0, len(images), STRIP_COLUMNS)]
-    plt.imsave(out, np.concatenate(rows, axis=0))
+    plt.imsave(out, np.concatenate(rows, axis=0), format="png")
     return out
 
 
-def holes_map(tracks: list[Track], joint_names, fps: float, out: Path) -> Path:
+def holes_map(tracks: list[Track], joint_names, fps: float, out: Path, write_to: Path | None = None) -> Path:
     """A PNG of which joints were missing when: one row of joints x time per recording (the input,
     then each fixed one), missing tokens dark; in a fixed recording filled tokens in FILLED's
-    colour and replaced ones in REPLACED's, so a glance says what fix did to which joint when."""
+    colour and replaced ones in REPLACED's, so a glance says what fix did to which joint when.
+    write_to: the file actually written (a temporary file beside out, see render)."""
     T, J = tracks[0].positions.shape[:2]
     fig, axes = plt.subplots(len(tracks), 1, figsize=(8, 0.5 + 0.12 * J * len(tracks)), squeeze=False, dpi=80)
     for ax, tr in zip(axes[:, 0], tracks):
@@ -239,6 +250,8 @@ def holes_map(tracks: list[Track], joint_names, fps: float, out: Path) -> Path:
         ax.tick_params(axis="x", labelsize=6)
     axes[-1, 0].set_xlabel("s", fontsize=7)
     fig.tight_layout()
-    fig.savefig(out)
-    plt.close(fig)
+    try:
+        fig.savefig(write_to if write_to is not None else out, format="png")
+    finally:
+        plt.close(fig)
     return out

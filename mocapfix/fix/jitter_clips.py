@@ -88,7 +88,11 @@ def denoise_clips(
             1, f"{passengers} joints the model does not use low-passed and moved with the model joint above them"
         )
     frames, people = _frames_and_people(clips)
-    report = FixReport(
-        frames, people, 0, replaced, float(sigma_before.compute()), float(sigma_after.compute()), len(clips), notes
-    )
+    report = FixReport(frames, people, 0, replaced, _mean(sigma_before), _mean(sigma_after), len(clips), notes)
     return out, report
+
+
+def _mean(metric: LimbSigma) -> float:
+    """The metric's value; NaN (shown "-") when no take was long enough to judge, without the
+    warning torchmetrics prints for a compute() before any update()."""
+    return float(metric.compute()) if metric.update_count else float("nan")
