@@ -28,6 +28,32 @@ def shown(path) -> str:
     return text if text.isprintable() else ascii(text)
 
 
+# float32 keeps a coordinate to half a unit in its last place: 4 um within 100 m of the origin,
+# 4 mm at 100 km (georeferenced capture), more than fix promises to leave an observed token
+# (0.01 mm). A take with coordinates beyond NEAR_ORIGIN_M is kept relative to an origin near it.
+NEAR_ORIGIN_M = 100.0
+
+
+def origin_near(points: np.ndarray) -> np.ndarray:
+    """points: (..., 3) float64 metres, z up, NaN = missing -> (3,) float64: the origin a Clip of
+    them keeps its float32 positions relative to. Zero along an axis whose every seen value lies
+    within NEAR_ORIGIN_M of 0 (an ordinary take: its numbers are not touched); otherwise a whole
+    number of metres near the points (whole, so that subtracting it is exact in float64 and the
+    same file read twice gets the same origin): the median along x and y (the model removes
+    each window's mean there anyway), the lowest whole metre under the body along z (the 1st
+    percentile, so that one low glitch does not sink it; the model sees heights)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    origin = np.zeros(3)
+    with np.errstate(invalid="ignore"):
+        seen = pts[np.isfinite(pts).all(-1)]
+    if not seen.size or np.abs(seen).max() <= NEAR_ORIGIN_M:
+        return origin
+    far = np.abs(seen).max(axis=0) > NEAR_ORIGIN_M  # (3,)
+    origin[:2] = np.where(far[:2], np.round(np.median(seen[:, :2], axis=0)), 0.0)
+    origin[2] = np.floor(np.percentile(seen[:, 2], 1)) if far[2] else 0.0
+    return origin
+
+
 # Frame rates motion capture has: from a slow pose tracker to a high-speed camera. A rate outside
 # is a broken file (a Frame Time of 1e6 s would make resampling allocate gigabytes).
 MIN_FPS, MAX_FPS = 1.0, 10_000.0
@@ -60,9 +86,16 @@ class Clip:
     root_translation: np.ndarray | None = None  # (T, 3) float32, world position of joint 0
     offsets: np.ndarray | None = None  # (J, 3) float32 bone offsets in the parent's frame
     meta: dict = field(default_factory=dict)  # format, unit, up_axis, ... (plain values)
+    # (3,) float64 metres, z up: where positions and root_translation are measured from. Zero but
+    # for a take far from its file's origin (origin_near; readers: Clip.centred); writers add it
+    # back in float64 (absolute_positions).
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self):
         self.positions = np.asarray(self.positions, dtype=np.float32)
+        self.origin = np.asarray(self.origin, dtype=np.float64).reshape(3)
+        if not np.isfinite(self.origin).all():
+            raise MotionFileError(self.source or self.name, f"the origin must be finite, got {self.origin}")
         if self.positions.ndim != 3 or self.positions.shape[2] != 3:
             raise MotionFileError(
                 self.source or self.name, f"positions must be (frames, joints, 3), got {self.positions.shape}"
@@ -92,6 +125,21 @@ class Clip:
     @property
     def has_rotations(self) -> bool:
         return self.rotations is not None and self.root_translation is not None and self.offsets is not None
+
+    @classmethod
+    def centred(cls, positions: np.ndarray, *args, **kwargs) -> Clip:
+        """A clip of positions (T, J, 3) in float64 metres, z up, as a reader computed them: kept in
+        float32 relative to origin_near(positions), the subtraction done in float64, so a take
+        far from the origin keeps every value to float32's precision near zero. Other arguments
+        as Clip's but origin (a root_translation added later is relative to clip.origin too)."""
+        positions = np.asarray(positions, dtype=np.float64)
+        origin = origin_near(positions)
+        with np.errstate(invalid="ignore", over="ignore"):
+            return cls(positions - origin, *args, origin=origin, **kwargs)
+
+    def absolute_positions(self) -> np.ndarray:
+        """(T, J, 3) float64 metres, z up: the positions where the file has them (origin added)."""
+        return self.positions.astype(np.float64) + self.origin
 
     def missing_mask(self) -> np.ndarray:
         """(T, J) bool, True where a joint is missing."""

@@ -106,7 +106,10 @@ def read_bvh(
         meta["encoding"] = encoding
     if filled:
         meta["filled_channels"] = filled
-    clip = Clip(positions, 1.0 / frame_time, skeleton, path.stem, str(path), meta=meta)
+    # FK above ran in float64; the clip keeps float32 about an origin near the body, so a take
+    # far from the file's origin (georeferenced) loses nothing in the cast.
+    clip = Clip.centred(positions, 1.0 / frame_time, skeleton, path.stem, str(path), meta=meta)
+    root = positions[:, 0] - clip.origin  # (T, 3) float64, as the clip's positions
 
     finite = np.isfinite(data).all()
     # FK with one constant offset per joint is exact when no joint below the root moves its
@@ -136,7 +139,7 @@ def read_bvh(
         if finite:
             # These rotations are exact but the offsets may not be (see above); select_joints works
             # from the positions and the global rotations only, and checks its result.
-            clip = clip.replace(rotations=rotvec(), root_translation=positions[:, 0], offsets=offs.astype(np.float32))
+            clip = clip.replace(rotations=rotvec(), root_translation=root, offsets=offs.astype(np.float32))
         try:
             clip = clip.select_joints(keep)
         except ValueError as e:  # the kept joints do not form one tree
@@ -160,7 +163,7 @@ def read_bvh(
         )
     else:
         clip = clip.replace(
-            rotations=rotvec(), root_translation=positions[:, 0].astype(np.float32), offsets=offs.astype(np.float32)
+            rotations=rotvec(), root_translation=root.astype(np.float32), offsets=offs.astype(np.float32)
         )
 
     if not finite:  # a non-finite channel leaves its joint and those below it missing in that frame
@@ -208,7 +211,7 @@ def write_bvh(path, clip: Clip, template: str | Path | None = None) -> None:
     with warnings.catch_warnings():  # gimbal lock still gives angles that rebuild the same matrix
         warnings.simplefilter("ignore", UserWarning)
         euler = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_euler("ZXY", degrees=True).reshape(T, J, 3)
-    root = clip.root_translation.astype(np.float64) @ C / scale  # (T, 3); row-vector form of C^T t
+    root = (clip.root_translation.astype(np.float64) + clip.origin) @ C / scale  # (T, 3); row-vector form of C^T t
     offsets = clip.offsets.astype(np.float64) @ C / scale  # (J, 3)
     frames = np.concatenate([root, euler.reshape(T, -1)], axis=1)  # (T, 3 + 3J)
 
@@ -292,7 +295,7 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
     R = Rotation.from_rotvec(clip.rotations.reshape(-1, 3).astype(np.float64)).as_matrix().reshape(Tc, Jc, 3, 3)
     R = C.T @ R @ C
     clip_t = np.broadcast_to(clip.offsets.astype(np.float64) @ C / scale, (T, Jc, 3)).copy()  # (T, Jc, 3)
-    clip_t[:, 0] = clip.root_translation.astype(np.float64) @ C / scale
+    clip_t[:, 0] = (clip.root_translation.astype(np.float64) + clip.origin) @ C / scale  # where the file has it
     clip_pos, clip_glob = _forward_kinematics(R, clip_t, clip.skeleton.parents, with_rotations=True)
 
     # Global transforms of every template joint, parents first: the clip's where it has the

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapfix.core.clip import Clip, MotionFileError, check_frame_rate
+from mocapfix.core.clip import NEAR_ORIGIN_M, Clip, MotionFileError, check_frame_rate, origin_near
 from mocapfix.core.skeleton import PRESETS, Skeleton, guess_groups
 from mocapfix.io.conventions import from_z_up, guess_up_axis, parse_unit, resolve_unit, to_z_up
 from mocapfix.io.files import atomic_write
@@ -117,7 +117,10 @@ def _clips(
     unit = resolve_unit(path, unit_opt, unit_file, raw, skeleton.joint_names, skeleton.parents)
     up_axis = _resolve_up(path, up_opt, up_file, raw, skeleton)
     with np.errstate(invalid="ignore", over="ignore"):
-        pos = to_z_up(raw.astype(np.float64) * unit.metres, up_axis).astype(np.float32)
+        pos = to_z_up(raw.astype(np.float64) * unit.metres, up_axis)  # (P, T, J, 3) float64
+        # one origin for the file's people (written back together); float32 only after it is taken off
+        origin = origin_near(pos)
+        pos = (pos - origin).astype(np.float32)
     P = pos.shape[0]
     clips = []
     for i in range(P):
@@ -131,7 +134,7 @@ def _clips(
             **layout[i],
         }
         name = path.stem + (f"#p{i}" if P > 1 else "")
-        clips.append(Clip(pos[i], fps, skeleton, name=name, source=str(path), meta=meta))
+        clips.append(Clip(pos[i], fps, skeleton, name=name, source=str(path), meta=meta, origin=origin))
     return clips
 
 
@@ -482,23 +485,31 @@ def read_positions(
 # --- writers ---
 
 
-def _format_numbers(out: np.ndarray, scale: float) -> list[str]:
+def _format_numbers(out: np.ndarray, scale: float, offset: np.ndarray | None = None) -> list[str]:
     """out: (N,) float64 in the file's unit and axes -> the text of each: the fewest significant
-    digits (6 to 9) that the reader turns back into the same float32 metres (float32(text * scale),
-    scale = metres per unit), so a number read from a csv is written as it was ("-13.7228", not
-    9 digits' "-13.7227997"); "" for NaN. Six digits always suffice when the float32 came from a
-    number with at most six; only the others are formatted again."""
+    digits (6 or more) that the reader turns back into the same float32 metres (float32(text *
+    scale), scale = metres per unit), so a number read from a csv is written as it was
+    ("-13.7228", not 9 digits' "-13.7227997"); "" for NaN. Six digits always suffice when the
+    float32 came from a number with at most six; only the others are formatted again.
+    offset: (N,) metres, the clip's origin along each value's axis, which the reader takes off
+    before its float32 cast (a take far from the origin: Clip.origin): the text then reads back
+    as the same float32 about it (float32(text * scale - offset)), up to 17 digits."""
     v = out.tolist()
-    target = out.astype(np.float32) if scale == 1.0 else (out * scale).astype(np.float32)
+    if offset is None:
+        target = out.astype(np.float32) if scale == 1.0 else (out * scale).astype(np.float32)
+    else:
+        target = (out * scale - offset).astype(np.float32)
     text = [f"{x:.6g}" for x in v]
     todo = np.nonzero(~np.isnan(out))[0]
-    for digits in (7, 8, 9):
-        back = (np.array([text[i] for i in todo.tolist()], dtype=np.float64) * scale).astype(np.float32)
-        todo = todo[back != target[todo]]
+    for digits in range(7, 18):
+        back = np.array([text[i] for i in todo.tolist()], dtype=np.float64) * scale
+        if offset is not None:
+            back = back - offset[todo]
+        todo = todo[back.astype(np.float32) != target[todo]]
         if not todo.size:
             break
         for i in todo.tolist():
-            text[i] = f"{v[i]:.{digits}g}"  # 9 digits read back as the same float32, always
+            text[i] = f"{v[i]:.{digits}g}"  # 9 digits read back as the same float32, 17 the same float64
     for i in np.nonzero(np.isnan(out))[0].tolist():
         text[i] = ""
     return text
@@ -528,14 +539,18 @@ def write_positions(
     time_column: bool = True,
     first_frame: int = 0,
     times: np.ndarray | None = None,
+    origin: np.ndarray | None = None,
 ) -> Path:
     """Write positions (T, J, 3) or (P, T, J, 3), metres z up, NaN = missing, as .npz or .csv (by
     the path's extension) in `unit` (a name or metres per unit) and `up_axis`. The layout options
     mirror what the readers put into clip.meta: squeeze (npz: (T, J, 3) for one person; default
     when P == 1), person_ids and person_column (csv; the column is written when P > 1 by
     default), frame/time columns, first_frame and times (csv: (T,) or (P, T) seconds of each row;
-    default (first_frame + t) / fps)."""
+    default (first_frame + t) / fps). origin: (3,) metres z up that the positions are relative
+    to (Clip.origin), added back in float64; npz positions are float32, or float64 where a value
+    lies beyond NEAR_ORIGIN_M (float32 would round it by more than 4 um)."""
     path = Path(path)
+    origin = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64).reshape(3)
     pos = np.asarray(positions, dtype=np.float64)
     if pos.ndim == 3:
         pos = pos[None]
@@ -552,12 +567,14 @@ def write_positions(
         raise ValueError(e.problem) from None
     unit, scale = (scale.name, scale.metres) if scale is not None else ("m", 1.0)
     P, T, J, _ = pos.shape
-    out = from_z_up(pos, up_axis) / scale
+    out = from_z_up(pos + origin, up_axis) / scale
+    with np.errstate(invalid="ignore"):
+        far = bool((np.abs(out[np.isfinite(out)]) * scale > NEAR_ORIGIN_M).any())
     suffix = path.suffix.lower()
     if suffix == ".npz":
         squeeze = P == 1 if squeeze is None else squeeze and P == 1
         arrays = {
-            "positions": (out[0] if squeeze else out).astype(np.float32),
+            "positions": (out[0] if squeeze else out).astype(np.float64 if far else np.float32),
             "fps": np.float64(fps),
             "parents": np.array(skeleton.parents, dtype=np.int64),
             "joint_names": np.array(skeleton.joint_names, dtype=str),
@@ -593,7 +610,9 @@ def write_positions(
                 raise ValueError(f"times must be ({T},) or ({P}, {T}), got {np.shape(times)}") from None
             time_text = [[_format_time(t) for t in row] for row in seconds.tolist()]
         C = J * 3
-        cells = _format_numbers(out.reshape(-1), scale)  # (P * T * C,) row-major
+        # a take far from the origin: each value reads back about the origin (the file's axes)
+        offset = np.broadcast_to(from_z_up(origin, up_axis), out.shape).reshape(-1) if origin.any() else None
+        cells = _format_numbers(out.reshape(-1), scale, offset)  # (P * T * C,) row-major
         for p in range(P):
             for t in range(T):
                 lead = (
@@ -627,9 +646,12 @@ def write_clips(path, clips: list[Clip]) -> Path:
     times = None
     if from_csv and all(len(c.meta.get("times") or ()) == c.num_frames for c in clips):
         times = np.array([c.meta["times"] for c in clips], dtype=np.float64)  # (P, T) seconds
+    # each person about the first one's origin (a file's people share one as read)
+    shift = [c.origin - c0.origin for c in clips]
+    positions = np.stack([c.positions + s if s.any() else c.positions for c, s in zip(clips, shift)])
     return write_positions(
         path,
-        np.stack([c.positions for c in clips]),
+        positions,
         c0.fps,
         c0.skeleton,
         unit,
@@ -641,4 +663,5 @@ def write_clips(path, clips: list[Clip]) -> Path:
         time_column=m.get("time_column", True) if from_csv else True,
         first_frame=int(m.get("first_frame", 0)),
         times=times,
+        origin=c0.origin,
     )
