@@ -107,17 +107,19 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
         with load_npz(Path(inputs[0].source)) as data:
             raw = npz_array(Path(inputs[0].source), data, "positions").astype(np.float64)
         raw = to_z_up(raw.reshape((-1,) + raw.shape[-3:]) * metres_per_unit(m), m.get("up_axis", "z"))
+        origin = inputs[0].origin  # the positions below are relative to it (a take far from the origin)
         new = np.stack([c.positions for c in clips]).astype(np.float64)  # (P, T, J, 3)
         old = np.stack([c.positions for c in inputs])
         same = ((new == old) & np.isfinite(old)).all(-1, keepdims=True)
         write_positions(
             target,
-            np.where(same, raw, new),
+            np.where(same, raw - origin, new),
             clips[0].fps,
             clips[0].skeleton,
             m["unit"],
             m.get("up_axis", "z"),
             squeeze=m.get("squeeze"),
+            origin=origin,
         )
         return
     write_clips(target, clips)
@@ -152,7 +154,8 @@ def onto_hierarchy(
     out, means, worst = [], [], 0.0
     for k, (f, c) in enumerate(zip(fixed, inputs)):
         offsets, parents = torch.from_numpy(c.offsets), c.skeleton.parents
-        target = torch.from_numpy(f.positions)
+        # the reference may be a second read of the file (_bvh_reference) about another origin
+        target = torch.from_numpy(_about(f, c.origin))
         weights = None if observed is None else torch.from_numpy(np.where(observed[k], 1.0, FILLED_WEIGHT))
         rot, root = inverse_kinematics(
             target, parents, offsets, torch.from_numpy(c.rotations), torch.from_numpy(c.root_translation), weights
@@ -177,9 +180,17 @@ def _onto(fixed: list[Clip], inputs: list[Clip]) -> list[Clip]:
             out.append(f)
             continue
         positions = c.positions.copy()
-        positions[:, map_joints(c.skeleton, f.skeleton, c.source)] = f.positions
+        positions[:, map_joints(c.skeleton, f.skeleton, c.source)] = _about(f, c.origin)  # a second read's origin
         out.append(c.replace(positions=positions, rotations=None, root_translation=None, offsets=None))
     return out
+
+
+def _about(clip: Clip, origin: np.ndarray) -> np.ndarray:
+    """clip's positions (T, J, 3) relative to `origin` (Clip.origin) instead of its own: the same
+    float32 array when the two agree, as they do for every take near the file's origin."""
+    if (clip.origin == origin).all():
+        return clip.positions
+    return (clip.positions.astype(np.float64) + (clip.origin - origin)).astype(np.float32)
 
 
 class Progress:
