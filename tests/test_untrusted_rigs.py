@@ -318,3 +318,26 @@ def test_two_bodies_in_a_positions_file_are_refused(tmp_path, bandai_files):
     with pytest.raises(MotionFileError, match="two or more bodies") as e:
         read_motion(path)
     assert str(e.value).startswith(str(path))
+
+
+# --- missing joints are not out of reach ---
+
+
+def test_nan_channels_mark_joints_missing_without_a_wrong_unit_warning(tmp_path, bandai_text, caplog):
+    """NaN channels are how a BVH marks a joint missing: those positions were never seen, so the
+    'beyond any body's reach ... a wrong unit?' warning must not count them (it said 101 %)."""
+    import logging
+
+    text = with_frames(bandai_text, 60)
+    head, motion = text.split("MOTION", 1)
+    lines = motion.strip().splitlines()
+    rows = [r.split() for r in lines[2:]]
+    for row in rows[:30]:  # the Hips' channels (after joint_Root's six) in half the frames
+        row[6:12] = ["nan"] * 6
+    path = tmp_path / "missing.bvh"
+    path.write_text(f"{head}MOTION\n{lines[0]}\n{lines[1]}\n" + "\n".join(" ".join(r) for r in rows) + "\n")
+    with caplog.at_level(logging.WARNING, logger="mocapfix"):
+        [clip] = read_motion(path)
+    assert clip.missing_mask()[:30].all() and not clip.missing_mask()[30:].any()
+    assert clip.meta["unit"] == "cm" and "warning" not in clip.meta, clip.meta
+    assert not caplog.records

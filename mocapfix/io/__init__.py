@@ -141,11 +141,15 @@ def _checked(clip: Clip) -> Clip:
         if structure is not None:
             clip = clip.replace(skeleton=clip.skeleton.with_labels(structure.labels))
     stature = stature_m(clip.positions, names, parents, clip.skeleton.labels)
+    # The warning weighs what drop_absurd makes missing for being out of reach against what was
+    # seen before it: a reader's non-finite values (a BVH's NaN channels, the way to mark a joint
+    # missing) count in absurd_tokens but were never seen, and no unit would bring them in reach.
     seen = int((~clip.missing_mask()).sum())
+    out_of_reach = clip.meta.get("out_of_reach_tokens", 0)
     clip = drop_absurd(clip, stature)
     clip.meta["stature_m"] = stature
     warning = stature_warning(stature, clip.meta, clip.source or clip.name)
-    lost = clip.meta.get("absurd_tokens", 0)
+    lost = clip.meta.get("out_of_reach_tokens", 0) - out_of_reach
     if seen and lost >= 0.5 * seen:  # data never silently becomes a hole
         warning = (
             f"{shown(clip.source or clip.name)}: {100 * lost / seen:.0f} % of the observed joint positions are "
