@@ -29,7 +29,7 @@ import torch
 from common import describe, print_table, write_result
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
-from mocapfix.evaluation.baselines import hermite_infill  # noqa: E402
+from mocapfix.fills.classical import hermite_infill  # noqa: E402
 
 CONTEXT = 8  # frames each side of the hole the correction reads (0.27 s at 30 fps)
 FPS = 30.0

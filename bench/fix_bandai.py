@@ -28,8 +28,8 @@ from common import describe, pick_device, print_table, write_result
 
 from mocapfix.apps.fix_cli import fix_files  # noqa: E402
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
-from mocapfix.evaluation.baselines import lerp_infill  # noqa: E402
 from mocapfix.evaluation.recording import corrupt_recording  # noqa: E402
+from mocapfix.fills.classical import lerp_infill  # noqa: E402
 from mocapfix.io.positions import write_positions  # noqa: E402
 
 DEFAULT_BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"

@@ -3,7 +3,7 @@ Bandai Namco's), holes of the full body, the left arm or the left leg of 0.1-0.9
 in every take of 8 s or more. MPJPE (mm) over the hidden tokens of what `fix --mode infill`
 outputs (its fill policy measured over the folder's takes, as `fix FOLDER` does; and over each
 file alone, as `fix FILE` does), beside every classical fill on the same whole take (Lerp, cubic spline, PCHIP, the
-limb fill, the cubic Hermite) and the motion-matching fills (fix/motion_matching.py; searching the
+limb fill, the cubic Hermite) and the motion-matching fills (fills/motion_matching.py; searching the
 folder's holed takes, as `fix FOLDER` does, and the take alone, as `fix FILE` does), on the
 shipped model's 21 joints (each take mapped onto them, io/body_structure.py).
 
@@ -22,12 +22,12 @@ import torch
 from common import describe, pick_device, print_table, write_result
 
 from mocapfix.core.skeleton import preset  # noqa: E402
-from mocapfix.evaluation.baselines import CLASSICAL  # noqa: E402
+from mocapfix.fills.classical import CLASSICAL  # noqa: E402
+from mocapfix.fills.motion_matching import FILLS as MATCH_FILLS  # noqa: E402
+from mocapfix.fills.motion_matching import match_fills  # noqa: E402
 from mocapfix.fix import fix_clips, measure_recordings  # noqa: E402
 from mocapfix.fix.clips import model_fill, motion_library, take_keys  # noqa: E402
 from mocapfix.fix.fixers import load_fixer  # noqa: E402
-from mocapfix.fix.motion_matching import FILLS as MATCH_FILLS  # noqa: E402
-from mocapfix.fix.motion_matching import match_fills  # noqa: E402
 from mocapfix.io import list_motion_files, read_motion  # noqa: E402
 from mocapfix.io.joint_names import onto_skeleton  # noqa: E402
 from mocapfix.pretrained import pretrained_path  # noqa: E402

@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from mocapfix.data.corruption import infill_gap
-from mocapfix.evaluation.baselines import lerp_infill
+from mocapfix.fills.classical import lerp_infill
 
 
 def np_lerp(x, observed):
@@ -86,7 +86,7 @@ def test_lerp_on_cuda():
 
 
 def test_gaussian_smooth_keeps_constants_and_lines_and_cuts_jitter():
-    from mocapfix.evaluation.baselines import gaussian_smooth
+    from mocapfix.fills.classical import gaussian_smooth
 
     T = 30
     t = torch.arange(T, dtype=torch.float64)
@@ -103,7 +103,7 @@ def test_gaussian_smooth_keeps_constants_and_lines_and_cuts_jitter():
 def test_hermite_continues_the_motion_and_keeps_the_contract():
     """A joint moving on a cubic: the Hermite fill, from each end's velocity, follows it through
     a gap much closer than Lerp; observed tokens bit-identical, border gaps held, nothing NaN."""
-    from mocapfix.evaluation.baselines import hermite_infill
+    from mocapfix.fills.classical import hermite_infill
 
     T = 40
     t = torch.arange(T, dtype=torch.float64) / 30.0

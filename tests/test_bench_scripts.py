@@ -355,7 +355,7 @@ def test_fix_policy_bandai(tmp_path, bandai_dir):
     replaces nothing (a threshold no disagreement reaches): clean clips come back unchanged and
     displaced arms stay displaced."""
     from mocapfix.data.datamodule import MotionDataModule
-    from mocapfix.evaluation.policy import FillPolicy
+    from mocapfix.fills.policy import FillPolicy
 
     skeleton = (
         MotionDataModule(source="bvh", path=str(bandai_dir), fps=30, cache_dir=str(tmp_path / "cache"))

@@ -12,8 +12,8 @@ from cli_utils import CONFIGS, QUIET, SMALL_DATA, TINY, run_cli
 
 from mocapfix.core.clip import Clip
 from mocapfix.core.skeleton import PRESETS
-from mocapfix.evaluation.baselines import lerp_infill, spline_infill
-from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, hole_frames, suspect_tokens, token_parts
+from mocapfix.fills.classical import lerp_infill, spline_infill
+from mocapfix.fills.policy import FillPolicy, apply_fill_policy, hole_frames, suspect_tokens, token_parts
 from mocapfix.fix import fix_clips
 from mocapfix.fix.fixers import load_fixer
 from mocapfix.io.synthetic import generate_clips
@@ -55,7 +55,7 @@ def test_limb_fill_keeps_bone_lengths_and_follows_the_parent():
     )[None]  # (1, T, 4, 3)
     obs = torch.ones(1, T, 4, dtype=torch.bool)
     obs[0, 8:22, 2:] = False  # elbow and hand, 14 frames
-    from mocapfix.evaluation.baselines import limb_infill
+    from mocapfix.fills.classical import limb_infill
 
     out = limb_infill(pos, obs, [-1, 0, 1, 2])
     assert torch.equal(out[obs], pos[obs])
@@ -104,7 +104,7 @@ def test_apply_fill_policy_takes_the_best_method_per_hole_length():
 def test_a_blend_of_two_fills_is_measured_and_taken_where_it_is_best():
     """Two fills that err in opposite directions: their mean is exact, and the policy takes it;
     a blend with the model counts as the model (it needs MODEL_MARGIN over every classical one)."""
-    from mocapfix.evaluation.policy import Calibration, blends
+    from mocapfix.fills.policy import Calibration, blends
 
     truth = torch.zeros(2, 30, 22, 3)
     obs = torch.ones(2, 30, 22, dtype=torch.bool)
@@ -260,7 +260,7 @@ def test_fix_with_a_policy_replaces_only_what_the_model_disagrees_with_and_fills
     untouched[40:55, 20] = False
     assert np.array_equal(out[0].positions[untouched], clean.positions[untouched])
     # infill: the table says the model for long holes, and a model must earn its place on the
-    # recording (fix/recording_policy.py): holes cut into these 60 s, the oracle model fills them
+    # recording (fills/recording_policy.py): holes cut into these 60 s, the oracle model fills them
     # exactly, so it fills the recording's holes
     holed = clean.positions.copy()
     holed[60:63] = np.nan
@@ -293,7 +293,7 @@ def test_an_over_tight_threshold_is_raised_by_the_recordings_own_steps():
     """A fine-tuned model can bring a replace threshold from its val split that a stranger's take
     crosses every few frames (the demo's: a 32-mm step): the recording's own residual steps lift
     the first step an excursion needs, and a real 35-cm jump is still found, and only it."""
-    from mocapfix.evaluation.policy import excursions, recording_step_floor
+    from mocapfix.fills.policy import excursions, recording_step_floor
 
     g = torch.Generator().manual_seed(0)
     T, J = 300, 21

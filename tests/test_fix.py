@@ -15,8 +15,8 @@ from cli_utils import CONFIGS, QUIET, TINY, run_cli
 from mocapfix.apps.main import main
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.skeleton import Skeleton, preset
-from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.recording import corrupt_recording
+from mocapfix.fills.classical import lerp_infill
 from mocapfix.fix import fix_clips, map_joints
 from mocapfix.fix.fixers import load_fixer, resolve_precision, xmae_checkpoint
 from mocapfix.fix.windowing import blend_weights, model_frames, resample_frames, window_layout, windows_for
@@ -790,7 +790,7 @@ def test_a_hermite_correcting_model_starts_from_the_whole_takes_hermite_fill(tmp
     """fill_kind hermite: fix hands the network the take's Hermite fill (whole take, the take's
     frame rate); with its output layer zeroed the model answers exactly that fill, not the
     fill of its 1-s windows."""
-    from mocapfix.evaluation.baselines import hermite_infill
+    from mocapfix.fills.classical import hermite_infill
     from mocapfix.fix.clips import model_fill
     from mocapfix.io.joint_names import onto_skeleton
     from mocapfix.io.synthetic import generate_clips

@@ -1,4 +1,4 @@
-"""The motion-matching fills (fix/motion_matching.py): a hole filled from the moments of the
+"""The motion-matching fills (fills/motion_matching.py): a hole filled from the moments of the
 library that look most like its surroundings, turned and shifted onto them."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import torch
 
 from mocapfix.core.skeleton import preset
 from mocapfix.data.augment import mirror_index
-from mocapfix.evaluation.baselines import hermite_infill
-from mocapfix.fix.motion_matching import (
+from mocapfix.fills.classical import hermite_infill
+from mocapfix.fills.motion_matching import (
     LIBRARY_S,
     TEMPOS,
     MotionLibrary,
@@ -193,7 +193,7 @@ def test_the_recording_policy_never_searches_the_truth_of_its_cut_holes():
     """A take that never repeats (every joint on its own random path): the motion-matching fills
     of the holes cut into it cannot be exact, as they would be if the take's uncut copy in the
     library were searched."""
-    from mocapfix.fix.recording_policy import measure_on_takes
+    from mocapfix.fills.recording_policy import measure_on_takes
 
     rng = np.random.default_rng(5)
     steps = rng.normal(0, 0.004, (600, BODY.num_joints, 3)).cumsum(0).cumsum(0) * 0.05

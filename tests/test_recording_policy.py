@@ -1,4 +1,4 @@
-"""The fill policy is measured on the recording being fixed (fix/recording_policy.py): a model
+"""The fill policy is measured on the recording being fixed (fills/recording_policy.py): a model
 that its own val split believes in, and that is bad on this recording, does not fill its holes.
 Real motion (Bandai Namco takes); the model is the shipped one, or the shipped one broken."""
 
@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from mocapfix.apps.main import main
-from mocapfix.evaluation.baselines import CLASSICAL
+from mocapfix.fills.classical import CLASSICAL
 from mocapfix.io import read_motion
 from mocapfix.io.positions import write_positions
 from mocapfix.pretrained import pretrained_path
@@ -103,7 +103,7 @@ def test_too_little_to_measure_the_model_on_gets_the_classical_fills(tmp_path, t
 
 
 def test_holes_are_cut_only_where_there_is_data_around_them():
-    from mocapfix.fix.recording_policy import cut_holes
+    from mocapfix.fills.recording_policy import cut_holes
 
     observed = np.ones((120, 4), dtype=bool)
     observed[40:52] = False  # the recording's own hole
@@ -124,7 +124,7 @@ def test_the_classical_fills_are_ranked_on_the_take_itself():
     """A take whose joints move on cubics: the spline fills its holes exactly, Lerp does not; the
     val split's ranking (here: Lerp first) is not what the take says."""
     from mocapfix.core.skeleton import preset
-    from mocapfix.fix.recording_policy import measure_on_takes
+    from mocapfix.fills.recording_policy import measure_on_takes
 
     body = preset("body21")
     t = np.linspace(0, 4, 120)[:, None, None]
@@ -164,8 +164,8 @@ def test_a_perfect_model_needs_as_many_cut_holes_as_a_classical_fill_to_take_a_k
     holes, as another classical fill must: fewer, and even a model exact on every cut hole is not
     chosen (one 12-s take let XMAE's blend win a leg cell it then lost on the take's own hole)."""
     from mocapfix.core.skeleton import preset
-    from mocapfix.evaluation.policy import FillPolicy, is_learned
-    from mocapfix.fix.recording_policy import TRUSTED_HOLES, measure_policy
+    from mocapfix.fills.policy import FillPolicy, is_learned
+    from mocapfix.fills.recording_policy import TRUSTED_HOLES, measure_policy
     from mocapfix.io.joint_names import onto_skeleton
     from mocapfix.io.synthetic import generate_clips
 

@@ -141,7 +141,7 @@ def test_bf16_autocast_keeps_coordinates_in_full_precision():
 def test_fill_input_starts_at_the_fill_and_learns_a_correction():
     """fill_input (not in the paper): the untrained network answers the Lerp fill exactly (its
     correction head starts at zero), and one optimiser step moves it off."""
-    from mocapfix.evaluation.baselines import lerp_infill
+    from mocapfix.fills.classical import lerp_infill
     from mocapfix.models.xmae_inference import xmae_reconstruct
 
     torch.manual_seed(0)

@@ -14,7 +14,7 @@ import torch
 from cli_utils import CONFIGS, QUIET, SMALL_DATA, TINY, run_cli
 
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.evaluation.baselines import hermite_infill
+from mocapfix.fills.classical import hermite_infill
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.training.xmae_module import XMAEModule
 

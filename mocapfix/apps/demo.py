@@ -225,7 +225,7 @@ def score_table(truth: np.ndarray, as_read: np.ndarray, fixed: np.ndarray, damag
     read, lacks (a value no body can take is read as missing: io/absurd.py) and keeps the rest."""
     import torch
 
-    from mocapfix.evaluation.baselines import spline_infill
+    from mocapfix.fills.classical import spline_infill
 
     seen = np.isfinite(as_read).all(-1)
     spline = spline_infill(torch.from_numpy(np.nan_to_num(as_read))[None], torch.from_numpy(seen)[None])[0].numpy()

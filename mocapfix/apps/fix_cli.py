@@ -31,11 +31,11 @@ from mocapfix.apps.processes import die_with_parent
 from mocapfix.core.clip import Clip, MotionFileError, shown
 from mocapfix.core.ik import ik_error_mm, inverse_kinematics
 from mocapfix.core.render import holes_map, render, tracks_for
+from mocapfix.fills.motion_matching import MotionLibrary
+from mocapfix.fills.recording_policy import measure_take
 from mocapfix.fix import MODES, fix_clips, map_joints, measure_recordings, rotation_clips
 from mocapfix.fix.clips import model_fill, motion_library
 from mocapfix.fix.fixers import PRECISIONS, load_fixer
-from mocapfix.fix.motion_matching import MotionLibrary
-from mocapfix.fix.recording_policy import measure_take
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import read_bvh, write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
@@ -397,7 +397,7 @@ def fix_files(
     of the cores; shard (i, N): only every N-th file from the i-th (shard_of); resume: inputs
     whose output exists are skipped (outputs appear whole under their name, so it is complete).
     library: files or folders of other takes (the same performers, rig and studio) the
-    motion-matching fills search besides the run's own (fix/motion_matching.py)."""
+    motion-matching fills search besides the run's own (fills/motion_matching.py)."""
     out_stream, err = stdout or sys.stdout, stderr or sys.stderr
     try:
         fixer = load_fixer(ckpt, device, precision)

@@ -33,13 +33,13 @@ import torch
 from mocapfix.core.clip import Clip, MotionFileError, check_human_scale
 from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.evaluation.baselines import CLASSICAL, hermite_infill, lerp_infill, limb_infill
 from mocapfix.evaluation.metrics import LimbSigma
-from mocapfix.evaluation.policy import FillPolicy, apply_fill_policy, excursions, policy_names, recording_step_floor
+from mocapfix.fills.classical import CLASSICAL, hermite_infill, lerp_infill, limb_infill
+from mocapfix.fills.motion_matching import FILLS as MATCH_FILLS
+from mocapfix.fills.motion_matching import MotionLibrary, Searchable, match_fills, mirror_of
+from mocapfix.fills.policy import FillPolicy, apply_fill_policy, excursions, policy_names, recording_step_floor
+from mocapfix.fills.recording_policy import measure_policy
 from mocapfix.fix.fixers import Fixer, RotationFixer
-from mocapfix.fix.motion_matching import FILLS as MATCH_FILLS
-from mocapfix.fix.motion_matching import MotionLibrary, Searchable, match_fills, mirror_of
-from mocapfix.fix.recording_policy import measure_policy
 from mocapfix.fix.windowing import (
     blend_windows,
     hold_last_frame,
@@ -91,7 +91,7 @@ NOT_JUDGED = "observed tokens kept, not judged"
 # --mode both / denoise replace the observed tokens of a joint that jumped away from the model's
 # estimate by more than JUMP_STEP x the checkpoint's replace threshold (0.15 m for the shipped
 # XMAE), and by more than the recording's own residual steps allow (recording_step_floor), and
-# back within MAX_REPLACED_S (evaluation/policy.py: excursions). Every other observed token is
+# back within MAX_REPLACED_S (fills/policy.py: excursions). Every other observed token is
 # kept as recorded: a model that disagrees with an unusual motion does not move it.
 JUMP_STEP = 2 / 3
 MAX_REPLACED_S = 2.0
@@ -154,7 +154,7 @@ def fix_clips(
     library: other takes the motion-matching fills search besides this file's (motion_library:
     the run's files, fix --library).
 
-    With the fixer's fill policy (calibrated on its val split, evaluation/policy.py, and measured
+    With the fixer's fill policy (calibrated on its val split, fills/policy.py, and measured
     again on the recording, recording_policy.py) each hole is filled by the method that was best
     for holes of its length and part, and in denoise / both an observed token is replaced only
     where its joint jumped away from the model's estimate and back (excursions, JUMP_STEP): such
@@ -366,7 +366,7 @@ def motion_library(
     recordings: list[list[Clip]], fixer: Fixer, joint_map: dict[str, str] | None = None
 ) -> MotionLibrary | None:
     """The takes of several files (a run's) at the model's joints and their own fps, for the
-    motion-matching fills of every file of the run (fix/motion_matching.py); None where none maps."""
+    motion-matching fills of every file of the run (fills/motion_matching.py); None where none maps."""
     takes, keys = [], []
     for clips in recordings:
         try:
@@ -631,7 +631,7 @@ def _carry_passengers(fixed: Clip, clip: Clip, model_joints: np.ndarray, replace
 def _fill_other_joints(positions: np.ndarray, model_joints: np.ndarray, skeleton: Skeleton) -> tuple[np.ndarray, int]:
     """positions: (T, J, 3) a clip with the model's joints fixed -> the holes of its other joints
     (fingers, extra spine joints) filled by the limb fill (each from its parent, bone length kept,
-    evaluation/baselines.py), and how many tokens that filled. Observed tokens stay as they are;
+    fills/classical.py), and how many tokens that filled. Observed tokens stay as they are;
     a joint never seen in the clip stays missing."""
     other = np.setdiff1d(np.arange(skeleton.num_joints), model_joints)
     holes = ~np.isfinite(positions[:, other]).all(-1)  # (T, E)

@@ -17,8 +17,8 @@ import torch
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.evaluation.baselines import lerp_infill
-from mocapfix.evaluation.policy import FillPolicy
+from mocapfix.fills.classical import lerp_infill
+from mocapfix.fills.policy import FillPolicy
 from mocapfix.fix.windowing import hold_last_frame, model_frames, resample_frames
 from mocapfix.models.body import build_body_model
 from mocapfix.models.build import build_model, checkpoint_entry
@@ -434,7 +434,7 @@ def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32"
             path, f"not a mocapfix checkpoint of a model fix knows ({', '.join(FIXERS)}): no matching network weights"
         )
     fixer = FIXERS[kind].from_checkpoint(path, ckpt, device, precision)
-    # which fill for which hole, calibrated on the val split (evaluation/policy.py); None: the
+    # which fill for which hole, calibrated on the val split (fills/policy.py); None: the
     # model everywhere (checkpoints from before it, until `mocapfix validate --ckpt_path` adds one)
     try:
         fixer.policy = FillPolicy.from_dict(ckpt["fill_policy"]) if "fill_policy" in ckpt else None

@@ -16,8 +16,8 @@ import numpy as np
 import torch
 
 from mocapfix.core.clip import Clip, MotionFileError
-from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.metrics import LimbSigma
+from mocapfix.fills.classical import lerp_infill
 from mocapfix.fix.clips import NOT_JUDGED, FixReport, _frames_and_people, _who, map_joints
 from mocapfix.fix.fixers import JitterFixer
 from mocapfix.models.jitter import lowpass

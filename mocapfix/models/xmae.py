@@ -195,7 +195,7 @@ class XMAE(nn.Module):
         # network then starts from the interpolation instead of having to learn it, and spends its
         # capacity on what interpolation gets wrong.
         # fill_kind "hermite": a cubic that leaves and meets the data at its velocities
-        # (evaluation/baselines.py: hermite_infill), about a cubic spline's accuracy; fix then hands
+        # (fills/classical.py: hermite_infill), about a cubic spline's accuracy; fix then hands
         # the network the take's whole-context fill at the recording's own frame rate
         # (fix/clips.py), and the untrained network is that fill.
         self.fill_input, self.fill_kind = fill_input, fill_kind

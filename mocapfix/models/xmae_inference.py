@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 
 from mocapfix.data.corruption import denormalize, kept_index, normalize
-from mocapfix.evaluation.baselines import hermite_infill, lerp_infill
+from mocapfix.fills.classical import hermite_infill, lerp_infill
 from mocapfix.models.xmae import XMAE
 
 

@@ -39,10 +39,10 @@ from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.corruption import gaussian_noise, rotation_noise
 from mocapfix.data.spec import DataSpec
 from mocapfix.data.windows import complete_windows, select
-from mocapfix.evaluation.baselines import gaussian_smooth
 from mocapfix.evaluation.denoise_table import SMOOTH_FRAMES, SMOOTHERS, DenoiseTable, format_denoise_table
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.tasks import window_seeds
+from mocapfix.fills.classical import gaussian_smooth
 from mocapfix.models.build import checkpoint_entry
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
 

@@ -18,8 +18,8 @@ from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.augment import BodyAugment, BodyAugmenter
 from mocapfix.data.corruption import available, jitter, random_z_rotation, uniform_like
 from mocapfix.data.spec import DataSpec
-from mocapfix.evaluation.baselines import lerp_infill
 from mocapfix.evaluation.metrics import MPJPE
+from mocapfix.fills.classical import lerp_infill
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.jitter import JitterConfig, JitterNet, lowpass, residual_noise
 from mocapfix.training.bind_data import BindData, require_same_window

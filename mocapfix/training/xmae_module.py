@@ -17,12 +17,13 @@ from mocapfix.core.skeleton import GROUP_NAMES, Skeleton
 from mocapfix.data.augment import BodyAugment, BodyAugmenter
 from mocapfix.data.corruption import check_training_corruption, uniform_like, xmae_training_input
 from mocapfix.data.spec import DataSpec
-from mocapfix.evaluation.baselines import CLASSICAL, lerp_infill, spline_infill
 from mocapfix.evaluation.harness import TestTable
 from mocapfix.evaluation.metrics import MPJPE
-from mocapfix.evaluation.model_fills import calibrate, candidate_fills, policy_output
-from mocapfix.evaluation.policy import Calibration, FillPolicy, apply_fill_policy
+from mocapfix.evaluation.policy_fit import calibrate
 from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows, window_seeds
+from mocapfix.fills.classical import CLASSICAL, lerp_infill, spline_infill
+from mocapfix.fills.model import candidate_fills, policy_output
+from mocapfix.fills.policy import Calibration, FillPolicy, apply_fill_policy
 from mocapfix.models.build import build_model, checkpoint_entry
 from mocapfix.models.xmae import XMAE, XMAEConfig, preset_sizes
 from mocapfix.models.xmae_inference import xmae_fill, xmae_reconstruct
@@ -128,7 +129,7 @@ class XMAEModule(L.LightningModule):
             calibration_windows: val windows (the first ones) on which every validation measures
                 XMAE against the classical fills per hole length and part (left limbs), and XMAE's
                 disagreement with clean tokens: the fill policy saved in each checkpoint
-                (evaluation/policy.py). 0: no policy.
+                (fills/policy.py). 0: no policy.
             init_weights: a checkpoint file or a shipped model's name (`mocapfix models`) whose
                 network training starts from: its sizes and weights (every size setting above is
                 then the checkpoint's) and its fill policy until the first validation. For
@@ -325,7 +326,7 @@ class XMAEModule(L.LightningModule):
                 self._generator(batch_idx),
             )
 
-    # --- the fill policy (evaluation/policy.py) ---
+    # --- the fill policy (fills/policy.py) ---
 
     def on_validation_epoch_start(self):
         hp = self.hparams

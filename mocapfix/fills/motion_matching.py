@@ -8,7 +8,7 @@ holds much of it. For each hole this finds the stretches of the library whose fr
 the hole (every joint in the context frames; the joints still observed inside the hole) match
 best after a turn about the vertical and a shift over the floor (2D Procrustes, closed form),
 and fills the hole from the NEIGHBOURS best, weighted by how well each matched. Two fills come
-out of one search (the recording's policy picks per kind of hole, fix/recording_policy.py):
+out of one search (the recording's policy picks per kind of hole, fills/recording_policy.py):
 - "match": the neighbours' own motion, its residual to the data at the hole's observed tokens
   interpolated across the hole (as fix anchors the model's estimate), so it meets both ends;
 - "match_delta": the cubic Hermite fill plus how far each neighbour's motion departs from its own
@@ -33,8 +33,7 @@ import torch
 
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.augment import mirror_index
-from mocapfix.evaluation.baselines import hermite_infill, lerp_infill
-from mocapfix.fix.windowing import resample_frames
+from mocapfix.fills.classical import hermite_infill, lerp_infill
 
 FILLS = ("match", "match_delta")
 # Context each side of a hole, as a fraction of its length (at least MIN_CONTEXT frames): on CMU
@@ -149,6 +148,9 @@ class MotionLibrary:
         """Every take at `fps` (then its mirror image, each at every tempo of TEMPOS), one after
         another with a NaN frame between them (no stretch spans two) -> the frames and each
         take's (first, end) frame, its copies included."""
+        # fills/ sits below fix/: imported here until resampling in time moves down to core/ (issue 46)
+        from mocapfix.fix.windowing import resample_frames
+
         if fps not in self._at:
             parts, spans, n = [], [], 0
             for x, f in self.takes:
@@ -314,7 +316,7 @@ def match_fills(
     fps: float | None = None,
 ) -> dict[str, np.ndarray]:
     """positions: (T, J, 3) metres, NaN where missing; observed: (T, J) bool; hermite: (T, J, 3)
-    its cubic Hermite fill (evaluation/baselines.py), what a hole nothing matches keeps;
+    its cubic Hermite fill (fills/classical.py), what a hole nothing matches keeps;
     library: other takes at the same fps and joints (MotionLibrary.without, or (N, J, 3) frames),
     the take itself is always searched (mirrored too where the library's takes are); fps: the
     take's, for MIN_HOLE_S (None: every hole is searched) -> {"match", "match_delta"}: (T, J, 3)

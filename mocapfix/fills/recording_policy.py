@@ -1,7 +1,7 @@
 """The fill policy measured on the recording being fixed, not only on the model's val split.
 
 A model's val split shares performers, motions and the studio with its training split, so the
-policy calibrated there (evaluation/policy.py) believes the model where it has learned a studio,
+policy calibrated there (fills/policy.py) believes the model where it has learned a studio,
 not human motion: a paper-sized XMAE trained on 70 CMU takes beat the classical fills on its val
 split and was 2.5x worse than a cubic spline on other performers. The recording itself is the
 only evidence about the recording: holes of the kinds it has (body part and length) are cut into
@@ -21,8 +21,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from mocapfix.evaluation.baselines import CLASSICAL
-from mocapfix.evaluation.policy import (
+from mocapfix.fills.classical import CLASSICAL
+from mocapfix.fills.motion_matching import MotionLibrary, match_fills, mirror_of
+from mocapfix.fills.policy import (
     PARTS,
     Calibration,
     FillPolicy,
@@ -30,7 +31,6 @@ from mocapfix.evaluation.policy import (
     is_learned,
     token_parts,
 )
-from mocapfix.fix.motion_matching import MotionLibrary, match_fills, mirror_of
 
 HOLES_PER_CELL = 64  # the budget of holes cut into the recording per (part, gap): a model pass each kind
 # A hole is cut only where its joints are observed this long on both sides. Cut right next to
