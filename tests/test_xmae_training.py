@@ -190,7 +190,7 @@ def test_fit_writes_tensorboard_scalars_hparams_and_figures(tmp_path):
     lr = [e.value for e in ea.Scalars("lr-Adam")]
     assert lr[0] < lr[1] and lr[-1] < max(lr), "warm-up then decay"
     assert (tmp_path / "checkpoints" / "tb" / "last.ckpt").exists()
-    assert list((tmp_path / "checkpoints" / "tb").glob("best-*.ckpt"))
+    assert list((tmp_path / "checkpoints" / "tb" / "version_0").glob("best-*.ckpt"))  # the run's own folder
 
     # test: the table as text and MPJPE by gap length as a figure, beside the scalars
     ckpt = tmp_path / "checkpoints" / "tb" / "last.ckpt"
@@ -323,7 +323,7 @@ def test_bad_checkpoint_path_is_one_line(tmp_path, capsys):
     (tmp_path / "text.ckpt").write_text("not a checkpoint")
     for path, problem in (
         (tmp_path / "missing.ckpt", "no such checkpoint file"),
-        (tmp_path / "text.ckpt", "not a checkpoint that torch.load reads safely"),
+        (tmp_path / "text.ckpt", "not a mocapfix checkpoint"),
     ):
         rc = run_cli(["test", "--config", CONFIGS / "xmae.yaml", *QUIET, "--ckpt_path", path], tmp_path)
         err = capsys.readouterr().err.strip().splitlines()

@@ -100,6 +100,13 @@ class RunCheckpoint(ModelCheckpoint):
     experiment's last.ckpt at the run's each time it writes it, and, on a resume from another run
     of the experiment, carries on with its best (a new best is written only when it beats it)."""
 
+    @property
+    def state_key(self) -> str:
+        # ModelCheckpoint's key: a checkpoint written before run folders (or read by tools that look
+        # for "ModelCheckpoint{...}") resumes with its best score, and ours read back the same way
+        key = super().state_key
+        return "ModelCheckpoint" + key.removeprefix(type(self).__qualname__)
+
     def _save_checkpoint(self, trainer, filepath: str) -> None:
         super()._save_checkpoint(trainer, filepath)
         path = Path(filepath)
