@@ -5,7 +5,7 @@ Each take (the CMU sample, subjects 05-09, 120 fps, a 31-joint rig; Bandai Namco
 coordinate, then forward kinematics) and on every joint's position (2 cm per coordinate), fresh
 every frame, seeded per take. The noisy take goes through `fix` (fix_clips, the whole rig, as
 `mocapfix fix take.bvh --mode denoise` runs it); MPJPE (mm) over the shipped models' 21 joints
-(each take mapped onto them, io/body_structure.py) against the clean take, beside a zero-phase
+(each take mapped onto them, rig/structure.py) against the clean take, beside a zero-phase
 4th-order Butterworth low-pass at 6 Hz (scipy's filtfilt: the biomechanics standard), Gaussian
 smoothing at several widths and the model's own low-pass (what it corrects). The same on the
 clean takes: how far each method moves motion that had no noise.
@@ -31,9 +31,9 @@ from mocapfix.data.windows import split_of  # noqa: E402
 from mocapfix.fix import fix_clips  # noqa: E402
 from mocapfix.fix.fixers import load_fixer  # noqa: E402
 from mocapfix.io import list_motion_files, read_motion  # noqa: E402
-from mocapfix.io.joint_names import onto_skeleton  # noqa: E402
 from mocapfix.models.jitter import lowpass  # noqa: E402
 from mocapfix.pretrained import pretrained_path  # noqa: E402
+from mocapfix.rig.mapping import onto_skeleton  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 GAUSSIAN_S = (0.02, 0.04, 0.06)  # sigma of the Gaussian smoothing, seconds

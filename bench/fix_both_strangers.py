@@ -26,8 +26,8 @@ from mocapfix.fix import fix_clips  # noqa: E402
 from mocapfix.fix.fixers import load_fixer  # noqa: E402
 from mocapfix.io import list_motion_files, read_motion  # noqa: E402
 from mocapfix.io.absurd import drop_absurd  # noqa: E402
-from mocapfix.io.joint_names import onto_skeleton  # noqa: E402
 from mocapfix.pretrained import pretrained_path  # noqa: E402
+from mocapfix.rig.mapping import onto_skeleton  # noqa: E402
 
 DEFAULT_CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu-sample"
 MOVED_M = 0.001  # a token "changed" when fix moved it by more than this

@@ -19,8 +19,8 @@ from mocapfix.fix import fix_clips, measure_recordings
 from mocapfix.fix.clips import motion_library
 from mocapfix.fix.fixers import load_fixer
 from mocapfix.io import list_motion_files, read_motion
-from mocapfix.io.joint_names import onto_skeleton
 from mocapfix.pretrained import pretrained_path
+from mocapfix.rig.mapping import onto_skeleton
 
 
 def main(argv=None) -> int:

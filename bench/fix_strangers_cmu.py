@@ -5,7 +5,7 @@ outputs (its fill policy measured over the folder's takes, as `fix FOLDER` does;
 file alone, as `fix FILE` does), beside every classical fill on the same whole take (Lerp, cubic spline, PCHIP, the
 limb fill, the cubic Hermite) and the motion-matching fills (fills/motion_matching.py; searching the
 folder's holed takes, as `fix FOLDER` does, and the take alone, as `fix FILE` does), on the
-shipped model's 21 joints (each take mapped onto them, io/body_structure.py).
+shipped model's 21 joints (each take mapped onto them, rig/structure.py).
 
     python bench/fix_strangers_cmu.py --model xmae-cpu-bandai
     python bench/fix_strangers_cmu.py --model-only --library /other/takes/of/the/same/people
@@ -29,8 +29,8 @@ from mocapfix.fix import fix_clips, measure_recordings  # noqa: E402
 from mocapfix.fix.clips import model_fill, motion_library, take_keys  # noqa: E402
 from mocapfix.fix.fixers import load_fixer  # noqa: E402
 from mocapfix.io import list_motion_files, read_motion  # noqa: E402
-from mocapfix.io.joint_names import onto_skeleton  # noqa: E402
 from mocapfix.pretrained import pretrained_path  # noqa: E402
+from mocapfix.rig.mapping import onto_skeleton  # noqa: E402
 
 DEFAULT_CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu-sample"
 GAPS_S = (0.1, 0.3, 0.5, 0.7, 0.9)

@@ -9,10 +9,10 @@ import torch
 from mocapfix.apps.main import main
 from mocapfix.core.skeleton import preset
 from mocapfix.fix.fixers import load_fixer
-from mocapfix.io.joint_names import onto_skeleton
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.pretrained import pretrained_path
+from mocapfix.rig.mapping import onto_skeleton
 from mocapfix.training.xmae_module import XMAEModule
 
 

@@ -22,7 +22,7 @@ PARENTS = [max(p, 0) for p in BODY.parents]
 def _windows(n=6, T=20, seed=0) -> torch.Tensor:
     """(n, T, 21, 3) body21 windows from the synthetic motion's smpl22 bodies, feet near z = 0."""
     clips = generate_clips(2, 2.0, 30.0, seed)
-    from mocapfix.io.joint_names import onto_skeleton
+    from mocapfix.rig.mapping import onto_skeleton
 
     x = np.stack([onto_skeleton(c, BODY).positions[i * 5 : i * 5 + T] for c in clips for i in range(n // 2)])
     return torch.from_numpy(x.astype(np.float32))

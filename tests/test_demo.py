@@ -9,8 +9,8 @@ import pytest
 from mocapfix.apps.demo import JUMP_M, _choose_data, break_take, main, score_table
 from mocapfix.core.skeleton import preset
 from mocapfix.data.windows import split_of
-from mocapfix.io.joint_names import onto_skeleton
 from mocapfix.io.synthetic import generate_clips
+from mocapfix.rig.mapping import onto_skeleton
 
 
 @pytest.fixture(scope="module")

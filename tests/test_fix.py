@@ -792,9 +792,9 @@ def test_a_hermite_correcting_model_starts_from_the_whole_takes_hermite_fill(tmp
     fill of its 1-s windows."""
     from mocapfix.fills.classical import hermite_infill
     from mocapfix.fix.clips import model_fill
-    from mocapfix.io.joint_names import onto_skeleton
     from mocapfix.io.synthetic import generate_clips
     from mocapfix.models.xmae import XMAE
+    from mocapfix.rig.mapping import onto_skeleton
 
     body = preset("body21")
     take = onto_skeleton(generate_clips(1, 6.0, 30.0, seed=4)[0], body).positions.astype(np.float64)

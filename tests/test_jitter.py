@@ -156,7 +156,7 @@ def test_the_shipped_jitter_remover_cleans_another_studios_bvh(cmu_files, tmp_pa
 
     from mocapfix.data.corruption import rotation_noise
     from mocapfix.io.bvh import read_bvh, write_bvh
-    from mocapfix.io.joint_names import onto_skeleton
+    from mocapfix.rig.mapping import onto_skeleton
 
     take = next(f for f in cmu_files if f.name == "05_02.bvh")
     [clip] = read_bvh(take)

@@ -13,9 +13,11 @@ from mocapfix.core.skeleton import Skeleton, preset
 from mocapfix.fix import map_joints
 from mocapfix.fix.fixers import xmae_checkpoint
 from mocapfix.io import read_motion
-from mocapfix.io.joint_names import joint_labels, match_joints, side_and_word
 from mocapfix.io.positions import write_positions
 from mocapfix.models.xmae import XMAE
+from mocapfix.rig.labels import joint_labels
+from mocapfix.rig.mapping import match_joints
+from mocapfix.rig.names import side_and_word
 
 # Bandai Namco's names (after the reader drops joint_Root) -> Mixamo's for the same joints
 MIXAMO = {

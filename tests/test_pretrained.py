@@ -46,7 +46,7 @@ def test_fix_by_model_name_on_its_own_skeleton(tmp_path, bandai_files, capsys):
 
 
 def test_fix_by_model_name_on_an_smpl_recording(tmp_path, capsys):
-    """SMPL names onto the Bandai-trained model: joints by body part (io/joint_names.py)."""
+    """SMPL names onto the Bandai-trained model: joints by body part (rig/mapping.py)."""
     motion = generate_clips(1, 4.0, fps=30, seed=5)[0].positions  # (120, 22, 3) smpl22
     holes = motion.copy()
     holes[50:65, 20] = np.nan  # left wrist, 0.5 s

@@ -166,8 +166,8 @@ def test_a_perfect_model_needs_as_many_cut_holes_as_a_classical_fill_to_take_a_k
     from mocapfix.core.skeleton import preset
     from mocapfix.fills.policy import FillPolicy, is_learned
     from mocapfix.fills.recording_policy import TRUSTED_HOLES, measure_policy
-    from mocapfix.io.joint_names import onto_skeleton
     from mocapfix.io.synthetic import generate_clips
+    from mocapfix.rig.mapping import onto_skeleton
 
     body = preset("body21")
 

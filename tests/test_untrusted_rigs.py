@@ -1,7 +1,7 @@
 """Untrusted rigs: what reading a rig costs, and rigs that are not one person.
 
 A rig of thousands of joints (markers, props, a hostile file) is understood or refused in
-seconds and well under a gigabyte (io/body_structure.py: time and memory linear in the joints);
+seconds and well under a gigabyte (rig/structure.py: time and memory linear in the joints);
 extra leaves leave the body found as it was; two bodies under one root are refused with one
 line naming the file, before a unit is guessed. The rigs are built here from a real Bandai
 Namco take (../shared/data), its text edited: extra JOINT blocks and channels, or copies of
@@ -23,9 +23,10 @@ from mocapfix.apps.main import main
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.io import read_motion
-from mocapfix.io.body_structure import GROUP_FRACTION, _Tree
 from mocapfix.io.bvh import read_bvh
 from mocapfix.io.positions import write_positions
+from mocapfix.rig.structure import GROUP_FRACTION
+from mocapfix.rig.tree import Tree
 
 BANDAI_FILE = "dataset-1_walk_active_001.bvh"
 BODY = (  # the Bandai rig's joints below its joint_Root
@@ -118,7 +119,7 @@ start = time.perf_counter()
 from mocapfix.apps.inspect import motion_stats
 from mocapfix.core.skeleton import preset
 from mocapfix.io import read_motion
-from mocapfix.io.joint_names import match_joints
+from mocapfix.rig.mapping import match_joints
 clips = read_motion(sys.argv[1])
 motion_stats(clips)  # what `mocapfix inspect` prints
 found = match_joints(clips[0].skeleton, preset("body21"))  # what `fix` maps onto its model
@@ -212,7 +213,7 @@ def test_300_leaves_under_the_root_leave_the_body_as_it_was_and_cost_little(tmp_
     assert seconds < 5.0
 
 
-def _pruned_by_all_pairs(tree: _Tree, tips: list[int], keep: int) -> list[int]:
+def _pruned_by_all_pairs(tree: Tree, tips: list[int], keep: int) -> list[int]:
     """The definition, at n^4: drop the tip whose branch (its distance to the nearest path between
     two other tips) is shortest, the first given on a tie, until `keep` remain."""
 
@@ -229,7 +230,7 @@ def _pruned_by_all_pairs(tree: _Tree, tips: list[int], keep: int) -> list[int]:
     return tips
 
 
-def _grouped_by_all_pairs(tree: _Tree, radius: float) -> list[int]:
+def _grouped_by_all_pairs(tree: Tree, radius: float) -> list[int]:
     """The definition: leaves closer than radius along the bones are one group (single linkage);
     a group's tip is its leaf farthest from the root; groups in the order of their first leaf."""
     leaves = tree.leaves
@@ -250,7 +251,7 @@ def test_the_linear_extremities_are_the_all_pairs_ones_on_random_trees():
     """Regression guard for the linear algorithms (leaf groups from nearest-leaf distances,
     pruning on a heap): the same tips as the definitions, ties included (bone lengths drawn from
     a few values), on 200 random trees."""
-    from mocapfix.io.body_structure import _group_tips, _pruned
+    from mocapfix.rig.tree import group_tips, pruned
 
     rng = np.random.default_rng(0)
     for trial in range(200):
@@ -258,13 +259,13 @@ def test_the_linear_extremities_are_the_all_pairs_ones_on_random_trees():
         spread = [1, 3, J][trial % 3]  # chains, bushes, anything
         parents = np.array([-1] + [int(rng.integers(max(0, j - spread), j)) for j in range(1, J)])
         bone = rng.choice([0.0, 1.0, 2.0, 3.5], J) if trial % 2 else rng.uniform(0, 10, J)
-        tree = _Tree(parents, bone)
+        tree = Tree(parents, bone)
         if tree.diameter <= 0 or len(tree.leaves) < 5:
             continue
         radius = GROUP_FRACTION * tree.diameter
-        tips = _group_tips(tree, radius)
+        tips = group_tips(tree, radius)
         assert tips == _grouped_by_all_pairs(tree, radius), trial
-        assert _pruned(tree, tips, 5) == _pruned_by_all_pairs(tree, tips, 5), trial
+        assert pruned(tree, tips, 5) == _pruned_by_all_pairs(tree, tips, 5), trial
 
 
 # --- two bodies under one root ---

@@ -124,7 +124,7 @@ def _choose_data(folder: str | None, takes: int) -> tuple[Clip, list[str], str]:
     from mocapfix.core.skeleton import preset
     from mocapfix.data.windows import split_of
     from mocapfix.io import list_motion_files, read_motion
-    from mocapfix.io.joint_names import onto_skeleton
+    from mocapfix.rig.mapping import onto_skeleton
 
     body = preset("body21")
     if folder is None:

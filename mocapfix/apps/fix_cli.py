@@ -40,7 +40,7 @@ from mocapfix.io import add_read_arguments, list_motion_files, read_motion
 from mocapfix.io.bvh import read_bvh, write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
 from mocapfix.io.files import atomic_write, check_output, claimed, staged, writing
-from mocapfix.io.joint_names import check_joint_map, read_joint_map
+from mocapfix.io.joint_map import check_joint_map, read_joint_map
 from mocapfix.io.npz import load_npz, npz_array
 from mocapfix.io.positions import write_clips, write_positions
 from mocapfix.pretrained import pretrained_path
@@ -391,7 +391,7 @@ def fix_files(
 ) -> int:
     """Fix every file; -> exit code (0 all written, 1 some failed). mode: MODES, None: the model's
     own (denoise for a jitter remover, else infill). read_options go to read_motion;
-    joint_map (input name -> model name) names joints io/joint_names.py does not find;
+    joint_map (input name -> model name) names joints rig/mapping.py does not find;
     render_gif: an animation of the input beside the output next to each output (core/render.py).
     jobs: worker processes fixing files side by side (None: default_jobs), each with its share
     of the cores; shard (i, N): only every N-th file from the i-th (shard_of); resume: inputs

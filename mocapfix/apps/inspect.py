@@ -17,9 +17,9 @@ import numpy as np
 from mocapfix.core.clip import Clip, body_limbs, limb_lengths, shown
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.io import add_read_arguments, list_motion_files, read_motion
-from mocapfix.io.joint_names import check_joint_map, describe_mapping, read_joint_map
-
-_HIP_NAMES = ("hips", "hip", "pelvis")
+from mocapfix.io.joint_map import check_joint_map, read_joint_map
+from mocapfix.rig.labels import pelvis
+from mocapfix.rig.mapping import describe_mapping
 
 
 def _nanmean(x) -> float:
@@ -36,8 +36,7 @@ def motion_stats(clips: list[Clip]) -> dict:
     frames = sum(c.num_frames for c in clips) // max(people, 1)  # people share frames; sequences add up
     missing = sum(int(c.missing_mask().sum()) for c in clips)
     tokens = sum(c.missing_mask().size for c in clips)
-    lower = [n.lower() for n in skel.joint_names]
-    hip = next((lower.index(n) for n in _HIP_NAMES if n in lower), 0)
+    hip = pelvis(skel)  # the rig's structure, else its names, else where the legs and spine start
     lengths, sigmas = [], []
     for c in clips:
         L = limb_lengths(c.positions, skel.parents)[:, body_limbs(c.positions, skel.parents)]  # (T, L)
@@ -145,7 +144,7 @@ def inspect_files(
     **read_options,
 ) -> int:
     """Print what each motion file holds (folders: their motion files). -> exit code: 1 if any file failed.
-    With a model's skeleton, also how the file's joints map onto it (io/joint_names.py).
+    With a model's skeleton, also how the file's joints map onto it (rig/mapping.py).
 
     read_options go to mocapfix.io.read_motion (unit, up_axis, fps, groups, body_model_path, ...)."""
     out = out or sys.stdout

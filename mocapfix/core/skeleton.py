@@ -1,4 +1,5 @@
-"""Skeleton: joint names, parent indices, limbs and named joint groups.
+"""Skeleton: joint names, parent indices, limbs and named joint groups (which joint plays which
+body part, and the limb groups of a rig read from a file: rig/labels.py).
 
 A skeleton is plain data (tuples and dicts of ints/strings) so that it can travel inside a
 checkpoint and be loaded with torch.load(weights_only=True).
@@ -6,7 +7,6 @@ checkpoint and be loaded with torch.load(weights_only=True).
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
 GROUP_NAMES = ("left_arm", "right_arm", "left_leg", "right_leg")
@@ -19,7 +19,7 @@ class Skeleton:
     groups: dict[str, tuple[int, ...]] = field(default_factory=dict)
     name: str = "custom"
     # The body part each joint plays ("pelvis", "left_knee", ...; None: none), read from the rig's
-    # structure (io/body_structure.py) when the skeleton came from a file; () when not known. Not
+    # structure (rig/structure.py) when the skeleton came from a file; () when not known. Not
     # part of a skeleton's identity: two readings of one rig are the same skeleton.
     labels: tuple[str | None, ...] = field(default=(), compare=False)
 
@@ -121,56 +121,6 @@ class Skeleton:
             d.get("name", "custom"),
             tuple(d.get("labels", ())),
         )
-
-
-# --- name matching for skeletons read from files (BVH, positions with joint names) ---
-
-_SIDE_PATTERNS = {
-    # "LeftArm", "left_hip", "L_Hip", "LHip" (capital next), "Hand_L", "hand.l", "ArmLeft".
-    # "LowerArm" must not read as left, hence the case-sensitive "L" followed by a capital.
-    side: re.compile(
-        rf"(?i:^{side})|(?i:^{side[0]}[_\-.\s])|^{side[0].upper()}(?=[A-Z])|(?i:[_\-.\s]{side[0]}$)|(?i:{side}$)"
-    )
-    for side in ("left", "right")
-}
-# Keywords in priority order: the first keyword that matches some joint of a side picks the
-# group's top joint (the match nearest the root); the group is that joint and its descendants.
-# The order skips clavicles ("Shoulder_L" in Bandai Namco, "LeftShoulder" in CMU are clavicles
-# when an upper-arm joint exists).
-_GROUP_KEYWORDS = {
-    "arm": [r"upper_?arm", r"up_?arm", r"(?<!fore)(?<!lower)(?<!low)arm", r"shoulder", r"elbow"],
-    "leg": [r"up_?leg", r"upper_?leg", r"thigh", r"hip", r"(?<!lower)(?<!low)leg", r"knee"],
-}
-
-
-def _side(name: str) -> str | None:
-    n = name.strip()
-    for side, pat in _SIDE_PATTERNS.items():
-        if pat.search(n):
-            return side
-    return None
-
-
-def guess_groups(joint_names, parents) -> dict[str, tuple[int, ...]]:
-    """left/right arm/leg groups from joint names (Bandai Namco, CMU, SMPL, H36M-style naming).
-
-    Groups that cannot be found are left out; give them explicitly in the config then.
-    """
-    skel = Skeleton(tuple(joint_names), tuple(parents))
-    depth = [0] * skel.num_joints
-    for j in range(1, skel.num_joints):
-        depth[j] = depth[skel.parents[j]] + 1
-    groups: dict[str, tuple[int, ...]] = {}
-    for side in ("left", "right"):
-        sided = [j for j, n in enumerate(joint_names) if _side(n) == side]
-        for part, keywords in _GROUP_KEYWORDS.items():
-            for kw in keywords:
-                hits = [j for j in sided if re.search(kw, joint_names[j], re.I)]
-                if hits:
-                    top = min(hits, key=lambda j: (depth[j], j))
-                    groups[f"{side}_{part}"] = tuple(skel.descendants(top))
-                    break
-    return {g: groups[g] for g in GROUP_NAMES if g in groups}
 
 
 # --- presets (reference.md) ---

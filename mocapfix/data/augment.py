@@ -26,7 +26,7 @@ import torch
 
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.corruption import normal_like, uniform_like
-from mocapfix.io.joint_names import side_and_word
+from mocapfix.rig.names import side_and_word
 
 
 @dataclass(frozen=True)

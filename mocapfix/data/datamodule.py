@@ -31,7 +31,7 @@ from mocapfix.data.windows import (
     split_of,
     window_starts,
 )
-from mocapfix.io.joint_names import onto_skeleton
+from mocapfix.rig.mapping import onto_skeleton
 
 log = logging.getLogger(__name__)
 
@@ -185,7 +185,7 @@ class MotionDataModule(L.LightningDataModule):
                 clips in the cache's format, e.g. to train on a machine without the raw files).
             path: a file or a folder of files, or a list of them (not used by synthetic).
             body: a skeleton preset (body21: the shipped models' 21 joints; smpl22, h36m17) that
-                every recording is mapped onto by body part (io/body_structure.py), so that folders
+                every recording is mapped onto by body part (rig/structure.py), so that folders
                 of different rigs (and frame rates) train one model; positions only. None: the
                 recordings' own skeleton, which must then be one.
             fps: every clip is resampled to this rate.

@@ -49,7 +49,7 @@ from mocapfix.fix.windowing import (
     window_layout,
 )
 from mocapfix.io import read_motion
-from mocapfix.io.joint_names import match_joints
+from mocapfix.rig.mapping import match_joints
 
 MODES = ("infill", "denoise", "both")
 
@@ -66,7 +66,7 @@ def map_joints(
 ) -> np.ndarray:
     """(J_model,) index of each model joint in `skeleton`: by `joint_map` (input name -> model
     name), the same name (any case, namespace prefixes aside), else the same body part under
-    another convention's name (io/joint_names.py: Mixamo, CMU, SMPL, Human3.6M, ...). A model
+    another convention's name (rig/mapping.py: Mixamo, CMU, SMPL, Human3.6M, ...). A model
     joint the input lacks is an error naming them all, unless allow_missing: then its index is -1
     (a positions model estimates it like any missing token) as long as at least half of the
     model's joints are found. Input joints the model does not know are not in the map (the model

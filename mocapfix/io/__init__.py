@@ -131,8 +131,8 @@ def _checked(clip: Clip) -> Clip:
     """What every reader's clip goes through: absurd values made missing (io/absurd.py), the
     body's stature in meta, and a warning when that is not a human height (a wrong unit)."""
     from mocapfix.io.absurd import drop_absurd
-    from mocapfix.io.body_structure import body_structure
     from mocapfix.io.conventions import stature_m, stature_warning
+    from mocapfix.rig.structure import body_structure
 
     check_frame_rate(clip.source or clip.name, clip.fps)
     names, parents = clip.skeleton.joint_names, clip.skeleton.parents

@@ -25,10 +25,11 @@ from scipy.spatial.transform import Rotation
 
 from mocapfix.core.clip import Clip, MotionFileError, check_frame_rate, shown
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.io.body_structure import body_structure, limb_groups
 from mocapfix.io.conventions import guess_up_axis, metres_per_unit, resolve_unit
 from mocapfix.io.files import atomic_write
 from mocapfix.io.untrusted import check_size, file_size, open_regular, quoted
+from mocapfix.rig.labels import limb_groups
+from mocapfix.rig.structure import body_structure
 
 log = logging.getLogger(__name__)
 

@@ -22,8 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocapfix.core.clip import MotionFileError
-from mocapfix.core.skeleton import guess_groups
 from mocapfix.io.untrusted import quoted
+from mocapfix.rig.labels import guess_groups, pelvis_joint
+from mocapfix.rig.tree import column_percentiles, path_length
 
 # metres per unit. "asf": the Acclaim ASF/AMC convention of the CMU database and every BVH
 # converted from it (":units length 0.45": a unit is 1/0.45 inch, 0.0564 m), the largest public
@@ -106,8 +107,6 @@ def _quiet():
 def _bone_lengths(positions: np.ndarray, parents) -> np.ndarray:
     """positions: (T, J, 3) -> (J,) each joint's distance to its parent, median over the frames
     where both are seen (NaN: never seen; the root: 0). Medians, so absurd frames do not count."""
-    from mocapfix.io.body_structure import column_percentiles
-
     p = np.asarray(parents)
     length = np.zeros(len(p))
     child = np.flatnonzero(p >= 0)
@@ -125,7 +124,7 @@ def _bone_lengths(positions: np.ndarray, parents) -> np.ndarray:
 def limb_measures(positions: np.ndarray, joint_names, parents, labels=None) -> dict[str, list[float]]:
     """positions: (T, J, 3) in any unit -> {"leg": [...], "arm": [...]}: each side's length from
     the hip joint down to the ankle (the shoulder to the wrist), along the bones. labels: the
-    body parts of the rig's structure (io/body_structure.py), else the joints are found by name
+    body parts of the rig's structure (rig/structure.py), else the joints are found by name
     (guess_groups)."""
     if labels:
         return _labelled_limbs(positions, list(labels))
@@ -150,8 +149,6 @@ def limb_measures(positions: np.ndarray, joint_names, parents, labels=None) -> d
 
 
 def _labelled_limbs(positions: np.ndarray, labels: list) -> dict[str, list[float]]:
-    from mocapfix.io.body_structure import path_length
-
     out: dict[str, list[float]] = {"leg": [], "arm": []}
     for kind, parts in (("leg", ("thigh", "knee", "ankle")), ("arm", ("upper_arm", "elbow", "wrist"))):
         for side in ("left", "right"):
@@ -244,13 +241,6 @@ def from_z_up(x: np.ndarray, up_axis: str) -> np.ndarray:
     if up_axis == "z":
         return x
     return np.stack([x[..., 0], x[..., 2], -x[..., 1]], axis=-1)
-
-
-def pelvis_joint(parents) -> int:
-    """The first joint where three or more chains start (legs + spine); the root otherwise."""
-    nchild = np.bincount(np.array([p for p in parents if p >= 0], dtype=np.int64), minlength=len(parents))
-    hits = np.flatnonzero(nchild >= 3)
-    return int(hits[0]) if hits.size else 0
 
 
 def _find(names, pattern: str) -> int | None:

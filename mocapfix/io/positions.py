@@ -41,12 +41,13 @@ from pathlib import Path
 import numpy as np
 
 from mocapfix.core.clip import NEAR_ORIGIN_M, Clip, MotionFileError, check_frame_rate, origin_near
-from mocapfix.core.skeleton import PRESETS, Skeleton, guess_groups
+from mocapfix.core.skeleton import PRESETS, Skeleton
 from mocapfix.io.conventions import from_z_up, guess_up_axis, parse_unit, resolve_unit, to_z_up
 from mocapfix.io.files import atomic_write
 from mocapfix.io.npz import listed_keys, load_npz, npz_array
 from mocapfix.io.npz import one_line as _one_line
 from mocapfix.io.untrusted import printable, quoted, read_bytes
+from mocapfix.rig.labels import guess_groups
 
 UP_AXES = ("z", "y")
 _SPECIAL_COLUMNS = ("person", "frame", "time")
