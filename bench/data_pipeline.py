@@ -24,8 +24,8 @@ from pathlib import Path
 import torch
 from common import RESULTS, describe, pick_device, print_table, sync, write_result
 
-from mocapfix.data.corruption import xmae_training_input  # noqa: E402
 from mocapfix.data.datamodule import DeviceBatches, MotionDataModule  # noqa: E402
+from mocapfix.training.xmae_input import xmae_training_input  # noqa: E402
 
 DEFAULT_BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"
 

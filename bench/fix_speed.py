@@ -32,11 +32,12 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mocapfix.apps.fix_cli import fix_files  # noqa: E402
+from mocapfix.apps.fix_run import fix_files  # noqa: E402
 from mocapfix.core.skeleton import preset  # noqa: E402
-from mocapfix.fix.fixers import load_fixer, resolve_precision, xmae_checkpoint  # noqa: E402
+from mocapfix.fix.fixers import load_fixer, resolve_precision  # noqa: E402
 from mocapfix.io.positions import write_positions  # noqa: E402
 from mocapfix.io.synthetic import generate_clips  # noqa: E402
+from mocapfix.models.checkpoint import save_checkpoint, xmae_checkpoint  # noqa: E402
 from mocapfix.models.xmae import XMAE  # noqa: E402
 from mocapfix.pretrained import pretrained_path  # noqa: E402
 
@@ -90,7 +91,7 @@ def main(argv=None) -> int:
         else:
             net, label = XMAE(22, frames), "XMAE paper size (random init)"  # Table 1
             ckpt = tmp / "xmae_paper_random.ckpt"
-            torch.save(xmae_checkpoint(net, preset("smpl22"), args.fps), ckpt)
+            save_checkpoint(ckpt, xmae_checkpoint(net, preset("smpl22"), args.fps))
         params = sum(p.numel() for p in net.parameters())
         inputs = make_inputs(tmp, args.seconds, args.fps)
         # warm-up: first calls pay for thread pools and kernel selection

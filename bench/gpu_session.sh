@@ -96,7 +96,7 @@ print(torch.load(sys.argv[1], map_location='cpu', weights_only=True)['global_ste
     | tee -a "$OUT/xmae_test.txt"
   cp "$(ls -t logs/xmae_bandai_gpu/version_*/eval.json | head -1)" "$OUT/xmae_eval.json"
   tar czf "$OUT/xmae_logs.tgz" logs/xmae_bandai_gpu  # TensorBoard events of every call of the run
-  $PY bench/shrink_checkpoint.py "$BEST" "$OUT/xmae_bandai.ckpt"
+  $PY scripts/shrink_checkpoint.py "$BEST" "$OUT/xmae_bandai.ckpt"
   # issue 5 on the same model: fix --mode both on the corrupted Bandai test clips vs Lerp
   $PY bench/fix_bandai.py --ckpt "$BEST" --source archive --path .device_data/bandai_pos30.npz \
     --json-out "$OUT/fix_bandai-cuda.json" 2>&1 | tail -n 10
@@ -171,7 +171,7 @@ many)
   for run in xmae_many xmae_many_cpu; do
     BEST=$(ls checkpoints/$run/best-*.ckpt 2>/dev/null | head -1 || true)
     [ -n "$BEST" ] || BEST=checkpoints/$run/last.ckpt
-    [ -f "$BEST" ] && $PY bench/shrink_checkpoint.py "$BEST" "$OUT/$run.ckpt" && echo "$run: $BEST"
+    [ -f "$BEST" ] && $PY scripts/shrink_checkpoint.py "$BEST" "$OUT/$run.ckpt" && echo "$run: $BEST"
     cp checkpoints/$run/last.ckpt "$OUT/${run}_last_full.ckpt" 2>/dev/null || true  # to go on training (adapt)
   done
   rm -f "$OUT/xmae_many_last_full.ckpt"  # the paper-sized run's optimiser state is too large to bring back
@@ -192,7 +192,7 @@ many-hermite)
     tail -n 3 "$OUT/${run#xmae_}_fit.txt" 2>/dev/null
     CK=$(ls checkpoints/$run/best-*.ckpt 2>/dev/null | head -1 || true)
     [ -n "$CK" ] || CK=checkpoints/$run/last.ckpt
-    [ -f "$CK" ] && $PY bench/shrink_checkpoint.py "$CK" "$OUT/$run.ckpt"
+    [ -f "$CK" ] && $PY scripts/shrink_checkpoint.py "$CK" "$OUT/$run.ckpt"
   done
   ;;
 many-holes)
@@ -223,7 +223,7 @@ many-holes)
     CK=$(ls checkpoints/$run/best-*.ckpt 2>/dev/null | head -1 || true)
     [ -n "$CK" ] || CK=checkpoints/$run/last.ckpt
     FP32=(); [ "$run" = holes_paper ] || FP32=(--fp32)  # the cpu preset ships in fp32 (0.7 MB)
-    [ -f "$CK" ] && $PY bench/shrink_checkpoint.py "${FP32[@]}" "$CK" "$OUT/$run.ckpt" && echo "$run: $CK"
+    [ -f "$CK" ] && $PY scripts/shrink_checkpoint.py "${FP32[@]}" "$CK" "$OUT/$run.ckpt" && echo "$run: $CK"
     [ -f checkpoints/$run/last.ckpt ] && $PY -c "import torch, sys; c = torch.load(sys.argv[1], map_location='cpu', \
 weights_only=True); print(sys.argv[1], 'step', c['global_step'])" checkpoints/$run/last.ckpt
   done
@@ -262,7 +262,7 @@ dvae|dvae-prior|dvae-denoise)
     tar czf "$OUT/dvae_logs.tgz" logs/motion_dvae_bvh logs/motion_dvae_denoise_bvh  # TensorBoard events
     # the denoiser, weights only (it carries the prior's weights and hyperparameters): test, fix and
     # dvae_per_frame --denoiser read it here; width 256 is ~11 MB, paper width does not come back
-    $PY bench/shrink_checkpoint.py --fp32 checkpoints/motion_dvae_denoise_bvh/last.ckpt "$OUT/dvae_denoiser.ckpt"
+    $PY scripts/shrink_checkpoint.py --fp32 checkpoints/motion_dvae_denoise_bvh/last.ckpt "$OUT/dvae_denoiser.ckpt"
     # where the acceleration comes from (window ends or every frame): the checkpoints do not come
     # back. Last, so a call cut at its limit has already kept the rest.
     $PY bench/dvae_per_frame.py --prior checkpoints/motion_dvae_bvh/last.ckpt --source archive \

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from mocapfix.fix.fixers import xmae_checkpoint
+from mocapfix.models.checkpoint import xmae_checkpoint
 from mocapfix.models.xmae import XMAE
 
 REPO = Path(__file__).resolve().parents[1]
@@ -420,33 +420,6 @@ def test_inference_cuda_graphs(tmp_path):
         "inference", "--device", "cuda", "--fps", "10", "--batch", "8", "--repeat", "2", "--compile", tmp_path=tmp_path
     )
     assert {x["net"] for x in r["rows"]} == {"eager", "compiled"}
-
-
-def test_shrink_checkpoint_keeps_weights_and_hparams(tmp_path):
-    sys.path.insert(0, str(REPO / "bench"))
-    try:
-        from shrink_checkpoint import main
-    finally:
-        sys.path.remove(str(REPO / "bench"))
-    full = {
-        "hyper_parameters": {"lr": 1e-4},
-        "global_step": 7,
-        "optimizer_states": [{"state": {}}],
-        "state_dict": {"w": torch.randn(3, 3), "n": torch.tensor(5)},
-    }
-    torch.save(full, tmp_path / "full.ckpt")
-    for flag, dtype in (([], torch.bfloat16), (["--fp32"], torch.float32)):
-        assert main([*flag, str(tmp_path / "full.ckpt"), str(tmp_path / "small.ckpt")]) == 0
-        small = torch.load(tmp_path / "small.ckpt", weights_only=True)
-        assert "optimizer_states" not in small and small["hyper_parameters"] == {"lr": 1e-4}
-        assert small["state_dict"]["w"].dtype == dtype and small["state_dict"]["n"].dtype == torch.int64
-        torch.testing.assert_close(small["state_dict"]["w"].float(), full["state_dict"]["w"], atol=1e-2, rtol=1e-2)
-    # an XMAE checkpoint from before checkpoints named their model: the entry added, the policy kept
-    old = REPO / "tests" / "data" / "old_checkpoints" / "xmae-4ceef7a.ckpt"
-    assert main(["--fp32", str(old), str(tmp_path / "x.ckpt")]) == 0
-    small = torch.load(tmp_path / "x.ckpt", weights_only=True)
-    assert small["model"]["kind"] == "xmae" and small["model"]["config"]["enc_dim"] == 32
-    assert "fill_policy" in small and "optimizer_states" not in small
 
 
 @pytest.mark.slow

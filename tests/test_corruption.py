@@ -10,20 +10,18 @@ from mocapfix.core.skeleton import preset
 from mocapfix.data.corruption import (
     available,
     constant_displacement,
-    denormalize,
     gap_frames,
     gaussian_noise,
     infill_gap,
-    kept_index,
     mask_and_displace,
-    normalize,
     random_z_rotation,
     rotate_z,
     rotation_noise,
     training_gaps,
     training_holes,
-    xmae_training_input,
 )
+from mocapfix.models.xmae_inference import denormalize, kept_index, normalize
+from mocapfix.training.xmae_input import xmae_training_input
 
 B, T, J = 6, 50, 17
 N = T * J

@@ -10,9 +10,10 @@ import pytest
 import torch
 
 from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.resample import resample_clip
 from mocapfix.core.skeleton import preset
 from mocapfix.data.datamodule import MotionDataModule
-from mocapfix.data.windows import resample, split_groups, split_of
+from mocapfix.data.windows import split_groups, split_of
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
 
@@ -143,7 +144,7 @@ def test_cache_second_run_skips_parsing(tmp_path, monkeypatch):
 
 def test_resample_rotation_clip_keeps_bones_exact():
     clip = generate_clips(1, 2.0, 60.0, seed=3)[0]
-    r = resample(clip, 25.0)
+    r = resample_clip(clip, 25.0)
     assert r.fps == 25.0 and r.num_frames == 50
     bone = lambda p, a, b: np.linalg.norm(p[:, a] - p[:, b], axis=-1)  # noqa: E731
     for a, b in [(0, 1), (4, 7), (16, 18)]:
@@ -156,7 +157,7 @@ def test_resample_positions_marks_neighbours_of_missing_as_missing():
     skel = preset("h36m17")
     pos = np.zeros((10, 17, 3), np.float32) + np.arange(10, dtype=np.float32)[:, None, None]
     pos[4, 0] = np.nan
-    r = resample(Clip(pos, 10.0, skel), 20.0)
+    r = resample_clip(Clip(pos, 10.0, skel), 20.0)
     assert np.isnan(r.positions[7:10, 0]).all() and not np.isnan(r.positions[6, 0]).any()
     np.testing.assert_allclose(r.positions[3, 1], [1.5, 1.5, 1.5])
 

@@ -9,10 +9,11 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, SMALL_DATA, TINY, run_cli
 
-from mocapfix.data.corruption import kept_count, kept_index, mask_and_displace
+from mocapfix.data.corruption import kept_count, mask_and_displace
 from mocapfix.data.datamodule import DeviceBatches, WindowDataset
 from mocapfix.io.synthetic import generate_clips
 from mocapfix.models.xmae import XMAE
+from mocapfix.models.xmae_inference import kept_index
 from mocapfix.training.xmae_module import XMAEModule
 
 

@@ -14,17 +14,19 @@ from cli_utils import CONFIGS, QUIET, TINY, run_cli
 
 from mocapfix.apps.main import main
 from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.resample import model_frames, resample_frames
 from mocapfix.core.skeleton import Skeleton, preset
 from mocapfix.evaluation.recording import corrupt_recording
 from mocapfix.fills.classical import lerp_infill
 from mocapfix.fix import fix_clips, map_joints
-from mocapfix.fix.fixers import load_fixer, resolve_precision, xmae_checkpoint
-from mocapfix.fix.windowing import blend_weights, model_frames, resample_frames, window_layout, windows_for
+from mocapfix.fix.fixers import load_fixer, resolve_precision
+from mocapfix.fix.windowing import blend_weights, window_layout, windows_for
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import write_bvh
 from mocapfix.io.h36m import H36M_KEEP
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
+from mocapfix.models.checkpoint import xmae_checkpoint
 from mocapfix.models.xmae import XMAE
 
 SMPL = preset("smpl22")

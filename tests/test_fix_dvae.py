@@ -19,14 +19,15 @@ from scipy.spatial.transform import Rotation, Slerp
 from mocapfix.apps.main import main
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.resample import resample_motion
 from mocapfix.core.skeleton import preset
 from mocapfix.fix import fix_clips
-from mocapfix.fix.fixers import DVAEFixer, load_fixer, model_kind, read_checkpoint
-from mocapfix.fix.windowing import resample_motion
+from mocapfix.fix.fixers import DVAEFixer, load_fixer
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import read_bvh
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
+from mocapfix.models.checkpoint import model_kind, read_checkpoint
 from mocapfix.models.dvae_inference import Observation
 from mocapfix.training.denoise_module import DVAEDenoiseModule
 from mocapfix.training.dvae_module import MotionDVAEModule

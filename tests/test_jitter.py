@@ -17,8 +17,9 @@ from mocapfix.core.clip import MotionFileError
 from mocapfix.core.skeleton import preset
 from mocapfix.data.corruption import jitter
 from mocapfix.fix import fix_clips
-from mocapfix.fix.fixers import jitter_checkpoint, load_fixer
+from mocapfix.fix.fixers import load_fixer
 from mocapfix.io import read_motion
+from mocapfix.models.checkpoint import jitter_checkpoint
 from mocapfix.models.jitter import JitterConfig, JitterNet, lowpass, residual_noise
 
 

@@ -11,9 +11,9 @@ from mocapfix.apps.main import main
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.skeleton import Skeleton, preset
 from mocapfix.fix import map_joints
-from mocapfix.fix.fixers import xmae_checkpoint
 from mocapfix.io import read_motion
 from mocapfix.io.positions import write_positions
+from mocapfix.models.checkpoint import xmae_checkpoint
 from mocapfix.models.xmae import XMAE
 from mocapfix.rig.labels import joint_labels
 from mocapfix.rig.mapping import match_joints

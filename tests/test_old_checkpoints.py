@@ -16,11 +16,12 @@ from cli_utils import CONFIGS, QUIET, SMALL_DATA, run_cli
 
 from mocapfix.apps.main import main
 from mocapfix.core.skeleton import preset
-from mocapfix.fix.fixers import DVAEFixer, XMAEFixer, load_fixer, model_kind, read_checkpoint
+from mocapfix.fix.fixers import DVAEFixer, XMAEFixer, load_fixer
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import write_bvh
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
+from mocapfix.models.checkpoint import model_kind, read_checkpoint
 
 OLD = Path(__file__).parent / "data" / "old_checkpoints"
 XMAE_OLD = OLD / "xmae-4ceef7a.ckpt"

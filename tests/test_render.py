@@ -12,9 +12,9 @@ from PIL import Image
 
 from mocapfix.apps.main import main
 from mocapfix.core.render import FILLED
-from mocapfix.fix.fixers import xmae_checkpoint
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
+from mocapfix.models.checkpoint import xmae_checkpoint
 from mocapfix.models.xmae import XMAE
 
 PANEL_PX = (384, 424)  # two recordings x two views at 2.4 in and 80 dpi, plus the time bar

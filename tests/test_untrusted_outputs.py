@@ -20,10 +20,10 @@ import torch
 from mocapfix.apps.main import main
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.skeleton import preset
-from mocapfix.fix.fixers import xmae_checkpoint
 from mocapfix.io.files import claimed
 from mocapfix.io.positions import write_positions
 from mocapfix.io.synthetic import generate_clips
+from mocapfix.models.checkpoint import xmae_checkpoint
 from mocapfix.models.xmae import XMAE
 
 SMPL = preset("smpl22")

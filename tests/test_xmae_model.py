@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from mocapfix.data.corruption import kept_index
 from mocapfix.models.xmae import XMAE
+from mocapfix.models.xmae_inference import kept_index
 
 
 def test_paper_size_parameter_count():

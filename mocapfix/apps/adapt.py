@@ -19,8 +19,6 @@ import os
 import sys
 from pathlib import Path
 
-import torch
-
 from mocapfix.apps.console import quiet_lightning
 from mocapfix.core.clip import MotionFileError, shown
 from mocapfix.core.skeleton import preset
@@ -82,18 +80,23 @@ def adapt(args) -> Path:
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from mocapfix.data.datamodule import MotionDataModule
-    from mocapfix.fix.fixers import read_checkpoint
-    from mocapfix.io.files import atomic_write
-    from mocapfix.models.build import checkpoint_entry
+    from mocapfix.models.checkpoint import (
+        hyperparameters,
+        named_kind,
+        read_checkpoint,
+        save_checkpoint,
+        set_fill_policy,
+        weights_checkpoint,
+    )
     from mocapfix.pretrained import pretrained_path
     from mocapfix.training.xmae_module import XMAEModule
 
     start = str(pretrained_path(args.model)) if args.model else args.ckpt
     ckpt = read_checkpoint(start)
-    kind = (ckpt.get("model") or {}).get("kind")
+    kind = named_kind(ckpt)
     if kind != "xmae":
         raise ValueError(f"{start}: adapt fine-tunes XMAE checkpoints; this one holds {kind}")
-    hp = ckpt["hyper_parameters"]
+    hp = hyperparameters(ckpt)
     out = output_path(args, start)
 
     L.seed_everything(args.seed, verbose=False)
@@ -143,18 +146,10 @@ def adapt(args) -> Path:
         trainer.limit_val_batches = 1.0
         trainer.validate(module, datamodule=data, verbose=False)
     module.net.float()
-    weights = {f"net.{k}": v.detach().cpu() for k, v in module.net.state_dict().items()}
-    saved = {
-        "hyper_parameters": dict(module.hparams),
-        "model": checkpoint_entry("xmae", module.net.config),
-        "state_dict": weights,
-        "global_step": trainer.global_step,
-        "adapted_from": start,
-    }
+    saved = weights_checkpoint("xmae", module.net, module.hparams, global_step=trainer.global_step, adapted_from=start)
     if module.fill_policy is not None:
-        saved["fill_policy"] = module.fill_policy.to_dict()
-    # a temporary file of its own beside out, renamed over it: never written through a link
-    atomic_write(out, lambda f: torch.save(saved, f))
+        set_fill_policy(saved, module.fill_policy.to_dict())
+    save_checkpoint(out, saved)  # a temporary file beside out, renamed over it: never written through a link
     print(f"adapted {trainer.global_step} steps on {sum(len(c) for c in data.clips.values())} takes")
     return out
 

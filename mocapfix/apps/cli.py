@@ -206,19 +206,14 @@ def _lightning_cli(args: list[str]):
             """The model settings a checkpoint saved, over the config's: LightningCLI's
             _parse_ckpt_path, except that the checkpoint's class is one of mocapfix's own
             (training/registry.py), never a module imported by the name the file gives."""
-            import torch
             from jsonargparse import ArgumentError
 
+            from mocapfix.models.checkpoint import HYPER_PARAMETERS, is_training_state, load_checkpoint
             from mocapfix.training.registry import checked_hyperparameters
 
-            try:
-                ckpt = torch.load(ckpt_path, weights_only=True, map_location="cpu")
-            except Exception as e:  # not a zip/pickle, truncated, or objects that are not plain values
-                raise ValueError(
-                    f"{ckpt_path}: not a checkpoint that torch.load reads safely ({type(e).__name__}; weights_only)"
-                ) from None
-            hparams = checked_hyperparameters(ckpt_path, ckpt.get("hyper_parameters") if isinstance(ckpt, dict) else 0)
-            if "pytorch-lightning_version" not in ckpt or not isinstance(ckpt.get("state_dict"), dict):
+            ckpt = load_checkpoint(ckpt_path)  # weights_only: a MotionFileError (one line) if not plain values
+            hparams = checked_hyperparameters(ckpt_path, ckpt.get(HYPER_PARAMETERS) if isinstance(ckpt, dict) else 0)
+            if not is_training_state(ckpt):
                 # Lightning's loader would stop on a KeyError (adapt's and the benchmarks' files are such)
                 raise ValueError(
                     f"{ckpt_path}: not a checkpoint of a training run (no Lightning state); "
@@ -336,13 +331,11 @@ def _lightning_cli(args: list[str]):
             ckpt = self.config[self.subcommand].get("ckpt_path")
             policy = getattr(self.model, "fill_policy", None)
             if ckpt and policy is not None and self.trainer.is_global_zero and Path(ckpt).is_file():
-                import torch
+                from mocapfix.models.checkpoint import load_checkpoint, save_checkpoint, set_fill_policy
 
-                from mocapfix.io.files import atomic_write
-
-                state = torch.load(ckpt, map_location="cpu", weights_only=True)
-                state["fill_policy"] = policy.to_dict()
-                atomic_write(Path(ckpt), lambda f: torch.save(state, f))
+                state = load_checkpoint(ckpt)
+                set_fill_policy(state, policy.to_dict())
+                save_checkpoint(ckpt, state)
                 print(f"fill policy (val split) written into {ckpt}:\n  " + "\n  ".join(policy.describe()))
 
         def after_test(self):

@@ -11,7 +11,7 @@ way they turn (docs/results.md, "Strangers"). Here every window gets, on the dev
 - a mirror image (left and right swapped, x negated): left-handed motion for right-handed actors;
 - joint placement: every joint moved by a constant offset within a small ball, as another rig or
   another marker set puts the same joint a few cm elsewhere.
-Heading (a rotation about z) is drawn later, in xmae_training_input, and tempo in the data module
+Heading (a rotation about z) is drawn later, in training/xmae_input.py, and tempo in the data module
 (MotionDataModule.tempo_factors: windows from clips resampled faster and slower).
 
 Everything works on (B, T, J, 3) metre batches, z up, NaN = missing; a joint whose chain to the

@@ -1,5 +1,6 @@
 """Corruption of batched motion: training masks/displacement, the paper's evaluation tasks,
-per-window normalisation and z-rotation augmentation (XMAE sections 3.1 and 4.1).
+z-rotation augmentation (XMAE sections 3.1 and 4.1). The per-window normalisation is the
+model's (models/xmae_inference.py).
 
 Everything works on torch tensors on whatever device the batch lives on. Tokens are the
 T*J joint positions of a window, flattened t-major with the joint index fastest
@@ -200,15 +201,6 @@ def mask_and_displace(
     return _pack(moved, observed, displaced)
 
 
-class TrainingInput(NamedTuple):
-    tokens: torch.Tensor  # (B, N, 3) the model's input: normalised (and rotated) corrupted positions
-    target: torch.Tensor  # (B, T, J, 3) the clean positions in the same frame (NaN where the data has none)
-    corrupted: Corrupted  # which tokens are observed / displaced
-    offset: torch.Tensor  # (B, 1, 1, 3) the normalisation offset
-    kept: torch.Tensor  # (B, K) observed token indices
-    padding: torch.Tensor  # (B, K) True where a sample kept fewer than K tokens
-
-
 def check_training_corruption(
     mask_ratio: float, displace_ratio: float, clean_loss_ratio: float, max_displacement_m: float
 ) -> None:
@@ -237,26 +229,24 @@ def check_training_corruption(
         )
 
 
-def xmae_training_input(
+def xmae_training_corruption(
     positions: torch.Tensor,
     mask_ratio: float,
     displace_ratio: float,
     max_displacement_m: float,
     fixed_kept_count: bool = True,
-    rotate: bool = True,
     generator: torch.Generator | None = None,
     gap_ratio: float = 0.0,
     hole_ratio: float = 0.0,
     part_joints: torch.Tensor | None = None,
     max_hole_frames: int = 0,
-) -> TrainingInput:
+) -> Corrupted:
     """XMAE's training corruption of a batch (B, T, J, 3), all on the batch's device: mask and
-    displace, normalise, rotate about z (rotate=True), index the observed tokens. With a fixed
-    kept count, K is known without reading the data: no host-device sync.
+    displace (mask_and_displace). training/xmae_input.py makes the model's input of it.
 
     hole_ratio > 0 (not in the paper): that fraction of the windows instead gets one hole of a
     part (part_joints: (P, J) bool) of up to max_hole_frames frames, everything else observed
-    and clean (training_holes). K is then every token: the encoder reads whole windows."""
+    and clean (training_holes)."""
     B, T, J, _ = positions.shape
     c = mask_and_displace(
         positions, mask_ratio, displace_ratio, max_displacement_m, fixed_kept_count, generator, gap_ratio
@@ -271,38 +261,7 @@ def xmae_training_input(
         # few cm and the network learns to move every token (docs/results.md: the holes_* runs).
         displaced = c.displaced & ~in_hole_mode
         c = _pack(torch.where(displaced[..., None], c.positions, positions), observed, displaced)
-    x, offset = normalize(c.positions, c.observed)
-    target = positions - offset
-    if rotate:
-        x, angle = random_z_rotation(x, generator)
-        target = rotate_z(target, angle)
-    if hole_ratio > 0:
-        count = T * J
-    else:
-        count = kept_count(T * J, mask_ratio) if fixed_kept_count else None
-    kept, padding = kept_index(c.observed, count)
-    return TrainingInput(x.reshape(B, T * J, 3), target, c, offset, kept, padding)
-
-
-def kept_index(observed: torch.Tensor, count: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Index form of the observed tokens, for an encoder that should not see masked tokens.
-
-    observed: (B, T, J) bool -> idx (B, K) long, pad (B, K) bool.
-    idx[b] lists the flat indices (t * J + j) of sample b's observed tokens in increasing order,
-    then padding: padded entries have pad=True and idx=0 (a valid index, so gathers stay safe).
-    K = count when given (no sample may have more observed tokens: training's fixed kept count),
-    else the largest observed count in the batch (0 when nothing is observed). Reading that
-    count from the data makes the host wait for the device; a given count keeps the training
-    step free of host-device synchronisation.
-    """
-    B = observed.shape[0]
-    flat = observed.reshape(B, -1)
-    counts = flat.sum(dim=1)
-    K = count if count is not None else int(counts.max()) if flat.numel() else 0
-    # stable sort of (not observed) puts observed tokens first, each group in index order
-    order = torch.sort((~flat).to(torch.uint8), dim=1, stable=True).indices[:, :K]
-    pad = torch.arange(K, device=observed.device)[None, :] >= counts[:, None]
-    return order.masked_fill(pad, 0), pad
+    return c
 
 
 # --- evaluation tasks (XMAE section 4.1) ---
@@ -426,30 +385,7 @@ def jitter(
     ).to(positions.dtype)
 
 
-# --- normalisation and augmentation (XMAE section 4.1, implementation details) ---
-
-
-def normalize(positions: torch.Tensor, observed: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Subtract each window's mean x and y over its observed tokens (displaced ones included);
-    z (up) is untouched.
-
-    positions: (B, T, J, 3), observed: (B, T, J) bool
-    -> normalized (B, T, J, 3) = positions - offset at EVERY token (unobserved ones too, so the
-    same offset applies to targets: `target - offset`), offset (B, 1, 1, 3) with offset z = 0.
-    A window with no observed token gets offset 0. NaN at unobserved tokens never reaches the mean.
-    """
-    zero = torch.zeros((), dtype=positions.dtype, device=positions.device)
-    obs = observed[..., None]
-    total = torch.where(obs, positions, zero).sum(dim=(1, 2), keepdim=True)  # (B, 1, 1, 3)
-    count = obs.sum(dim=(1, 2), keepdim=True).clamp_min(1).to(positions.dtype)  # (B, 1, 1, 1)
-    offset = total / count
-    offset = torch.cat([offset[..., :2], torch.zeros_like(offset[..., 2:])], dim=-1)
-    return positions - offset, offset
-
-
-def denormalize(positions: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
-    """Inverse of normalize: positions (B, T, J, 3) + offset (B, 1, 1, 3)."""
-    return positions + offset
+# --- augmentation (XMAE section 4.1, implementation details) ---
 
 
 def rotate_z(positions: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:

@@ -19,13 +19,13 @@ from lightning.pytorch.overrides.distributed import UnrepeatedDistributedSampler
 from torch.utils.data import DataLoader, Dataset, WeightedRandomSampler
 
 from mocapfix.core.clip import Clip, MotionFileError, check_human_scale
+from mocapfix.core.resample import resample_clip
 from mocapfix.core.skeleton import Skeleton, preset
 from mocapfix.data.spec import DataSpec
 from mocapfix.data.windows import (
     cache_key,
     load_clips,
     pattern_split,
-    resample,
     save_clips,
     split_groups,
     split_of,
@@ -331,7 +331,7 @@ class MotionDataModule(L.LightningDataModule):
                 c = onto_skeleton(c, preset(hp.body))
             if hp.groups:
                 c = c.replace(skeleton=c.skeleton.with_groups(hp.groups))
-            out.append(resample(c, hp.fps))
+            out.append(resample_clip(c, hp.fps))
         if out:
             ref = out[0].skeleton
             for c in out[1:]:
@@ -421,7 +421,7 @@ class MotionDataModule(L.LightningDataModule):
         tempos = [f for f in (hp.get("tempo_factors") or ()) if f != 1.0]
         if tempos:  # each training clip also played faster and slower: resampled, then read at fps
             self.clips["train"] = self.clips["train"] + [
-                resample(c, hp.fps / f).replace(fps=float(hp.fps), name=f"{c.name}@{f:g}x")
+                resample_clip(c, hp.fps / f).replace(fps=float(hp.fps), name=f"{c.name}@{f:g}x")
                 for f in tempos
                 for c in self.clips["train"]
             ]

@@ -1,4 +1,4 @@
-"""Clips -> fixed-length windows: resampling, joint selection, splitting by file, caching.
+"""Clips -> fixed-length windows: joint selection, splitting by file, caching (resampling: core/resample.py).
 
 Everything here is numpy: it runs once per dataset (then comes from the cache), not per batch.
 """
@@ -15,7 +15,6 @@ import numpy as np
 import torch
 
 from mocapfix.core.clip import Clip, MotionFileError
-from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.io.npz import load_npz
 
@@ -43,54 +42,6 @@ def spread_complete_batches(dataset, max_windows: int = 4096, batch_size: int = 
         batch = select(batch, complete_windows(batch))
         if len(batch["positions"]):
             yield batch
-
-
-def resample(clip: Clip, fps: float) -> Clip:
-    """The clip at `fps`, frame times 0, 1/fps, ... within its duration.
-
-    Positions interpolate linearly (a token next to a missing one stays missing: no invented
-    data). Rotation clips are resampled in rotation space (slerp) and their positions recomputed
-    by forward kinematics, so bone lengths stay exact.
-    """
-    if abs(clip.fps - fps) < 1e-6:
-        return clip
-    num_new = int(np.floor((clip.num_frames - 1) * fps / clip.fps + 1e-9)) + 1
-    f = np.arange(num_new) * (clip.fps / fps)  # source frame of each new frame (exact on shared instants)
-    f = np.where(np.abs(f - np.round(f)) < 1e-6, np.round(f), f)
-    i0 = np.minimum(np.floor(f).astype(np.int64), clip.num_frames - 1)
-    i1 = np.minimum(i0 + 1, clip.num_frames - 1)
-    w = (f - i0).astype(np.float32)
-
-    def lerp(a: np.ndarray) -> np.ndarray:
-        ww = w.reshape(-1, *([1] * (a.ndim - 1)))
-        out = a[i0] * (1 - ww) + a[i1] * ww
-        exact = w == 0  # keep exact samples exact (and a NaN neighbour out of them)
-        out[exact] = a[i0[exact]]
-        return out
-
-    if not clip.has_rotations:
-        return clip.replace(positions=lerp(clip.positions), fps=float(fps))
-    from scipy.spatial.transform import Rotation
-
-    T, J, _ = clip.rotations.shape
-    q = Rotation.from_rotvec(clip.rotations.reshape(-1, 3)).as_quat().reshape(T, J, 4)
-    q0, q1 = q[i0], q[i1]
-    dot = (q0 * q1).sum(-1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)  # shortest arc
-    theta = np.arccos(np.clip(np.abs(dot), -1.0, 1.0))
-    ww = w[:, None, None].astype(np.float64)
-    sin_t = np.sin(theta)
-    small = sin_t < 1e-6
-    a = np.where(small, 1 - ww, np.sin((1 - ww) * theta) / np.where(small, 1, sin_t))
-    b = np.where(small, ww, np.sin(ww * theta) / np.where(small, 1, sin_t))
-    qn = a * q0 + b * q1
-    qn /= np.linalg.norm(qn, axis=-1, keepdims=True)
-    rotations = Rotation.from_quat(qn.reshape(-1, 4)).as_rotvec().reshape(num_new, J, 3).astype(np.float32)
-    root = lerp(clip.root_translation)
-    positions = fk_axis_angle(
-        torch.from_numpy(rotations), torch.from_numpy(root), torch.from_numpy(clip.offsets), clip.skeleton.parents
-    ).numpy()
-    return clip.replace(positions=positions, rotations=rotations, root_translation=root, fps=float(fps))
 
 
 def window_starts(num_frames: int, window: int, stride: int) -> np.ndarray:

@@ -149,7 +149,7 @@ class MotionLibrary:
         another with a NaN frame between them (no stretch spans two) -> the frames and each
         take's (first, end) frame, its copies included."""
         # fills/ sits below fix/: imported here until resampling in time moves down to core/ (issue 46)
-        from mocapfix.fix.windowing import resample_frames
+        from mocapfix.core.resample import resample_frames
 
         if fps not in self._at:
             parts, spans, n = [], [], 0

@@ -32,6 +32,7 @@ import torch
 
 from mocapfix.core.clip import Clip, MotionFileError, check_human_scale
 from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.resample import hold_last_frame, model_frames, resample_frames, resample_motion
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.fills.classical import CLASSICAL, hermite_infill, lerp_infill, limb_infill
@@ -40,14 +41,7 @@ from mocapfix.fills.motion_matching import MotionLibrary, Searchable, match_fill
 from mocapfix.fills.policy import FillPolicy, apply_fill_policy, excursions, policy_names, recording_step_floor
 from mocapfix.fills.recording_policy import measure_policy
 from mocapfix.fix.fixers import Fixer, RotationFixer
-from mocapfix.fix.windowing import (
-    blend_windows,
-    hold_last_frame,
-    model_frames,
-    resample_frames,
-    resample_motion,
-    window_layout,
-)
+from mocapfix.fix.windowing import blend_windows, window_layout
 from mocapfix.io import read_motion
 from mocapfix.rig.mapping import match_joints
 

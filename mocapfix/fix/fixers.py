@@ -8,7 +8,6 @@ loaded with weights_only=True. mocapfix.fix windows, blends and merges what a fi
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 from typing import Protocol
 
 import numpy as np
@@ -16,12 +15,13 @@ import torch
 
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.resample import hold_last_frame, model_frames, resample_frames
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.fills.classical import lerp_infill
 from mocapfix.fills.policy import FillPolicy
-from mocapfix.fix.windowing import hold_last_frame, model_frames, resample_frames
 from mocapfix.models.body import build_body_model
-from mocapfix.models.build import build_model, checkpoint_entry
+from mocapfix.models.build import build_model
+from mocapfix.models.checkpoint import model_kind, read_checkpoint
 from mocapfix.models.dvae import DVAEConfig, InitialStatePredictor, MotionDVAE, NoisePredictor
 from mocapfix.models.dvae_inference import (
     FIRST_FRAMES,
@@ -367,23 +367,6 @@ def _window_hparams(path, hp: dict) -> tuple[Skeleton, float, int]:
     return skeleton, fps, frames
 
 
-def model_kind(ckpt: dict) -> str | None:
-    """Which fixer reads a checkpoint: the kind it names (models/build.py); for checkpoints from
-    before they named it, the keys their training module saved. None if unknown."""
-    entry = ckpt.get("model")
-    if isinstance(entry, dict):
-        return entry.get("kind") if isinstance(entry.get("kind"), str) else None
-    hparams, state_dict = ckpt["hyper_parameters"], ckpt["state_dict"]
-    if "net.enc_pos_joint" in state_dict and "enc_dim" in hparams:  # training/xmae_module.py
-        return "xmae"
-    if any(k.startswith("net.gen.") for k in state_dict):  # MotionDVAE weights
-        if any(k.startswith("x0_pred.") for k in state_dict):  # training/denoise_module.py
-            return "motion-dvae"
-        if "latent_dim" in hparams:  # training/dvae_module.py: the prior alone
-            return "motion-dvae-prior"
-    return None
-
-
 # kind -> class with from_checkpoint(path, ckpt, device, precision)
 FIXERS: dict[str, type] = {"xmae": XMAEFixer, "motion-dvae": DVAEFixer, "jitter": JitterFixer}
 # Checkpoints fix recognises but cannot use, and why. A prior alone has no initial-state
@@ -393,31 +376,6 @@ REFUSED = {
     "motion-dvae-prior": "a Motion-DVAE prior checkpoint; fix needs the denoising stage trained from it "
     "(configs/motion_dvae_denoise*.yaml with model.init_args.prior_ckpt set to this file)"
 }
-
-
-def read_checkpoint(path) -> dict:
-    """A checkpoint, loaded with weights_only=True (plain values only: a checkpoint can never run
-    code here), with a hyper_parameters and a state_dict dict. Anything else is a MotionFileError."""
-    path = Path(path)
-    if not path.is_file():
-        raise MotionFileError(path, "no such checkpoint file" if not path.exists() else "is not a file")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # not a zip/pickle, truncated, or objects that are not plain values
-        text = " ".join(str(e).split())
-        reason = (
-            "holds objects that are not plain values"
-            if "weights_only" in text.lower() or "unpickl" in text.lower()
-            else f"not a PyTorch checkpoint ({type(e).__name__})"
-        )
-        raise MotionFileError(path, f"not a mocapfix checkpoint: {reason}") from None
-    if (
-        not isinstance(ckpt, dict)
-        or not isinstance(ckpt.get("hyper_parameters"), dict)
-        or not isinstance(ckpt.get("state_dict"), dict)
-    ):
-        raise MotionFileError(path, "not a mocapfix checkpoint: no hyper_parameters and state_dict")
-    return ckpt
 
 
 def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32") -> Fixer:
@@ -441,23 +399,3 @@ def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32"
     except (KeyError, TypeError, ValueError) as e:
         raise MotionFileError(path, f"the checkpoint's fill policy is malformed ({e})") from None
     return fixer
-
-
-def xmae_checkpoint(net: XMAE, skeleton: Skeleton, fps: float) -> dict:
-    """The smallest checkpoint load_fixer reads for an XMAE (what XMAEModule saves, minus the
-    training state): for benchmarks and tests that need a model without training one."""
-    return _weights_checkpoint("xmae", net, skeleton, fps, net.num_frames)
-
-
-def jitter_checkpoint(net: JitterNet, skeleton: Skeleton, fps: float) -> dict:
-    """The smallest checkpoint load_fixer reads for a jitter remover (as xmae_checkpoint)."""
-    return _weights_checkpoint("jitter", net, skeleton, fps, net.config.num_frames)
-
-
-def _weights_checkpoint(kind: str, net, skeleton: Skeleton, fps: float, frames: int) -> dict:
-    hp = {"skeleton": skeleton.to_dict(), "window_fps": float(fps), "window_frames": int(frames)}
-    return {
-        "hyper_parameters": hp,
-        "model": checkpoint_entry(kind, net.config),
-        "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()},
-    }

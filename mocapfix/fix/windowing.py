@@ -1,4 +1,4 @@
-"""Time and windows for `fix`: a clip of any length and fps -> the model's fps -> windows of the
+"""Windows for `fix`: a clip of any length, at the model's fps (core/resample.py) -> windows of the
 model's length -> the model's estimates blended back into one track per clip.
 
 Nothing here knows what a frame holds (positions, rotations): blend_windows asks a WindowSource
@@ -9,68 +9,12 @@ with the blended tracks.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-import roma
 import torch
-
-# --- frame times ---
-
-
-def resample_frames(x: np.ndarray, src_fps: float, dst_fps: float, num: int) -> np.ndarray:
-    """x: (T, ...) sampled at t = k / src_fps -> (num, ...) at t = k / dst_fps, linear.
-    A sample takes NaN from a neighbour it uses; shared instants are copied exactly; times past
-    the last frame are NaN (the caller decides what they mean)."""
-    T = x.shape[0]
-    f = np.arange(num) * (src_fps / dst_fps)
-    f = np.where(np.abs(f - np.round(f)) < 1e-6, np.round(f), f)
-    past = f > T - 1
-    f = np.minimum(f, T - 1)
-    i0 = np.floor(f).astype(np.int64)
-    i1 = np.minimum(i0 + 1, T - 1)
-    w = (f - i0).reshape(-1, *([1] * (x.ndim - 1)))
-    out = x[i0] * (1 - w) + x[i1] * w
-    exact = (w == 0).reshape(-1)
-    out[exact] = x[i0[exact]]  # bit-identical, and no NaN from an unused neighbour
-    out[past] = np.nan
-    return out.astype(x.dtype, copy=False)
-
-
-def hold_last_frame(x: np.ndarray) -> np.ndarray:
-    """(T, ...) with NaN frames past the last finite one (resample_frames' end) -> those hold it."""
-    ok = np.isfinite(x.reshape(len(x), -1)).all(-1)
-    return x[np.maximum.accumulate(np.where(ok, np.arange(len(x)), 0))]
-
-
-def resample_motion(
-    rotations: np.ndarray, root: np.ndarray, src_fps: float, dst_fps: float, num: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """rotations (T, J, 3) axis-angle and root translation (T, 3) sampled at t = k / src_fps ->
-    (num, J, 3), (num, 3) at t = k / dst_fps: rotations by slerp, the root linearly. Shared
-    instants are copied exactly; times past the last frame hold it."""
-    T = rotations.shape[0]
-    f = np.arange(num) * (src_fps / dst_fps)
-    f = np.minimum(np.where(np.abs(f - np.round(f)) < 1e-6, np.round(f), f), T - 1)
-    i0 = np.floor(f).astype(np.int64)
-    i1 = np.minimum(i0 + 1, T - 1)
-    w = f - i0  # (num,)
-    r0, r1 = (roma.rotvec_to_rotmat(torch.from_numpy(rotations[i]).double()) for i in (i0, i1))  # (num, J, 3, 3)
-    step = roma.rotmat_to_rotvec(r0.transpose(-1, -2) @ r1) * torch.from_numpy(w)[:, None, None]
-    rot = roma.rotmat_to_rotvec(r0 @ roma.rotvec_to_rotmat(step)).numpy()  # slerp: R0 exp(w log(R0^T R1))
-    out_root = root[i0] * (1 - w[:, None]) + root[i1] * w[:, None]
-    exact = w == 0
-    rot[exact], out_root[exact] = rotations[i0[exact]], root[i0[exact]]
-    return rot.astype(rotations.dtype), out_root.astype(root.dtype)
-
-
-def model_frames(num_frames: int, fps: float, model_fps: float) -> int:
-    """Frames at the model's fps that cover the input's time span (the last one may be past it)."""
-    return int(math.ceil((num_frames - 1) * model_fps / fps - 1e-6)) + 1
-
 
 # --- where the windows go ---
 

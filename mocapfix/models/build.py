@@ -1,7 +1,7 @@
 """build_model: a network from its kind and config.
 
 A model's config is data (XMAEConfig, DVAEConfig, JitterConfig: plain values), saved in every checkpoint as
-checkpoint["model"] = {"kind": ..., "config": {...}}. Training, resume, `fix`, the benchmarks and
+checkpoint["model"] = {"kind": ..., "config": {...}} (models/checkpoint.py). Training, resume, `fix`, the benchmarks and
 the tests all build networks through build_model (nanoGPT's model_args habit), so a checkpoint
 says what it holds: nothing guesses a model from the names of its weights, and renaming an
 attribute cannot break `fix`.
@@ -62,8 +62,3 @@ def build_model(kind: str, config) -> nn.Module:
             velocity,
         )
     raise ValueError(f"not a model config: {type(config).__name__}")
-
-
-def checkpoint_entry(kind: str, config) -> dict:
-    """What a checkpoint stores under "model": plain values (weights_only loading reads them)."""
-    return {"kind": kind, "config": asdict(config)}

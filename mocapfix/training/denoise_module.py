@@ -43,7 +43,7 @@ from mocapfix.evaluation.denoise_table import SMOOTH_FRAMES, SMOOTHERS, DenoiseT
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.tasks import window_seeds
 from mocapfix.fills.classical import gaussian_smooth
-from mocapfix.models.build import checkpoint_entry
+from mocapfix.models.checkpoint import name_model
 from mocapfix.models.dvae import InitialStatePredictor, NoisePredictor, gaussian_kl, inverse_gamma_kl
 
 # the posterior pass is shared with `mocapfix fix`, which must not import training code
@@ -189,7 +189,7 @@ class DVAEDenoiseModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         # the prior's network config: x0_pred and noise_pred follow from it and the body model
-        checkpoint["model"] = checkpoint_entry("motion-dvae", self.model_config)
+        name_model(checkpoint, "motion-dvae", self.model_config)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         # Before session 5 the noise predictor was trained in the Gaussian setting too; such a

@@ -23,7 +23,8 @@ from mocapfix.data.spec import DataSpec
 from mocapfix.data.windows import complete_windows, select, spread_complete_batches
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.models.body import build_body_model
-from mocapfix.models.build import build_model, checkpoint_entry
+from mocapfix.models.build import build_model
+from mocapfix.models.checkpoint import name_model
 from mocapfix.models.dvae import DVAEConfig, MotionDVAE, gaussian_kl
 from mocapfix.models.dvae_state import MotionState, mean_joint_rotations
 from mocapfix.training.bind_data import BindData, require_same_window
@@ -193,7 +194,7 @@ class MotionDVAEModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.net is not None:
-            checkpoint["model"] = checkpoint_entry("motion-dvae-prior", self.model_config)
+            name_model(checkpoint, "motion-dvae-prior", self.model_config)
 
     def configure_callbacks(self):
         return [BindData()]

@@ -20,7 +20,8 @@ from mocapfix.data.corruption import available, jitter, random_z_rotation, unifo
 from mocapfix.data.spec import DataSpec
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.fills.classical import lerp_infill
-from mocapfix.models.build import build_model, checkpoint_entry
+from mocapfix.models.build import build_model
+from mocapfix.models.checkpoint import name_model
 from mocapfix.models.jitter import JitterConfig, JitterNet, lowpass, residual_noise
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
@@ -137,7 +138,7 @@ class JitterModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.net is not None:
-            checkpoint["model"] = checkpoint_entry("jitter", self.net.config)
+            name_model(checkpoint, "jitter", self.net.config)
 
     # --- the objective ---
 

@@ -15,7 +15,7 @@ import torch.nn as nn
 
 from mocapfix.core.skeleton import GROUP_NAMES, Skeleton
 from mocapfix.data.augment import BodyAugment, BodyAugmenter
-from mocapfix.data.corruption import check_training_corruption, uniform_like, xmae_training_input
+from mocapfix.data.corruption import check_training_corruption, uniform_like
 from mocapfix.data.spec import DataSpec
 from mocapfix.evaluation.harness import TestTable
 from mocapfix.evaluation.metrics import MPJPE
@@ -24,13 +24,22 @@ from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_row
 from mocapfix.fills.classical import CLASSICAL, lerp_infill, spline_infill
 from mocapfix.fills.model import candidate_fills, policy_output
 from mocapfix.fills.policy import Calibration, FillPolicy, apply_fill_policy
-from mocapfix.models.build import build_model, checkpoint_entry
+from mocapfix.models.build import build_model
+from mocapfix.models.checkpoint import (
+    fill_policy_values,
+    hyperparameters,
+    name_model,
+    network_weights,
+    set_fill_policy,
+    xmae_config,
+)
 from mocapfix.models.xmae import XMAE, XMAEConfig, preset_sizes
 from mocapfix.models.xmae_inference import xmae_fill, xmae_reconstruct
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.schedules import WarmupCosine
 from mocapfix.training.test_report import publish
+from mocapfix.training.xmae_input import xmae_training_input
 
 log = logging.getLogger(__name__)
 
@@ -166,12 +175,12 @@ class XMAEModule(L.LightningModule):
         self.fill_policy: FillPolicy | None = None  # from the last validation, or the checkpoint
         if init_weights:
             start = _starting_checkpoint(init_weights)
-            config = dict(start["model"]["config"])
+            config = dict(xmae_config(init_weights, start))
             self.sizes = {k: v for k, v in config.items() if k not in ("num_joints", "num_frames")}
-            self._init_state = {k[4:]: v for k, v in start["state_dict"].items() if k.startswith("net.")}
-            self._init_window = {k: start["hyper_parameters"][k] for k in ("skeleton", "window_fps", "window_frames")}
-            if "fill_policy" in start:
-                self.fill_policy = FillPolicy.from_dict(start["fill_policy"])
+            self._init_state = network_weights(start, "net")
+            self._init_window = {k: hyperparameters(start)[k] for k in ("skeleton", "window_fps", "window_frames")}
+            if fill_policy_values(start) is not None:
+                self.fill_policy = FillPolicy.from_dict(fill_policy_values(start))
         self.save_hyperparameters()
         self.net: XMAE | None = None
         self._calibration: Calibration | None = None  # the running validation's measurements
@@ -334,13 +343,13 @@ class XMAEModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.net is not None:
-            checkpoint["model"] = checkpoint_entry("xmae", self.net.config)
+            name_model(checkpoint, "xmae", self.net.config)
         if self.fill_policy is not None:
-            checkpoint["fill_policy"] = self.fill_policy.to_dict()
+            set_fill_policy(checkpoint, self.fill_policy.to_dict())
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
-        if "fill_policy" in checkpoint:
-            self.fill_policy = FillPolicy.from_dict(checkpoint["fill_policy"])
+        if fill_policy_values(checkpoint) is not None:
+            self.fill_policy = FillPolicy.from_dict(fill_policy_values(checkpoint))
 
     def on_validation_epoch_end(self):
         hp = self.hparams
@@ -428,11 +437,11 @@ def _starting_checkpoint(name_or_path: str) -> dict:
     hold an XMAE. Read with weights_only (plain values): a checkpoint runs no code."""
     from pathlib import Path
 
-    from mocapfix.fix.fixers import read_checkpoint
+    from mocapfix.models.checkpoint import named_kind, read_checkpoint
     from mocapfix.pretrained import MODELS, pretrained_path
 
     path = pretrained_path(name_or_path) if name_or_path in MODELS and not Path(name_or_path).exists() else name_or_path
     ckpt = read_checkpoint(path)
-    if (ckpt.get("model") or {}).get("kind") != "xmae":
+    if named_kind(ckpt) != "xmae":
         raise ValueError(f"model.init_weights {name_or_path}: not an XMAE checkpoint")
     return ckpt
