@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from common import describe, pick_device, print_table, write_result
 
-from mocapfix.apps.fix_cli import fix_files  # noqa: E402
+from mocapfix.apps.fix_run import fix_files  # noqa: E402
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
 from mocapfix.evaluation.recording import corrupt_recording  # noqa: E402
 from mocapfix.fills.classical import lerp_infill  # noqa: E402

@@ -15,8 +15,7 @@ import numpy as np
 from fix_strangers_cmu import DEFAULT_CMU, PARTS, holes
 
 from mocapfix.core.skeleton import preset
-from mocapfix.fix import fix_clips, measure_recordings
-from mocapfix.fix.clips import motion_library
+from mocapfix.fix import fix_clips, measure_recordings, motion_library
 from mocapfix.fix.fixers import load_fixer
 from mocapfix.io import list_motion_files, read_motion
 from mocapfix.pretrained import pretrained_path

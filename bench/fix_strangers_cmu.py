@@ -25,9 +25,13 @@ from mocapfix.core.skeleton import preset  # noqa: E402
 from mocapfix.fills.classical import CLASSICAL  # noqa: E402
 from mocapfix.fills.motion_matching import FILLS as MATCH_FILLS  # noqa: E402
 from mocapfix.fills.motion_matching import match_fills  # noqa: E402
-from mocapfix.fix import fix_clips, measure_recordings  # noqa: E402
-from mocapfix.fix.clips import model_fill, motion_library, take_keys  # noqa: E402
+from mocapfix.fix import (  # noqa: E402
+    fix_clips,
+    measure_recordings,
+    motion_library,  # noqa: E402
+)
 from mocapfix.fix.fixers import load_fixer  # noqa: E402
+from mocapfix.fix.positions import model_fill, take_keys  # noqa: E402
 from mocapfix.io import list_motion_files, read_motion  # noqa: E402
 from mocapfix.pretrained import pretrained_path  # noqa: E402
 from mocapfix.rig.mapping import onto_skeleton  # noqa: E402

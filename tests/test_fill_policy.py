@@ -16,6 +16,7 @@ from mocapfix.fills.classical import lerp_infill, spline_infill
 from mocapfix.fills.policy import FillPolicy, apply_fill_policy, hole_frames, suspect_tokens, token_parts
 from mocapfix.fix import fix_clips
 from mocapfix.fix.fixers import load_fixer
+from mocapfix.fix.position_fixer import PositionFixer
 from mocapfix.io.synthetic import generate_clips
 
 SMPL = PRESETS["smpl22"]
@@ -213,12 +214,12 @@ def test_validate_writes_the_policy_into_a_checkpoint_without_one(trained, capsy
     assert load_fixer(bare).policy is not None
 
 
-class OracleFixer:
+class OracleFixer(PositionFixer):
     """A fixer that knows the clean motion: it finds each window in the clean clip by its observed
     tokens (one displaced joint cannot outweigh the rest; a root alone is ambiguous where the body
     stands still) and answers the truth. What fix does with a perfect model."""
 
-    kind, state = "xmae", "positions"
+    kind, state, measures_policy = "xmae", "positions", True
 
     def __init__(self, clean: np.ndarray, policy: FillPolicy):
         self.clean, self.policy = clean, policy

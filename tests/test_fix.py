@@ -20,6 +20,7 @@ from mocapfix.evaluation.recording import corrupt_recording
 from mocapfix.fills.classical import lerp_infill
 from mocapfix.fix import fix_clips, map_joints
 from mocapfix.fix.fixers import load_fixer, resolve_precision
+from mocapfix.fix.position_fixer import PositionFixer
 from mocapfix.fix.windowing import blend_weights, window_layout, windows_for
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import write_bvh
@@ -65,7 +66,7 @@ def _npz(path):
         return {k: z[k] for k in z.files}
 
 
-class FnFixer:
+class FnFixer(PositionFixer):
     """A Fixer whose estimate is fn(positions, observed): for properties that must hold whatever
     the model says."""
 
@@ -563,7 +564,7 @@ def test_interrupted_run_leaves_no_output(tmp_path, ckpt, motion, monkeypatch, c
 def test_progress_bar_on_a_terminal_and_lines_otherwise():
     import io
 
-    from mocapfix.apps.fix_cli import Progress
+    from mocapfix.apps.fix_one import Progress
 
     class Tty(io.StringIO):
         def isatty(self):
@@ -728,7 +729,7 @@ def test_wrong_command_lines_are_usage_errors(tmp_path, ckpt, motion, capsys):
 
 
 def test_an_error_about_another_file_names_the_input_too(tmp_path):
-    from mocapfix.apps.fix_cli import _one_line
+    from mocapfix.apps.fix_one import _one_line
     from mocapfix.core.clip import MotionFileError
 
     models = MotionFileError(tmp_path / "models", "no SMPLH model for gender 'robot'")
@@ -793,7 +794,7 @@ def test_a_hermite_correcting_model_starts_from_the_whole_takes_hermite_fill(tmp
     frame rate); with its output layer zeroed the model answers exactly that fill, not the
     fill of its 1-s windows."""
     from mocapfix.fills.classical import hermite_infill
-    from mocapfix.fix.clips import model_fill
+    from mocapfix.fix.positions import model_fill
     from mocapfix.io.synthetic import generate_clips
     from mocapfix.models.xmae import XMAE
     from mocapfix.rig.mapping import onto_skeleton

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocapfix.apps.fix_cli import parse_shard, shard_of
+from mocapfix.apps.fix_run import parse_shard, shard_of
 from mocapfix.apps.main import main
 from mocapfix.io import read_motion
 
@@ -82,14 +82,14 @@ def test_workers_shards_and_resume_write_what_one_process_writes(takes, tmp_path
 def test_a_long_take_is_fixed_in_pieces_with_context(bandai_files, monkeypatch):
     """A take longer than a piece and its margins goes through fix piece by piece (memory bounded
     by a piece): every hole filled, every observed token kept, the counts those of the take."""
-    from mocapfix.fix import clips as fix_clips_module
+    from mocapfix.fix import pieces
     from mocapfix.fix import fix_clips
     from mocapfix.fix.fixers import load_fixer
     from mocapfix.pretrained import pretrained_path
 
     clip = max((read_motion(f)[0] for f in bandai_files[:20]), key=lambda c: c.num_frames)
-    monkeypatch.setattr(fix_clips_module, "PIECE_S", 1.0)
-    monkeypatch.setattr(fix_clips_module, "PIECE_MARGIN_S", 0.5)
+    monkeypatch.setattr(pieces, "PIECE_S", 1.0)
+    monkeypatch.setattr(pieces, "PIECE_MARGIN_S", 0.5)
     assert clip.duration_s > 2.0
     x = clip.positions.copy()
     hand = clip.skeleton.index("Hand_L")

@@ -23,6 +23,7 @@ from mocapfix.core.resample import resample_motion
 from mocapfix.core.skeleton import preset
 from mocapfix.fix import fix_clips
 from mocapfix.fix.fixers import DVAEFixer, load_fixer
+from mocapfix.fix.rotations import RotationFixer
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import read_bvh
 from mocapfix.io.positions import write_positions
@@ -177,7 +178,7 @@ def test_rotations_fixer_is_the_denoising_modules_decoder_motion(bandai_file, ba
 # --- windows of rotations ---
 
 
-class IdentityRotationFixer:
+class IdentityRotationFixer(RotationFixer):
     """Gives its input back: windowing, resampling and blending must then give the clip back."""
 
     kind, state, notes = "identity", "rotations", []

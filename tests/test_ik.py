@@ -11,10 +11,11 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from mocapfix.apps.fix_cli import onto_hierarchy, write_output
 from mocapfix.apps.main import main
 from mocapfix.core.ik import ik_error_mm, inverse_kinematics
 from mocapfix.fix import fix_clips, load_fixer
+from mocapfix.fix.hierarchy import onto_hierarchy
+from mocapfix.fix.output import write_output
 from mocapfix.io import read_motion
 from mocapfix.pretrained import pretrained_path
 

@@ -35,10 +35,9 @@ LIGHTNING = ("lightning", "pytorch_lightning")
 LIGHTNING_LAYERS = {"data", "training", "apps"}
 # Below in rank but still not to be imported: models/ know nothing of the training data.
 FORBIDDEN = {("models", "data")}
-# Cycles being taken apart while this test was written, tolerated until then (not required):
-# fix/clips.py <-> fix/jitter_clips.py over private helpers (issue 46: fix/ restructured, the
-# jitter remover's clips no longer borrow from clips.py). Remove the entry when that lands.
-KNOWN_CYCLES = {frozenset({"mocapfix.fix.clips", "mocapfix.fix.jitter_clips"}): "issue 46"}
+# Cycles tolerated while they are taken apart (none now: fix/clips.py <-> fix/jitter_clips.py went
+# with issue 46's fix/, where the jitter remover's clips borrow from report.py and joints.py).
+KNOWN_CYCLES: dict[frozenset, str] = {}
 
 
 def layer(module: str) -> str:

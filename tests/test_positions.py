@@ -247,7 +247,7 @@ def _written_times(path) -> list[str]:
 def test_csv_keeps_its_times_through_the_fix_writer(tmp_path):
     """Frame numbers from 100 with times from 0: `fix` writes the input's times, not (100 + t) / fps;
     a skipped frame (103) gets a time between its neighbours'."""
-    from mocapfix.apps.fix_cli import write_output  # what `fix` writes its output with
+    from mocapfix.fix.output import write_output  # what `fix` writes its output with
 
     frames = [100, 101, 102, 104, 105]
     times = ["0.000", "0.033", "0.067", "0.133", "0.167"]

@@ -12,7 +12,7 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, TINY, run_cli
 
-from mocapfix.apps.fix_cli import write_output
+from mocapfix.fix.output import write_output
 from mocapfix.apps.inspect import inspect_files
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.skeleton import PRESETS

@@ -14,7 +14,7 @@ import torch
 from mocapfix.core.clip import Clip
 from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.fix.clips import map_joints
+from mocapfix.fix import map_joints
 from mocapfix.fix.fixers import load_fixer
 from mocapfix.io import read_motion
 from mocapfix.io.bvh import read_bvh, write_bvh

@@ -8,17 +8,23 @@ loaded with weights_only=True. mocapfix.fix windows, blends and merges what a fi
 from __future__ import annotations
 
 import dataclasses
-from typing import Protocol
 
 import numpy as np
 import torch
 
-from mocapfix.core.clip import MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.resample import hold_last_frame, model_frames, resample_frames
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.fills.classical import lerp_infill
 from mocapfix.fills.policy import FillPolicy
+from mocapfix.fix.fixer import Fixer, FixOptions
+from mocapfix.fix.jitter_clips import denoise_clips
+from mocapfix.fix.joints import ModelView
+from mocapfix.fix.position_fixer import PositionFixer
+from mocapfix.fix.positions import hermite_take_fills
+from mocapfix.fix.report import FixReport
+from mocapfix.fix.rotations import RotationFixer
 from mocapfix.models.body import build_body_model
 from mocapfix.models.build import build_model
 from mocapfix.models.checkpoint import model_kind, read_checkpoint
@@ -37,47 +43,25 @@ from mocapfix.models.xmae import XMAE, XMAEConfig
 from mocapfix.models.xmae_inference import xmae_reconstruct
 
 
-class Fixer(Protocol):
-    kind: str  # "xmae", "motion-dvae"
-    skeleton: Skeleton  # the model's joints, in the model's order
-    fps: float  # the model's frame rate
-    window: int  # frames per window
-    # state: "positions" (estimate below; the default when a fixer has no state) or "rotations"
-    # (a RotationFixer: fix_clips hands it rotation windows instead)
-
-    def estimate(self, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
-        """positions: (B, W, J, 3) metres, z up, NaN or anything at unobserved tokens;
-        observed: (B, W, J) bool -> every token's estimate (B, W, J, 3), float32 on the CPU."""
-        ...
-
-
-class RotationFixer(Protocol):
-    kind: str
-    skeleton: Skeleton
-    fps: float
-    window: int  # the longest window; a clip shorter than it is one window of its own length
-    state: str  # "rotations"
-    notes: list[str]  # said once per file in the report
-
-    def estimate_rotations(
-        self, rotations: torch.Tensor, root_translation: torch.Tensor, offsets: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """rotations: (B, W, J, 3) local axis-angle (joint 0: root orientation), root_translation
-        (B, W, 3), offsets (B, J, 3) bone offsets, metres, z up -> estimated rotations (B, W, J, 3)
-        and root translation (B, W, 3), float32 on the CPU."""
-        ...
-
-
-class XMAEFixer:
+class XMAEFixer(PositionFixer):
     """XMAE applied as the paper does: every available token observed (denoising is the same
-    pass as infilling), the normalisation of mocapfix.models.xmae_inference."""
+    pass as infilling), the normalisation of mocapfix.models.xmae_inference. Its fill policy
+    (calibrated on the val split) is measured again on each recording it fixes."""
 
     kind = "xmae"
     state = "positions"
+    measures_policy = True
 
     def __init__(
-        self, net: XMAE, skeleton: Skeleton, fps: float, device: str | torch.device = "cpu", precision: str = "fp32"
+        self,
+        net: XMAE,
+        skeleton: Skeleton,
+        fps: float,
+        device: str | torch.device = "cpu",
+        precision: str = "fp32",
+        policy: FillPolicy | None = None,
     ):
+        self.policy = policy
         self.net = net.to(device).eval()
         self.skeleton, self.fps, self.window = skeleton, float(fps), int(net.num_frames)
         self.device = torch.device(device)
@@ -85,7 +69,7 @@ class XMAEFixer:
         self.precision = resolve_precision(precision, self.device)
 
     @classmethod
-    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32") -> XMAEFixer:
+    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32", policy=None) -> XMAEFixer:
         hparams, state_dict = ckpt["hyper_parameters"], ckpt["state_dict"]
         skeleton, fps, frames = _window_hparams(path, hparams)
         if "model" in ckpt:
@@ -109,7 +93,7 @@ class XMAEFixer:
             raise MotionFileError(
                 path, f"weights do not fit the network its hyperparameters describe ({first})"
             ) from None
-        return cls(net, skeleton, fps, device, precision)
+        return cls(net, skeleton, fps, device, precision, policy)
 
     @torch.inference_mode()
     def estimate(
@@ -120,6 +104,20 @@ class XMAEFixer:
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16"):
             out = xmae_reconstruct(self.net, positions.to(self.device), observed.to(self.device), fill)
         return out.float().cpu()
+
+    def whole_take_fills(self, clips: list[Clip], view: ModelView) -> list[np.ndarray] | None:
+        # a network that corrects the cubic Hermite fill gets it from the whole take (fill_kind hermite)
+        if getattr(self.net, "fill_input", False) and getattr(self.net, "fill_kind", "") == "hermite":
+            return hermite_take_fills(self.fps, clips, view)
+        return None
+
+    def load_note(self, ckpt) -> str | None:
+        if self.policy is not None:
+            return None
+        return (
+            f"note: {ckpt} has no fill policy: the model fills every hole and replaces every token it is "
+            "asked to (`mocapfix validate --config CFG --ckpt_path CKPT` calibrates one on the val split)"
+        )
 
 
 PRECISIONS = ("auto", "fp32", "bf16")
@@ -138,7 +136,7 @@ def resolve_precision(precision: str, device: torch.device) -> str:
     return "bf16" if device.type == "cpu" and any(f() for f in native) else "fp32"
 
 
-class DVAEFixer:
+class DVAEFixer(PositionFixer):
     """The Motion-DVAE denoising stage in regression mode (paper section 4.3), as its module's
     test does: x_0 from the initial-state predictor's mean, z_1:T the encoder's means (one
     forward pass), the decoder output, fused with the observation by eq. 18 when the checkpoint
@@ -165,7 +163,9 @@ class DVAEFixer:
         fusion: bool,
         device: str | torch.device = "cpu",
         first_frame: str = "decoded",
+        policy: FillPolicy | None = None,
     ):
+        self.policy = policy
         self.device = torch.device(device)
         self.net, self.x0_pred, self.noise_pred = (m.to(self.device).eval() for m in (net, x0_pred, noise_pred))
         codec.to(self.device)  # its body model and joint reference
@@ -179,7 +179,7 @@ class DVAEFixer:
         )
 
     @classmethod
-    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32") -> DVAEFixer:
+    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32", policy=None) -> DVAEFixer:
         """A DVAEDenoiseModule checkpoint: the prior's hyperparameters (prior_hparams) rebuild the
         nets, the denoising stage's own (noise_lambda, estimate) choose the final estimate.
         precision: fp32 always (auto included): the recurrent state would carry bf16's rounding
@@ -252,7 +252,8 @@ class DVAEFixer:
         first_frame = str(hparams.get("first_frame", "decoded"))  # checkpoints from before it: the module's default
         if first_frame not in FIRST_FRAMES:
             raise MotionFileError(path, f"Motion-DVAE checkpoint has an unknown first_frame {first_frame!r}")
-        return cls(
+        # the rotations state fixes rotations (DVAERotationFixer), the positions state positions
+        return (DVAERotationFixer if state == "rotations" else cls)(
             nets["net"],
             codec,
             nets["x0_pred"],
@@ -264,6 +265,7 @@ class DVAEFixer:
             fusion,
             device,
             first_frame,
+            policy,
         )
 
     def _infer(self, obs: Observation):
@@ -295,7 +297,12 @@ class DVAEFixer:
         return rot.float().cpu(), root.float().cpu()
 
 
-class JitterFixer:
+class DVAERotationFixer(RotationFixer, DVAEFixer):
+    """The Motion-DVAE denoising stage on its rotations state: it fixes joint rotations
+    (rotations.py; estimate_rotations), and a BVH comes back with them."""
+
+
+class JitterFixer(Fixer):
     """The jitter remover (models/jitter.py) on whole takes: the low-pass and the noise measure at
     the recording's own frame rate, the network's correction at its own (window_fps), brought back
     to the recording's frames. The network is convolutional: a take is read in pieces of
@@ -304,16 +311,16 @@ class JitterFixer:
 
     kind = "jitter"
     state = "positions"
+    default_mode = "denoise"  # it takes jitter out; holes stay holes
     CHUNK_S = 60.0
 
     def __init__(self, net: JitterNet, skeleton: Skeleton, fps: float, device: str | torch.device = "cpu"):
         self.net = net.to(device).eval()
         self.skeleton, self.fps, self.window = skeleton, float(fps), int(net.config.num_frames)
         self.device = torch.device(device)
-        self.policy = None
 
     @classmethod
-    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32") -> JitterFixer:
+    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32", policy=None) -> JitterFixer:
         skeleton, fps, _ = _window_hparams(path, ckpt["hyper_parameters"])
         try:
             net = build_model("jitter", ckpt["model"]["config"])
@@ -326,6 +333,9 @@ class JitterFixer:
             first = " ".join(str(e).split())[:200]
             raise MotionFileError(path, f"weights do not fit the network its config describes ({first})") from None
         return cls(net, skeleton, fps, device)
+
+    def fix_clips(self, clips: list[Clip], options: FixOptions) -> tuple[list[Clip], FixReport]:
+        return denoise_clips(clips, self, options.mode, options.progress, options.joint_map)
 
     @torch.inference_mode()
     def denoise(self, x: np.ndarray, fps: float, base: np.ndarray | None = None) -> np.ndarray:
@@ -367,7 +377,7 @@ def _window_hparams(path, hp: dict) -> tuple[Skeleton, float, int]:
     return skeleton, fps, frames
 
 
-# kind -> class with from_checkpoint(path, ckpt, device, precision)
+# kind -> class with from_checkpoint(path, ckpt, device, precision, policy)
 FIXERS: dict[str, type] = {"xmae": XMAEFixer, "motion-dvae": DVAEFixer, "jitter": JitterFixer}
 # Checkpoints fix recognises but cannot use, and why. A prior alone has no initial-state
 # predictor, and the paper's "No noisy train" ablation (appendix, Tab. 2) shows that its
@@ -391,11 +401,10 @@ def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32"
         raise MotionFileError(
             path, f"not a mocapfix checkpoint of a model fix knows ({', '.join(FIXERS)}): no matching network weights"
         )
-    fixer = FIXERS[kind].from_checkpoint(path, ckpt, device, precision)
     # which fill for which hole, calibrated on the val split (fills/policy.py); None: the
     # model everywhere (checkpoints from before it, until `mocapfix validate --ckpt_path` adds one)
     try:
-        fixer.policy = FillPolicy.from_dict(ckpt["fill_policy"]) if "fill_policy" in ckpt else None
+        policy = FillPolicy.from_dict(ckpt["fill_policy"]) if "fill_policy" in ckpt else None
     except (KeyError, TypeError, ValueError) as e:
         raise MotionFileError(path, f"the checkpoint's fill policy is malformed ({e})") from None
-    return fixer
+    return FIXERS[kind].from_checkpoint(path, ckpt, device, precision, policy)

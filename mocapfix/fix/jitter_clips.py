@@ -18,8 +18,8 @@ import torch
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.fills.classical import lerp_infill
-from mocapfix.fix.clips import NOT_JUDGED, FixReport, _frames_and_people, _who, map_joints
-from mocapfix.fix.fixers import JitterFixer
+from mocapfix.fix.joints import map_joints
+from mocapfix.fix.report import NOT_JUDGED, FixReport, frames_and_people, who
 from mocapfix.models.jitter import lowpass
 
 MIN_TAKE_S = 1.0  # shorter takes are kept as recorded
@@ -27,7 +27,7 @@ MIN_TAKE_S = 1.0  # shorter takes are kept as recorded
 
 def denoise_clips(
     clips: list[Clip],
-    fixer: JitterFixer,
+    fixer,  # fixers.JitterFixer
     mode: str,
     progress: Callable[[int, int], None] | None = None,
     joint_map: dict[str, str] | None = None,
@@ -40,7 +40,7 @@ def denoise_clips(
             source,
             f"a jitter remover takes jitter out (--mode denoise), it does not fill holes (--mode {mode}): an XMAE does",
         )
-    who = _who(clips)
+    name = who(clips)
     out, replaced, passengers, notes = [], 0, 0, []
     sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
     for k, c in enumerate(clips):
@@ -50,10 +50,10 @@ def denoise_clips(
         never = [model.joint_names[m] for m, j in enumerate(index) if not observed[0, :, j].any()]
         if never:
             raise MotionFileError(
-                source, f"{who(k)}joints never observed: {', '.join(never)}; nothing to denoise them from"
+                source, f"{name(k)}joints never observed: {', '.join(never)}; nothing to denoise them from"
             )
         if c.duration_s < MIN_TAKE_S:  # too little motion to tell jitter from it
-            notes.append(f"{who(k)}{c.num_frames} frames, shorter than {MIN_TAKE_S:g} s: {NOT_JUDGED}")
+            notes.append(f"{name(k)}{c.num_frames} frames, shorter than {MIN_TAKE_S:g} s: {NOT_JUDGED}")
             out.append(c.replace(rotations=None, root_translation=None, offsets=None))
             continue
         # the low-pass needs every frame: holes are bridged for it and put back afterwards
@@ -62,7 +62,7 @@ def denoise_clips(
             positions = lowpass(filled, c.fps, fixer.net.cutoff_hz)[0].numpy()  # (T, J, 3) every joint
             denoised = fixer.denoise(filled[0, :, index].numpy(), c.fps, positions[:, index])  # (T, Jm, 3)
         except ValueError as e:  # a frame rate too low for the model's cutoff
-            raise MotionFileError(source, f"{who(k)}{e}") from None
+            raise MotionFileError(source, f"{name(k)}{e}") from None
         correction = denoised - positions[:, index]
         positions[:, index] = denoised
         column = {int(j): m for m, j in enumerate(index)}
@@ -87,7 +87,7 @@ def denoise_clips(
         notes.insert(
             1, f"{passengers} joints the model does not use low-passed and moved with the model joint above them"
         )
-    frames, people = _frames_and_people(clips)
+    frames, people = frames_and_people(clips)
     report = FixReport(frames, people, 0, replaced, _mean(sigma_before), _mean(sigma_after), len(clips), notes)
     return out, report
 
