@@ -263,3 +263,19 @@ def test_a_daz_poser_rig_maps_every_joint_on_its_named_side(tmp_path, source, to
     got = mapped(export(source, daz_poser(toes, right_first), tmp_path / "daz.bvh"))
     want = {n: j for n, j in DAZ_BODY.items() if toes or not n.startswith("Toes")}
     assert got == want
+
+
+def test_names_state_sides_the_way_each_exporter_writes_them():
+    from mocapfix.rig.labels import guess_groups
+    from mocapfix.rig.names import side_and_word, sides_and_words
+
+    assert side_and_word("lShldr") == ("left", "shldr") and side_and_word("rThigh") == ("right", "thigh")
+    assert side_and_word("leg") == (None, "leg") and side_and_word("root") == (None, "root")
+    assert side_and_word("CC_Base_R_Forearm")[0] == "right"
+    names = [n for n, _, _ in character_creator(fingers=False)]
+    said = dict(zip(names, sides_and_words(names)))  # the prefix every joint shares is not a word
+    assert said["CC_Base_L_Upperarm"] == ("left", "upperarm") and said["CC_Base_Head"] == (None, "head")
+    rows = daz_poser()
+    groups = guess_groups([n for n, _, _ in rows], [-1] + [[n for n, _, _ in rows].index(p) for _, p, _ in rows[1:]])
+    top = {g: rows[members[0]][0] for g, members in groups.items()}
+    assert top == {"left_arm": "lShldr", "right_arm": "rShldr", "left_leg": "lThigh", "right_leg": "rThigh"}

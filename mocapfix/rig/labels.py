@@ -9,12 +9,10 @@ Labels are "pelvis", "spine_2of3", "neck", "head", "left_clavicle", "left_upper_
 
 from __future__ import annotations
 
-import re
-
 import numpy as np
 
 from mocapfix.core.skeleton import GROUP_NAMES, Skeleton
-from mocapfix.rig.names import name_labels, side_and_word
+from mocapfix.rig.names import name_labels
 
 
 def joint_labels(skeleton: Skeleton) -> list[str | None]:
@@ -67,33 +65,16 @@ def limb_groups(skeleton: Skeleton) -> dict[str, tuple[int, ...]]:
     return {g: groups[g] for g in GROUP_NAMES if g in groups}
 
 
-# Keywords in priority order: the first keyword that matches some joint of a side picks the
-# group's top joint (the match nearest the root); the group is that joint and its descendants.
-# The order skips clavicles ("Shoulder_L" in Bandai Namco, "LeftShoulder" in CMU are clavicles
-# when an upper-arm joint exists).
-_GROUP_KEYWORDS = {
-    "arm": [r"upper_?arm", r"up_?arm", r"(?<!fore)(?<!lower)(?<!low)arm", r"shoulder", r"elbow"],
-    "leg": [r"up_?leg", r"upper_?leg", r"thigh", r"hip", r"(?<!lower)(?<!low)leg", r"knee"],
-}
-
-
 def guess_groups(joint_names, parents) -> dict[str, tuple[int, ...]]:
-    """left/right arm/leg groups from joint names alone (Bandai Namco, CMU, SMPL, H36M-style
-    naming; the side as rig/names.py reads it). Groups that cannot be found are left out; give
-    them explicitly in the config then."""
+    """left/right arm/leg groups from joint names alone (rig/names.py name_labels): each limb's
+    upper arm or thigh (the elbow or knee where the name of none says it) and everything below.
+    Groups that cannot be found are left out; give them explicitly in the config then."""
     skel = Skeleton(tuple(joint_names), tuple(parents))
-    depth = [0] * skel.num_joints
-    for j in range(1, skel.num_joints):
-        depth[j] = depth[skel.parents[j]] + 1
-    sides = [side_and_word(n)[0] for n in joint_names]
+    labels = name_labels(skel)
     groups: dict[str, tuple[int, ...]] = {}
     for side in ("left", "right"):
-        sided = [j for j in range(skel.num_joints) if sides[j] == side]
-        for part, keywords in _GROUP_KEYWORDS.items():
-            for kw in keywords:
-                hits = [j for j in sided if re.search(kw, joint_names[j], re.I)]
-                if hits:
-                    top = min(hits, key=lambda j: (depth[j], j))
-                    groups[f"{side}_{part}"] = tuple(skel.descendants(top))
-                    break
+        for group, tops in (("arm", ("upper_arm", "elbow")), ("leg", ("thigh", "knee"))):
+            top = next((f"{side}_{t}" for t in tops if f"{side}_{t}" in labels), None)
+            if top is not None:
+                groups[f"{side}_{group}"] = tuple(skel.descendants(labels.index(top)))
     return {g: groups[g] for g in GROUP_NAMES if g in groups}

@@ -216,22 +216,22 @@ def _body_leaves(tree: Tree, pos: np.ndarray) -> list[int]:
         p = tree.parents[j]
         if p >= 0 and (farthest[p] < 0 or tree.bone[j] + reach[j] > reach[p]):
             reach[p], farthest[p] = tree.bone[j] + reach[j], j
+    leaves = np.asarray(tree.leaves, dtype=np.int64)
+    above = np.maximum(tree.parents[leaves], 0)
+    sibling = farthest[above]  # (L,)
     passenger = np.zeros(J, dtype=bool)
-    for leaf in tree.leaves:
-        p = tree.parents[leaf]
-        s = farthest[p] if p >= 0 else -1
-        if p >= 0 and tree.bone[leaf] <= AT_PARENT_FRACTION * tree.diameter:
-            passenger[leaf] = True
-        elif s >= 0 and s != leaf and tree.bone[leaf] < tree.bone[s]:
-            u, v = pos[:, leaf] - pos[:, p], pos[:, s] - pos[:, p]
-            with np.errstate(invalid="ignore"):
-                cos = (u * v).sum(-1) / (np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1))
-            cos = cos[np.isfinite(cos)]
-            passenger[leaf] = bool(cos.size) and bool((cos > np.cos(np.deg2rad(PASSENGER_DEG))).all())
+    passenger[leaves] = (tree.parents[leaves] >= 0) & (tree.bone[leaves] <= AT_PARENT_FRACTION * tree.diameter)
+    twist = leaves[(sibling != leaves) & (tree.bone[leaves] < tree.bone[sibling]) & ~passenger[leaves]]
+    if twist.size:  # all of them at once: a rig may have thousands of leaves
+        p, s = tree.parents[twist], farthest[tree.parents[twist]]
+        u, v = pos[:, twist] - pos[:, p], pos[:, s] - pos[:, p]  # (T, n, 3)
+        with np.errstate(invalid="ignore"):
+            cos = (u * v).sum(-1) / (np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1))  # (T, n)
+        seen = np.isfinite(cos)
+        on_line = (np.where(seen, cos, 1.0) > np.cos(np.deg2rad(PASSENGER_DEG))).all(axis=0)
+        passenger[twist] = on_line & seen.any(axis=0)
     carried = np.zeros(J, dtype=np.int64)  # children that are not passengers
-    for j in np.flatnonzero(~passenger):
-        if tree.parents[j] >= 0:
-            carried[tree.parents[j]] += 1
+    np.add.at(carried, tree.parents[~passenger & (tree.parents >= 0)], 1)
     leaves = [int(j) for j in np.flatnonzero(~passenger & (carried == 0))]
     return leaves if len(leaves) >= 5 else tree.leaves
 
