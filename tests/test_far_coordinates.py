@@ -30,7 +30,7 @@ def _absolute(clip: Clip) -> np.ndarray:
 
 def _bvh(src, dst, shift_cm: float, holes: dict[str, slice]) -> None:
     """src with its root's x and z position channels moved by shift_cm and the rotation channels
-    of the joints in `holes` NaN over their frames (those joints and the ones below are missing)."""
+    of the joints in `holes` NaN over their frames (the joints below them are missing)."""
     text = src.read_text()
     head, motion = text.split("MOTION", 1)
     names = re.findall(r"(?:ROOT|JOINT)\s+(\S+)", head)  # every joint has 6 channels in these files

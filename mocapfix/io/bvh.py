@@ -11,11 +11,16 @@ Conventions (the BVH ones, as Blender, MotionBuilder and the Bandai Namco data u
   position channel replaced by that channel's value (Bandai Namco's Hips carries the global
   translation this way, under a root joint_Root that mostly stays at the origin).
 - End Site blocks are not joints.
+- Missing data is a channel value that is not a number (nan, inf). A joint's position comes from
+  its parent's rotation and its own translation, so a missing rotation channel makes the joints
+  below it missing (the joint itself stays where its parent puts it), and a missing position
+  channel the joint and the joints below it. write_bvh_like writes numbers only.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import re
 import warnings
 from pathlib import Path
@@ -27,7 +32,7 @@ from mocapfix.core.clip import Clip, MotionFileError, check_frame_rate, shown
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.io.conventions import guess_up_axis, metres_per_unit, resolve_unit
 from mocapfix.io.files import atomic_write
-from mocapfix.io.untrusted import check_size, file_size, open_regular, quoted
+from mocapfix.io.untrusted import check_size, file_size, open_regular, quoted, read_bytes
 from mocapfix.rig.labels import limb_groups
 from mocapfix.rig.structure import body_structure
 
@@ -38,6 +43,16 @@ log = logging.getLogger(__name__)
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 AXES = {"y": Y_UP_TO_Z_UP, "z": np.eye(3)}
 FK_TOLERANCE_M = 1e-4  # rotations are kept only if their FK reproduces the positions this well
+
+# Writing a clip back into its file (write_bvh_like): a channel value fix left alone comes back as
+# the file's own text. "Alone" is at fix's own precision: the clip holds float32 rotations, and
+# inverse kinematics leaves a joint it did not move within 3e-6 rad (Bandai and CMU takes).
+KEEP_RADIANS = 1e-5  # a joint turned less than this keeps its rotation tokens (0.01 mm at 1 m)
+KEEP_METRES = 1e-5  # a position channel moved less than this keeps its token (0.01 mm)
+# A changed value is written with the digits its column uses, never coarser than these: a take
+# 100 km from the origin needs more than the 6 significant digits a file may use.
+PRINT_DEGREES = 1e-4  # 2e-6 rad
+PRINT_METRES = 1e-6
 
 _CHANNEL = re.compile(r"^([XYZ])(position|rotation)$", re.I)
 
@@ -80,7 +95,7 @@ def read_bvh(
         shown_names = ", ".join(quoted(n) for n in names[:3])  # the file's text: escaped, short
         log.warning("warning: %s: not UTF-8 text; joint names read as Latin-1 (%s)", shown(path), shown_names)
 
-    with np.errstate(invalid="ignore", over="ignore"):  # non-finite channels: those joints are missing (below)
+    with np.errstate(invalid="ignore", over="ignore"):  # non-finite channels give NaN positions (below)
         local_r, local_t = _local_transforms(offsets, channels, data)
         pos = _forward_kinematics(local_r, local_t, parents)  # (T, J, 3) file units, file axes
 
@@ -167,7 +182,9 @@ def read_bvh(
             rotations=rotvec(), root_translation=root.astype(np.float32), offsets=offs.astype(np.float32)
         )
 
-    if not finite:  # a non-finite channel leaves its joint and those below it missing in that frame
+    # In a frame with a non-finite channel: a rotation leaves the joints below its joint missing
+    # (the joint is where its parent puts it), a position its joint and the joints below
+    if not finite:
         clip.meta["absurd_tokens"] = int(clip.missing_mask().sum())
     sk = clip.skeleton
     try:
@@ -266,14 +283,19 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
     are recomputed from the clip: each joint's rotation relative to its parent in the template, in
     the joint's own Euler order, and its translation where it has position channels; so a joint
     the clip dropped above its root (Bandai Namco's joint_Root) keeps its channels and still
-    carries the root. Every other channel keeps its values (written to 6 decimals, as write_bvh).
-    The result is checked: FK of the written channels gives the clip's positions to 1e-4 m, or
-    nothing is written.
+    carries the root. Every other channel keeps its values.
+    The file's text stays where the clip leaves the motion as it was: every line before the
+    first frame (HIERARCHY, MOTION, Frames, Frame Time), each value's token where the joint
+    turned less than KEEP_RADIANS and a position channel moved less than KEEP_METRES, line ends
+    (LF, CRLF, CR), spaces, a byte order mark. Changed values are written with the digits their
+    column uses (significant digits where it writes exponents, else decimals), never coarser
+    than PRINT_DEGREES and PRINT_METRES. The result is checked: FK of the channels as written
+    gives the clip's positions to 1e-4 m, or nothing is written.
     """
     path, template = Path(path), Path(template)
     if not clip.has_rotations:
         raise MotionFileError(path, f"clip {clip.name!r} has no rotations; only rotation clips can be written as BVH")
-    names, parents, offsets, channels, data, frame_time, _ = _parse(template)
+    names, parents, offsets, channels, data, frame_time, encoding = _parse(template)
     T, J = data.shape[0], len(names)
     if clip.num_frames != T or abs(clip.fps * frame_time - 1.0) > 1e-4:
         raise MotionFileError(
@@ -314,7 +336,8 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
             G[:, j] = G[:, p] @ local_r[:, j]
             P[:, j] = P[:, p] + (G[:, p] @ local_t[:, j, :, None])[..., 0]
 
-    out = data.copy()
+    out = data.copy()  # (T, C) the channels the clip gives
+    kept = np.ones(data.shape, dtype=bool)  # (T, C) where the value is the input's, token and all
     for j in of_clip:
         p = parents[j]
         Gp_T = np.swapaxes(G[:, p], -1, -2) if p >= 0 else np.eye(3)
@@ -330,15 +353,34 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
             with warnings.catch_warnings():  # gimbal lock: scipy sets the last angle to 0, as wanted here
                 warnings.simplefilter("ignore", UserWarning)
                 euler = Rotation.from_matrix(local).as_euler(order.upper(), degrees=True)
+            # Compared as rotations, not angles: Euler angles of one rotation differ by 360 degrees
+            # (a file's 365.26 is scipy's 5.26) and near gimbal lock. |A - B| = sqrt(2) * angle
+            # for small angles; a channel that was missing (NaN) is never kept.
+            still = np.linalg.norm(local - local_r[:, j], axis=(-2, -1)) < np.sqrt(2) * KEEP_RADIANS  # (T,)
             for i, (col, _) in enumerate(rot):
                 out[:, col] = euler[:, i]
+                kept[:, col] = still
         for col, (axis, kind) in channels[j]:
             if kind == "position":
                 out[:, col] = trans[:, "xyz".index(axis)] - (base["xyz".index(axis)] if j == 0 else 0.0)
+                kept[:, col] = np.abs(out[:, col] - data[:, col]) * scale < KEEP_METRES
+
+    lines, first, skip, tokens = _frame_tokens(template, encoding, data)
+    C = data.shape[1]
+    new_text = {}  # {t * C + column: the changed value's text}
+    written = data.copy()  # (T, C) the values as the output will read
+    kinds = {col: kind for chans in channels for col, (_, kind) in chans}
+    for col in np.nonzero(~kept.all(axis=0))[0].tolist():
+        rows = np.nonzero(~kept[:, col])[0]
+        quantum = PRINT_DEGREES if kinds[col] == "rotation" else PRINT_METRES / scale  # in the file's unit
+        new = _formatted(out[rows, col], tokens[col::C], quantum)
+        written[rows, col] = np.array(new, dtype=np.float64)
+        new_text.update(zip((rows * C + col).tolist(), new))
+    kept |= written == data  # a new value that prints as the old one keeps its token ("1.50" stays)
 
     # A clip joint whose translation the template has no channel for keeps the template's offset:
     # right only if the clip's bone is that long.
-    check = _forward_kinematics(*_local_transforms(offsets, channels, out), parents)[:, list(of_clip)]
+    check = _forward_kinematics(*_local_transforms(offsets, channels, written), parents)[:, list(of_clip)]
     err = np.linalg.norm(check - clip_pos[:, list(of_clip.values())], axis=-1).max(axis=0) * scale  # (Jc,) metres
     if not np.all(err < FK_TOLERANCE_M):
         worst = list(of_clip)[int(np.nanargmax(np.nan_to_num(err, nan=np.inf)))]
@@ -359,10 +401,79 @@ def write_bvh_like(path, clip: Clip, template: str | Path) -> None:
             f"cannot write the motion in this file's hierarchy: joint {quoted(names[worst])} would be "
             f"{np.nanmax(err):.3g} m off ({why}); write .npz or .csv",
         )
-    hierarchy, _, _, encoding, _ = _sections(template)
-    body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in out.tolist())
-    text = f"HIERARCHY{hierarchy}MOTION\nFrames: {T}\nFrame Time: {frame_time:.8g}\n{body}\n"
+    text = "".join(_with_tokens(lines, first, skip, kept.ravel(), new_text))
     atomic_write(path, lambda f: f.write(text.encode(encoding)))  # joint names as the input spelled them
+
+
+# --- writing back into a file's own text ---
+
+_LINE = re.compile(r"[^\r\n]*(?:\r\n|\r|\n)|[^\r\n]+$")  # a line with its end, as the file has it
+
+
+def _frame_tokens(path: Path, encoding: str, data: np.ndarray) -> tuple[list[str], int, int, list[str]]:
+    """The file's text as it is (_text evens out line ends) -> its lines with their ends, the line
+    of the first frame value, how many tokens of that line come before it, and the values' tokens
+    (T * C, frame by frame). The frame values are the file's last T * C tokens (_parse splits them
+    so); checked against data (T, C), as _parse read them."""
+    try:
+        raw = read_bytes(path, "BVH file")
+    except OSError as e:
+        raise MotionFileError(path, f"cannot read ({e.strerror or type(e).__name__})") from None
+    lines = _LINE.findall(raw.decode(encoding))
+    n, count, first = data.size, 0, len(lines)
+    while count < n and first > 0:
+        first -= 1
+        count += len(lines[first].split())
+    tokens = "".join(lines[first:]).split()[count - n :] if count >= n else []
+    try:
+        same = len(tokens) == n and np.array_equal(np.array(tokens, dtype=np.float64), data.ravel(), equal_nan=True)
+    except ValueError:
+        same = False
+    if not same:
+        raise MotionFileError(path, "changed while it was being fixed; fix it again")
+    return lines, first, count - n, tokens
+
+
+def _formatted(values: np.ndarray, column: list[str], quantum: float) -> list[str]:
+    """values: (N,) new values of one channel; column: the file's T tokens of that channel ->
+    the values as text in the column's style: significant digits (as %g) where it writes
+    exponents (5.1072e-06), else fixed decimals (0.000005); as many as its longest token, and
+    never coarser than `quantum` (file units)."""
+    mantissas = [t.lower().split("e")[0] for t in set(column) if math.isfinite(float(t))] or ["0"]
+    floor = math.floor(math.log10(quantum))  # the last place the value needs
+    if any("e" in t.lower() for t in column):
+        digits = max(len(m.lstrip("+-").replace(".", "").lstrip("0")) for m in mantissas)
+        return [
+            f"{v:.{min(max(digits, math.floor(math.log10(abs(v))) - floor + 1), 17)}g}"
+            if np.isfinite(v) and v != 0
+            else f"{v:g}"
+            for v in values.tolist()
+        ]
+    decimals = max(max(len(m.partition(".")[2]) for m in mantissas), -floor)
+    return [f"{v:.{decimals}f}" for v in values.tolist()]
+
+
+def _with_tokens(lines: list[str], first: int, skip: int, kept: np.ndarray, new_text: dict[int, str]):
+    """The file's lines with the frame values' tokens replaced by new_text where not kept (kept:
+    (T * C,), in the file's order); a line with none replaced is yielded as it is, and a changed
+    one keeps its spaces and its end."""
+    yield from lines[:first]
+    i = -skip  # index of the line's first token among the frame values
+    for line in lines[first:]:
+        k = len(line.split())
+        if kept[max(i, 0) : i + k].all():
+            yield line
+        else:
+            content = line.rstrip("\r\n")
+            pieces = re.split(r"(\s+)", content)  # tokens at the even places (the first and last may be "")
+            for p in range(0, len(pieces), 2):
+                if pieces[p]:
+                    if i >= 0 and not kept[i]:
+                        pieces[p] = new_text[i]
+                    i += 1
+            yield "".join(pieces) + line[len(content) :]
+            continue
+        i += k
 
 
 # --- parsing ---
