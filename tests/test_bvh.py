@@ -13,8 +13,9 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from mocapfix.core.clip import MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.kinematics import fk_axis_angle
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.io.bvh import _frame_rate, read_bvh, write_bvh
 
 CM_Y_UP = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]]) * 0.01  # file (cm, y up) -> metres, z up: (x, -z, y)
@@ -397,3 +398,25 @@ def test_unit_and_up_axis_guessed(bandai_files, tmp_path, unit, up):
     back = read_bvh(out)[0]
     assert (back.meta["unit"], back.meta["up_axis"]) == (unit, up)
     assert np.abs(back.positions - clip.positions).max() < 1e-4
+
+
+def test_write_bvh_writes_channels_in_the_order_its_hierarchy_lists_joints(tmp_path):
+    # Joints breadth first (root; A, B under it; C under A, D under B, E under C): the hierarchy
+    # lists them depth first, 0 1 3 5 2 4, and a frame's channels must follow that order, or B's
+    # rotation turns C's bone and C's turns B's.
+    names, parents = ("Root", "A", "B", "C", "D", "E"), (-1, 0, 0, 1, 2, 3)
+    offsets = np.array([[0, 0, 0], [0.1, 0, 0], [-0.1, 0, 0], [0, 0, 0.3], [0, 0, 0.3], [0, 0.2, 0]], dtype=np.float32)
+    rng = np.random.default_rng(0)
+    rotations = rng.uniform(-1, 1, (5, 6, 3)).astype(np.float32)
+    root = rng.uniform(-1, 1, (5, 3)).astype(np.float32)
+    positions = fk_axis_angle(
+        torch.from_numpy(rotations).double(),
+        torch.from_numpy(root).double(),
+        torch.from_numpy(offsets).double(),
+        list(parents),
+    ).numpy()
+    clip = Clip(positions, 30.0, Skeleton(names, parents), rotations=rotations, root_translation=root, offsets=offsets)
+    write_bvh(tmp_path / "out.bvh", clip)
+    back = read_bvh(tmp_path / "out.bvh", unit="m", up_axis="z")[0]
+    order = [back.skeleton.joint_names.index(n) for n in names]
+    assert np.abs(back.positions[:, order] - positions).max() < 1e-5

@@ -231,12 +231,12 @@ def write_bvh(path, clip: Clip, template: str | Path | None = None) -> None:
         euler = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_euler("ZXY", degrees=True).reshape(T, J, 3)
     root = (clip.root_translation.astype(np.float64) + clip.origin) @ C / scale  # (T, 3); row-vector form of C^T t
     offsets = clip.offsets.astype(np.float64) @ C / scale  # (J, 3)
-    frames = np.concatenate([root, euler.reshape(T, -1)], axis=1)  # (T, 3 + 3J)
-
     children = [[c for c in range(J) if parents[c] == j] for j in range(J)]
     lines = ["HIERARCHY"]
+    order = []  # joints as the hierarchy lists them (depth first): the order of a frame's channels
 
     def emit(j: int, depth: int) -> None:
+        order.append(j)
         ind = "  " * depth
         if j == 0:
             lines.extend(
@@ -267,6 +267,7 @@ def write_bvh(path, clip: Clip, template: str | Path | None = None) -> None:
         lines.append(f"{ind}}}")
 
     emit(0, 0)
+    frames = np.concatenate([root, euler[:, order].reshape(T, -1)], axis=1)  # (T, 3 + 3J)
     lines.extend(["MOTION", f"Frames: {T}", f"Frame Time: {1.0 / clip.fps:.8f}"])
     body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in frames.tolist())
     text = "\n".join(lines) + "\n" + body + "\n"
