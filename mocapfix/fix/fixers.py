@@ -186,7 +186,7 @@ class DVAEFixer(PositionFixer):
         from frame to frame, and the LSTMs are cheap (1e-3 s per frame on a CPU core)."""
         if precision == "bf16":
             raise ValueError("--precision bf16 is for XMAE checkpoints; Motion-DVAE runs in fp32")
-        hparams, state_dict = ckpt["hyper_parameters"], ckpt["state_dict"]
+        hparams = ckpt["hyper_parameters"]
         ph = hparams.get("prior_hparams")
         if not isinstance(ph, dict):
             raise MotionFileError(path, "Motion-DVAE checkpoint lacks prior_hparams: cannot rebuild the networks")
@@ -200,54 +200,8 @@ class DVAEFixer(PositionFixer):
         state = ph["state"]
         if state not in STATES:
             raise MotionFileError(path, f"Motion-DVAE checkpoint has an unknown state {state!r}")
-        body = None
-        if state == "rotations":
-            try:  # an SMPL body is rebuilt from the model file the checkpoint names (never stored in it)
-                body = build_body_model(
-                    ph.get("body_model", "skeleton"),
-                    skeleton.parents,
-                    ph.get("body_model_path"),
-                    ph.get("gender", "neutral"),
-                    ph.get("model_type", "smplh"),
-                    ph.get("markers"),
-                )
-            except (ValueError, OSError) as e:
-                why = " ".join(str(e).split())
-                raise MotionFileError(path, f"cannot rebuild the checkpoint's body model ({why})") from None
-        try:
-            codec = MotionState(state, skeleton.parents, skeleton.groups, fps, body)
-            D, H, Hm, G = codec.dim, int(ph["lstm_hidden"]), int(ph["mlp_hidden"]), int(ph["norm_groups"])
-            num_points = codec.num_joints + (body.num_markers if body is not None else 0)
-            config = (
-                ckpt["model"].get("config")
-                if "model" in ckpt
-                else DVAEConfig(
-                    state,
-                    skeleton.num_joints,
-                    int(ph["latent_dim"]),
-                    H,
-                    Hm,
-                    G,
-                    bool(ph.get("encoder_velocities", False)),
-                )
-            )
-            nets = {
-                "codec": codec,
-                "net": build_model("motion-dvae", config),
-                "x0_pred": InitialStatePredictor(D, H, Hm, G, velocity_mask(state, codec.num_joints)),
-                "noise_pred": NoisePredictor(H, 3 * num_points, Hm, G),
-            }
-        except (TypeError, ValueError) as e:
-            raise MotionFileError(path, f"bad Motion-DVAE sizes in the checkpoint ({e})") from None
-        for prefix, net in nets.items():
-            weights = {k[len(prefix) + 1 :]: v for k, v in state_dict.items() if k.startswith(prefix + ".")}
-            try:
-                net.load_state_dict(weights)
-            except RuntimeError as e:
-                first = " ".join(str(e).split())[:200]
-                raise MotionFileError(
-                    path, f"weights do not fit the network its hyperparameters describe ({prefix}: {first})"
-                ) from None
+        nets = _dvae_nets(path, ckpt, ph, state, skeleton, fps)
+        codec = nets["codec"]
         fusion = uses_noise_model(str(hparams["estimate"]), float(hparams["noise_lambda"]))
         first_frame = str(hparams.get("first_frame", "decoded"))  # checkpoints from before it: the module's default
         if first_frame not in FIRST_FRAMES:
@@ -295,6 +249,61 @@ class DVAEFixer(PositionFixer):
         inf = self._infer(Observation(positions, rotations, root_translation, offsets))
         rot, root = rotation_estimate(inf, self.codec, self.first_frame)
         return rot.float().cpu(), root.float().cpu()
+
+
+def _dvae_nets(path, ckpt: dict, ph: dict, state: str, skeleton: Skeleton, fps: float) -> dict:
+    """The Motion-DVAE denoising stage's parts rebuilt from the prior's hyperparameters (ph) and
+    loaded with the checkpoint's weights: codec (the state), net, x0_pred, noise_pred."""
+    state_dict = ckpt["state_dict"]
+    body = None
+    if state == "rotations":
+        try:  # an SMPL body is rebuilt from the model file the checkpoint names (never stored in it)
+            body = build_body_model(
+                ph.get("body_model", "skeleton"),
+                skeleton.parents,
+                ph.get("body_model_path"),
+                ph.get("gender", "neutral"),
+                ph.get("model_type", "smplh"),
+                ph.get("markers"),
+            )
+        except (ValueError, OSError) as e:
+            why = " ".join(str(e).split())
+            raise MotionFileError(path, f"cannot rebuild the checkpoint's body model ({why})") from None
+    try:
+        codec = MotionState(state, skeleton.parents, skeleton.groups, fps, body)
+        D, H, Hm, G = codec.dim, int(ph["lstm_hidden"]), int(ph["mlp_hidden"]), int(ph["norm_groups"])
+        num_points = codec.num_joints + (body.num_markers if body is not None else 0)
+        config = (
+            ckpt["model"].get("config")
+            if "model" in ckpt
+            else DVAEConfig(
+                state,
+                skeleton.num_joints,
+                int(ph["latent_dim"]),
+                H,
+                Hm,
+                G,
+                bool(ph.get("encoder_velocities", False)),
+            )
+        )
+        nets = {
+            "codec": codec,
+            "net": build_model("motion-dvae", config),
+            "x0_pred": InitialStatePredictor(D, H, Hm, G, velocity_mask(state, codec.num_joints)),
+            "noise_pred": NoisePredictor(H, 3 * num_points, Hm, G),
+        }
+    except (TypeError, ValueError) as e:
+        raise MotionFileError(path, f"bad Motion-DVAE sizes in the checkpoint ({e})") from None
+    for prefix, net in nets.items():
+        weights = {k[len(prefix) + 1 :]: v for k, v in state_dict.items() if k.startswith(prefix + ".")}
+        try:
+            net.load_state_dict(weights)
+        except RuntimeError as e:
+            first = " ".join(str(e).split())[:200]
+            raise MotionFileError(
+                path, f"weights do not fit the network its hyperparameters describe ({prefix}: {first})"
+            ) from None
+    return nets
 
 
 class DVAERotationFixer(RotationFixer, DVAEFixer):
