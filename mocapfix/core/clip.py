@@ -73,6 +73,61 @@ def check_frame_rate(path, fps: float, what: str = "the frame rate is") -> float
     return value
 
 
+# Work on (T, J, 3, 3) matrices goes a block of frames at a time, about this many joint-frames a
+# block: a rig of 10,000 joints over 146 frames holds 105 MB in each such array, and scipy's
+# conversions make several copies. Every step done in blocks is done frame by frame, so the
+# blocks change no value.
+BLOCK_JOINT_FRAMES = 1 << 15
+
+
+def frame_blocks(frames: int, joints: int, levels: int = 0, size: int = BLOCK_JOINT_FRAMES) -> list[slice]:
+    """Slices that cover range(frames) in order, each of about `size` joint-frames (1 frame at least).
+
+    levels: the depth of the tree, for forward kinematics (a few numpy steps per level and block):
+    then no more blocks than joints // levels, so that a deep rig (a chain of thousands) takes
+    bigger blocks rather than more steps than one a joint."""
+    step = max(1, size // max(joints, 1))
+    if levels:
+        step = max(step, -(-frames // max(1, joints // levels)))
+    return [slice(t, min(t + step, frames)) for t in range(0, frames, step)]
+
+
+def rotation_matrices(rotvecs: np.ndarray) -> np.ndarray:
+    """rotvecs: (..., 3) axis-angle -> (..., 3, 3) float64 matrices, converted in blocks (scipy's
+    temporaries stay small)."""
+    from scipy.spatial.transform import Rotation
+
+    flat = rotvecs.reshape(-1, 3)
+    out = np.empty((len(flat), 3, 3))
+    for rows in frame_blocks(len(flat), 1):
+        out[rows] = Rotation.from_rotvec(flat[rows].astype(np.float64)).as_matrix()
+    return out.reshape(*rotvecs.shape[:-1], 3, 3)
+
+
+def rotation_vectors(matrices: np.ndarray, dtype=np.float64) -> np.ndarray:
+    """matrices: (..., 3, 3) rotations -> (..., 3) axis-angle, converted in blocks."""
+    from scipy.spatial.transform import Rotation
+
+    flat = matrices.reshape(-1, 3, 3)
+    out = np.empty((len(flat), 3), dtype=dtype)
+    for rows in frame_blocks(len(flat), 1):
+        out[rows] = Rotation.from_matrix(flat[rows]).as_rotvec()
+    return out.reshape(*matrices.shape[:-2], 3)
+
+
+def depth_levels(parents) -> list[np.ndarray]:
+    """parents: J ints (parents[j] < j) -> the joints below the root by depth: [the root's
+    children, theirs, ...], each an int array in skeleton order. Forward kinematics takes a level
+    at a time (its parents are all in the levels before): a few numpy steps for a rig of
+    thousands of leaves, where one a joint costs a Python loop of thousands."""
+    p = np.asarray(parents, dtype=np.int64)
+    depth = np.zeros(len(p), dtype=np.int64)
+    for j in range(1, len(p)):
+        depth[j] = depth[p[j]] + 1
+    order = np.argsort(depth, kind="stable")
+    return np.split(order, np.cumsum(np.bincount(depth)))[1:-1]
+
+
 @dataclass
 class Clip:
     positions: np.ndarray  # (T, J, 3) float32, metres, z up, NaN where a joint is missing
@@ -165,40 +220,56 @@ class Clip:
         )
         if not self.has_rotations or not np.isfinite(self.rotations).all():
             return out
-        from scipy.spatial.transform import Rotation
 
-        def fk(local, root, offsets, parents):  # numpy FK (this module stays torch-free) -> positions, globals
+        def fk(local, root, offsets, parents, levels):  # numpy FK (this module stays torch-free) -> pos, globals
             pos, glob = np.empty(local.shape[:-1]), np.empty_like(local)
             pos[:, 0], glob[:, 0] = root, local[:, 0]
-            for j in range(1, len(parents)):
-                pos[:, j] = pos[:, parents[j]] + glob[:, parents[j]] @ offsets[j]
-                glob[:, j] = glob[:, parents[j]] @ local[:, j]
+            up = np.asarray(parents)
+            for joints in levels:  # a level of the tree at a time: each joint's parent is done
+                pos[:, joints] = pos[:, up[joints]] + (glob[:, up[joints]] @ offsets[joints][..., None])[..., 0]
+                glob[:, joints] = glob[:, up[joints]] @ local[:, joints]
             return pos, glob
 
-        T, J = self.rotations.shape[:2]
-        local = Rotation.from_rotvec(self.rotations.reshape(-1, 3).astype(np.float64)).as_matrix().reshape(T, J, 3, 3)
-        fk_pos, glob = fk(
-            local, self.root_translation.astype(np.float64), self.offsets.astype(np.float64), self.skeleton.parents
-        )
-        # The positions are the data; FK only fills joints the data lacks.
-        data = self.positions.astype(np.float64)
-        pos = np.where(np.isfinite(data), data, fk_pos)[:, keep]  # (T, K, 3)
-        G = glob[:, keep]  # (T, K, 3, 3)
+        # A block of frames at a time (frame_blocks), the arrays of a block let go as soon as they
+        # are used: every step is per frame but the offsets' mean over time, so the new local
+        # rotations are kept for the check that needs it.
+        T, J, K = self.num_frames, self.skeleton.num_joints, len(keep)
         par = np.array(skeleton.parents[1:], dtype=np.int64)  # (K-1,)
-        Gp_T = np.swapaxes(G[:, par], -1, -2)  # (T, K-1, 3, 3)
-        new_local = np.concatenate([G[:, :1], Gp_T @ G[:, 1:]], axis=1)  # (T, K, 3, 3)
-        rel = (Gp_T @ (pos[:, 1:] - pos[:, par])[..., None])[..., 0]  # (T, K-1, 3)
+        offsets = self.offsets.astype(np.float64)  # (J, 3)
+        levels, new_levels = depth_levels(self.skeleton.parents), depth_levels(skeleton.parents)
+        new_local = np.empty((T, K, 3, 3))
+        rotations = np.empty((T, K, 3), dtype=np.float32)
+        rel = np.empty((T, K - 1, 3))
+        root = np.empty((T, 3))
+        for f in frame_blocks(T, J, len(levels)):
+            local = rotation_matrices(self.rotations[f])  # (t, J, 3, 3)
+            fk_pos, glob = fk(
+                local, self.root_translation[f].astype(np.float64), offsets, self.skeleton.parents, levels
+            )
+            del local
+            # The positions are the data; FK only fills joints the data lacks.
+            data = self.positions[f].astype(np.float64)
+            pos = np.where(np.isfinite(data), data, fk_pos)[:, keep]  # (t, K, 3)
+            G = glob[:, keep]  # (t, K, 3, 3)
+            del glob
+            Gp_T = np.swapaxes(G[:, par], -1, -2)  # (t, K-1, 3, 3)
+            new_local[f, :1] = G[:, :1]
+            np.matmul(Gp_T, G[:, 1:], out=new_local[f, 1:])
+            rel[f] = (Gp_T @ (pos[:, 1:] - pos[:, par])[..., None])[..., 0]  # (t, K-1, 3)
+            root[f] = pos[:, 0]
+            del G, Gp_T
+            rotations[f] = rotation_vectors(new_local[f], np.float32)
         offsets = np.concatenate([np.zeros((1, 3)), rel.mean(axis=0)])  # (K, 3)
-        root = pos[:, 0]
-        rotations = Rotation.from_matrix(new_local.reshape(-1, 3, 3)).as_rotvec().reshape(T, len(keep), 3)
 
-        check = fk(new_local, root, offsets, skeleton.parents)[0]
-        seen = np.isfinite(data[:, keep]).all(-1)  # (T, K)
-        err = np.linalg.norm(check - data[:, keep], axis=-1)[seen]
-        if not np.all(err < 1e-4):  # NaN fails too
-            return out
+        for f in frame_blocks(T, K, len(new_levels)):
+            check = fk(new_local[f], root[f], offsets, skeleton.parents, new_levels)[0]
+            data = self.positions[f][:, keep].astype(np.float64)
+            seen = np.isfinite(data).all(-1)  # (t, K)
+            err = np.linalg.norm(check - data, axis=-1)[seen]
+            if not np.all(err < 1e-4):  # NaN fails too
+                return out
         return out.replace(
-            rotations=rotations.astype(np.float32),
+            rotations=rotations,
             root_translation=root.astype(np.float32),
             offsets=offsets.astype(np.float32),
         )

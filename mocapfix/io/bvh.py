@@ -28,7 +28,15 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapfix.core.clip import Clip, MotionFileError, check_frame_rate, shown
+from mocapfix.core.clip import (
+    Clip,
+    MotionFileError,
+    check_frame_rate,
+    depth_levels,
+    frame_blocks,
+    rotation_vectors,
+    shown,
+)
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.io.conventions import guess_up_axis, metres_per_unit, resolve_unit
 from mocapfix.io.files import atomic_write
@@ -90,13 +98,15 @@ def read_bvh(
     filled = 0
     if fill_missing_channels and not np.isfinite(data).all():
         data, filled = _interpolated(data), int((~np.isfinite(data)).sum())
-    T, J = data.shape[0], len(names)
+    J = len(names)
     if encoding != "utf-8":
         shown_names = ", ".join(quoted(n) for n in names[:3])  # the file's text: escaped, short
         log.warning("warning: %s: not UTF-8 text; joint names read as Latin-1 (%s)", shown(path), shown_names)
 
+    finite = bool(np.isfinite(data).all())
     with np.errstate(invalid="ignore", over="ignore"):  # non-finite channels give NaN positions (below)
-        local_r, local_t = _local_transforms(offsets, channels, data)
+        local_r, local_t = _local_transforms(offsets, channels, data)  # (T, J, 3, 3), (T, J, 3)
+        del data  # (T, 3 J) float64: read
         pos = _forward_kinematics(local_r, local_t, parents)  # (T, J, 3) file units, file axes
 
     # Which joint is which from the rig's structure (names only confirm): the unit and the up
@@ -111,10 +121,11 @@ def read_bvh(
 
     # A global change of axes C (and scale s): p' = s C p, so local rotations become C R C^T and
     # every translation s C t.
+    # (The rotations change when they are converted, a block of frames at a time.)
     with np.errstate(invalid="ignore", over="ignore"):
         positions = scale * pos @ C.T
-        local_r = C @ local_r @ C.T
         local_t = scale * local_t @ C.T
+    del pos
 
     skeleton = Skeleton(names, parents, {}, path.stem, labels or ())
     meta = {"format": "bvh", "unit": unit.name, "unit_source": unit.how, "up_axis": up_axis, "frame_time": frame_time}
@@ -127,7 +138,6 @@ def read_bvh(
     clip = Clip.centred(positions, 1.0 / frame_time, skeleton, path.stem, str(path), meta=meta)
     root = positions[:, 0] - clip.origin  # (T, 3) float64, as the clip's positions
 
-    finite = np.isfinite(data).all()
     # FK with one constant offset per joint is exact when no joint below the root moves its
     # translation; the error bound adds each joint's deviation down its chain.
     offs = local_t.mean(axis=0)  # (J, 3)
@@ -138,9 +148,6 @@ def read_bvh(
     for j in range(1, J):
         chain_dev[j] += chain_dev[parents[j]]
 
-    def rotvec() -> np.ndarray:  # (T, J, 3) float32
-        return Rotation.from_matrix(local_r.reshape(-1, 3, 3)).as_rotvec().reshape(T, J, 3).astype(np.float32)
-
     unknown = [n for n in list(keep_joints or []) + list(drop_joints or []) if n not in names]
     if unknown:
         listed = ", ".join(quoted(n) for n in names[:12]) + (f" and {J - 12} more" if J > 12 else "")
@@ -148,14 +155,18 @@ def read_bvh(
     keep = [
         j for j, n in enumerate(names) if (not keep_joints or n in set(keep_joints)) and n not in set(drop_joints or [])
     ]
-    if 0 in keep and _helper_root(parents, local_r) and not (keep_joints and names[0] in keep_joints):
+    root_r = C @ local_r[:, :1] @ C.T  # (T, 1, 3, 3)
+    if 0 in keep and _helper_root(parents, root_r) and not (keep_joints and names[0] in keep_joints):
         keep.remove(0)
         meta["dropped_root"] = names[0]
+    exact = finite and (len(keep) < J or chain_dev.max() <= FK_TOLERANCE_M)
+    rotations = _rotation_vectors(local_r, C) if exact else None  # (T, J, 3) float32
+    del local_r  # 72 B a joint-frame: gone before select_joints makes its own
     if len(keep) < J:
         if finite:
             # These rotations are exact but the offsets may not be (see above); select_joints works
             # from the positions and the global rotations only, and checks its result.
-            clip = clip.replace(rotations=rotvec(), root_translation=root, offsets=offs.astype(np.float32))
+            clip = clip.replace(rotations=rotations, root_translation=root, offsets=offs.astype(np.float32))
         try:
             clip = clip.select_joints(keep)
         except ValueError as e:  # the kept joints do not form one tree
@@ -179,7 +190,7 @@ def read_bvh(
         )
     else:
         clip = clip.replace(
-            rotations=rotvec(), root_translation=root.astype(np.float32), offsets=offs.astype(np.float32)
+            rotations=rotations, root_translation=root.astype(np.float32), offsets=offs.astype(np.float32)
         )
 
     # In a frame with a non-finite channel: a rotation leaves the joints below its joint missing
@@ -694,8 +705,10 @@ def _parse(path: Path):
         raise MotionFileError(path, f"truncated: 'Frames: {n_frames}' but only {len(nonempty)} frame rows")
     if len(nonempty) > n_frames:
         raise MotionFileError(path, f"'Frames: {n_frames}' but {len(nonempty)} frame rows")
+    data = np.empty((n_frames, ncol))
     try:
-        data = np.array(block.split(), dtype=np.float64).reshape(n_frames, ncol)
+        for frame, i in enumerate(nonempty):  # a row at a time: a string object per value costs 60 B
+            data[frame] = np.array(rows[i].split(), dtype=np.float64)
     except ValueError:
         for frame, i in enumerate(nonempty):
             for v, tok in enumerate(rows[i].split(), 1):
@@ -715,15 +728,40 @@ def _local_transforms(offsets: np.ndarray, channels, data: np.ndarray) -> tuple[
     metres in cm, and we promise 1e-5 m."""
     T, J = data.shape[0], len(channels)
     local_t = np.broadcast_to(offsets, (T, J, 3)).copy()
-    local_r = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy()
+    local_r = np.empty((T, J, 3, 3))
     base = _root_base(offsets, channels, data)
+    turns = {}  # (k, axis) -> the joints whose k-th rotation channel turns about axis, and its columns
     for j, chans in enumerate(channels):
+        rotations = [(col, axis) for col, (axis, kind) in chans if kind == "rotation"]
+        for k, (col, axis) in enumerate(rotations):
+            joints, cols = turns.setdefault((k, axis), ([], []))
+            joints.append(j)
+            cols.append(col)
         for col, (axis, kind) in chans:
             if kind == "position":
                 local_t[:, j, "xyz".index(axis)] = data[:, col] + (base["xyz".index(axis)] if j == 0 else 0.0)
-            else:
-                local_r[:, j] = local_r[:, j] @ _axis_rotation(axis, np.deg2rad(data[:, col]))
+    # A block of frames at a time, one product for all joints of a (k, axis), k in order: each
+    # joint's rotation is still I @ R1 @ R2 @ R3 in its channel order, and a rig of thousands of
+    # joints costs a few numpy steps, not a Python loop of thousands.
+    for frames in frame_blocks(T, J):
+        block = data[frames]  # (t, columns)
+        r = np.broadcast_to(np.eye(3), (len(block), J, 3, 3)).copy()
+        for (_, axis), (joints, cols) in sorted(turns.items()):
+            r[:, joints] = r[:, joints] @ _axis_rotation(axis, np.deg2rad(block[:, cols]))
+        local_r[frames] = r
     return local_r, local_t
+
+
+def _rotation_vectors(local_r: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """local_r: (T, J, 3, 3) rotations in the file's axes -> (T, J, 3) float32 rotation vectors in
+    the axes C turns them into (C R C^T). A block of frames at a time: at once, the turn and
+    scipy's checks would hold several float64 copies of every matrix (72 B a joint-frame each)."""
+    T, J = local_r.shape[:2]
+    out = np.empty((T, J, 3), dtype=np.float32)
+    with np.errstate(invalid="ignore", over="ignore"):
+        for frames in frame_blocks(T, J):
+            out[frames] = rotation_vectors(C @ local_r[frames] @ C.T, np.float32)
+    return out
 
 
 def _interpolated(data: np.ndarray) -> np.ndarray:
@@ -762,24 +800,30 @@ def _forward_kinematics(local_r: np.ndarray, local_t: np.ndarray, parents, with_
     (and global rotations (T, J, 3, 3) with with_rotations).
 
     The numpy twin of kinematics.forward_kinematics: reading a file should not import torch.
+    A level of the tree at a time (depth_levels), and without with_rotations a block of frames at
+    a time (frame_blocks): only that block's global rotations are held, 72 B a joint-frame.
     """
-    pos, glob = np.empty_like(local_t), np.empty_like(local_r)
-    pos[:, 0], glob[:, 0] = local_t[:, 0], local_r[:, 0]
-    for j in range(1, len(parents)):
-        p = parents[j]
-        pos[:, j] = pos[:, p] + (glob[:, p] @ local_t[:, j, :, None])[..., 0]
-        glob[:, j] = glob[:, p] @ local_r[:, j]
+    T, J = local_t.shape[:2]
+    up, levels = np.asarray(parents), depth_levels(parents)
+    pos, glob = np.empty_like(local_t), np.empty_like(local_r) if with_rotations else None
+    for frames in [slice(None)] if with_rotations else frame_blocks(T, J, len(levels)):
+        p, g = pos[frames], glob if with_rotations else np.empty_like(local_r[frames])  # p is a view of pos
+        r, t = local_r[frames], local_t[frames]
+        p[:, 0], g[:, 0] = t[:, 0], r[:, 0]
+        for joints in levels:  # each joint's parent is done
+            p[:, joints] = p[:, up[joints]] + (g[:, up[joints]] @ t[:, joints, :, None])[..., 0]
+            g[:, joints] = g[:, up[joints]] @ r[:, joints]
     return (pos, glob) if with_rotations else pos
 
 
 def _axis_rotation(axis: str, angle: np.ndarray) -> np.ndarray:
-    """angle: (T,) radians -> (T, 3, 3) rotation about one coordinate axis."""
+    """angle: (...) radians -> (..., 3, 3) rotations about one coordinate axis."""
     i = "xyz".index(axis)
     a, b = (i + 1) % 3, (i + 2) % 3  # the plane the rotation turns: (y, z), (z, x) or (x, y)
     c, s = np.cos(angle), np.sin(angle)
-    m = np.zeros((len(angle), 3, 3))
-    m[:, i, i] = 1.0
-    m[:, a, a], m[:, a, b], m[:, b, a], m[:, b, b] = c, -s, s, c
+    m = np.zeros((*np.shape(angle), 3, 3))
+    m[..., i, i] = 1.0
+    m[..., a, a], m[..., a, b], m[..., b, a], m[..., b, b] = c, -s, s, c
     return m
 
 
