@@ -7,7 +7,7 @@ loaded with weights_only=True. mocapfix.fix windows, blends and merges what a fi
 
 from __future__ import annotations
 
-import dataclasses
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -27,7 +27,16 @@ from mocapfix.fix.report import FixReport
 from mocapfix.fix.rotations import RotationFixer
 from mocapfix.models.body import build_body_model
 from mocapfix.models.build import build_model
-from mocapfix.models.checkpoint import model_kind, read_checkpoint
+from mocapfix.models.checkpoint import (
+    fill_policy_values,
+    hyperparameters,
+    model_kind,
+    network_weights,
+    read_checkpoint,
+    stored_config,
+    window_settings,
+    xmae_config,
+)
 from mocapfix.models.dvae import DVAEConfig, InitialStatePredictor, MotionDVAE, NoisePredictor
 from mocapfix.models.dvae_inference import (
     FIRST_FRAMES,
@@ -39,7 +48,7 @@ from mocapfix.models.dvae_inference import (
 )
 from mocapfix.models.dvae_state import STATES, MotionState, velocity_mask
 from mocapfix.models.jitter import JitterNet, lowpass, residual_noise
-from mocapfix.models.xmae import XMAE, XMAEConfig
+from mocapfix.models.xmae import XMAE
 from mocapfix.models.xmae_inference import xmae_reconstruct
 
 
@@ -70,29 +79,12 @@ class XMAEFixer(PositionFixer):
 
     @classmethod
     def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32", policy=None) -> XMAEFixer:
-        hparams, state_dict = ckpt["hyper_parameters"], ckpt["state_dict"]
-        skeleton, fps, frames = _window_hparams(path, hparams)
-        if "model" in ckpt:
-            config = ckpt["model"].get("config")
-        else:  # written before checkpoints held their model config: the sizes were hyperparameters
-            config = {
-                k: hparams[k]
-                for k in (f.name for f in dataclasses.fields(XMAEConfig))
-                if hparams.get(k) is not None and k not in ("num_joints", "num_frames")
-            }
-            config.update(num_joints=skeleton.num_joints, num_frames=frames)
-        try:
-            net = build_model("xmae", config)
+        skeleton, fps, _ = window_settings(path, hyperparameters(ckpt))
+        try:  # (checkpoints written before they held their config: rebuilt from their hyperparameters)
+            net = build_model("xmae", xmae_config(path, ckpt))
         except (TypeError, ValueError, AssertionError) as e:
             raise MotionFileError(path, f"bad XMAE sizes in the checkpoint ({e})") from None
-        weights = {k[len("net.") :]: v for k, v in state_dict.items() if k.startswith("net.")}
-        try:
-            net.load_state_dict(weights)
-        except RuntimeError as e:
-            first = " ".join(str(e).split())[:200]
-            raise MotionFileError(
-                path, f"weights do not fit the network its hyperparameters describe ({first})"
-            ) from None
+        load_weights(path, net, network_weights(ckpt), "its hyperparameters describe")
         return cls(net, skeleton, fps, device, precision, policy)
 
     @torch.inference_mode()
@@ -152,10 +144,7 @@ class DVAEFixer(PositionFixer):
 
     def __init__(
         self,
-        net: MotionDVAE,
-        codec: MotionState,
-        x0_pred: InitialStatePredictor,
-        noise_pred: NoisePredictor,
+        parts: DVAEParts,
         skeleton: Skeleton,
         fps: float,
         window: int,
@@ -167,9 +156,10 @@ class DVAEFixer(PositionFixer):
     ):
         self.policy = policy
         self.device = torch.device(device)
-        self.net, self.x0_pred, self.noise_pred = (m.to(self.device).eval() for m in (net, x0_pred, noise_pred))
-        codec.to(self.device)  # its body model and joint reference
-        self.codec, self.state = codec, codec.kind
+        self.net, self.x0_pred, self.noise_pred = (
+            m.to(self.device).eval() for m in (parts.net, parts.x0_pred, parts.noise_pred)
+        )
+        self.codec, self.state = parts.codec.to(self.device), parts.codec.kind  # its body model and joint reference
         self.skeleton, self.fps, self.window = skeleton, float(fps), int(window)
         self.noise_lambda, self.fusion, self.first_frame = float(noise_lambda), bool(fusion), first_frame
         self.notes = (
@@ -186,11 +176,11 @@ class DVAEFixer(PositionFixer):
         from frame to frame, and the LSTMs are cheap (1e-3 s per frame on a CPU core)."""
         if precision == "bf16":
             raise ValueError("--precision bf16 is for XMAE checkpoints; Motion-DVAE runs in fp32")
-        hparams = ckpt["hyper_parameters"]
+        hparams = hyperparameters(ckpt)
         ph = hparams.get("prior_hparams")
         if not isinstance(ph, dict):
             raise MotionFileError(path, "Motion-DVAE checkpoint lacks prior_hparams: cannot rebuild the networks")
-        skeleton, fps, frames = _window_hparams(path, ph)
+        skeleton, fps, frames = window_settings(path, ph)
         missing = [k for k in ("state", "latent_dim", "lstm_hidden", "mlp_hidden", "norm_groups") if ph.get(k) is None]
         missing += [k for k in ("noise_lambda", "estimate") if hparams.get(k) is None]
         if missing:
@@ -200,18 +190,14 @@ class DVAEFixer(PositionFixer):
         state = ph["state"]
         if state not in STATES:
             raise MotionFileError(path, f"Motion-DVAE checkpoint has an unknown state {state!r}")
-        nets = _dvae_nets(path, ckpt, ph, state, skeleton, fps)
-        codec = nets["codec"]
+        parts = _dvae_parts(path, ckpt, ph, state, skeleton, fps)
         fusion = uses_noise_model(str(hparams["estimate"]), float(hparams["noise_lambda"]))
         first_frame = str(hparams.get("first_frame", "decoded"))  # checkpoints from before it: the module's default
         if first_frame not in FIRST_FRAMES:
             raise MotionFileError(path, f"Motion-DVAE checkpoint has an unknown first_frame {first_frame!r}")
         # the rotations state fixes rotations (DVAERotationFixer), the positions state positions
         return (DVAERotationFixer if state == "rotations" else cls)(
-            nets["net"],
-            codec,
-            nets["x0_pred"],
-            nets["noise_pred"],
+            parts,
             skeleton,
             fps,
             frames,
@@ -251,10 +237,18 @@ class DVAEFixer(PositionFixer):
         return rot.float().cpu(), root.float().cpu()
 
 
-def _dvae_nets(path, ckpt: dict, ph: dict, state: str, skeleton: Skeleton, fps: float) -> dict:
+class DVAEParts(NamedTuple):
+    """The Motion-DVAE denoising stage's networks, each named as its weights' prefix in a checkpoint."""
+
+    codec: MotionState  # the state (its body model and joint reference)
+    net: MotionDVAE
+    x0_pred: InitialStatePredictor
+    noise_pred: NoisePredictor
+
+
+def _dvae_parts(path, ckpt: dict, ph: dict, state: str, skeleton: Skeleton, fps: float) -> DVAEParts:
     """The Motion-DVAE denoising stage's parts rebuilt from the prior's hyperparameters (ph) and
-    loaded with the checkpoint's weights: codec (the state), net, x0_pred, noise_pred."""
-    state_dict = ckpt["state_dict"]
+    loaded with the checkpoint's weights."""
     body = None
     if state == "rotations":
         try:  # an SMPL body is rebuilt from the model file the checkpoint names (never stored in it)
@@ -273,37 +267,33 @@ def _dvae_nets(path, ckpt: dict, ph: dict, state: str, skeleton: Skeleton, fps: 
         codec = MotionState(state, skeleton.parents, skeleton.groups, fps, body)
         D, H, Hm, G = codec.dim, int(ph["lstm_hidden"]), int(ph["mlp_hidden"]), int(ph["norm_groups"])
         num_points = codec.num_joints + (body.num_markers if body is not None else 0)
-        config = (
-            ckpt["model"].get("config")
-            if "model" in ckpt
-            else DVAEConfig(
-                state,
-                skeleton.num_joints,
-                int(ph["latent_dim"]),
-                H,
-                Hm,
-                G,
-                bool(ph.get("encoder_velocities", False)),
-            )
+        config = stored_config(path, ckpt)
+        if config is None:  # written before checkpoints held their config: the prior's hyperparameters
+            velocities = bool(ph.get("encoder_velocities", False))
+            config = DVAEConfig(state, skeleton.num_joints, int(ph["latent_dim"]), H, Hm, G, velocities)
+        parts = DVAEParts(
+            codec,
+            build_model("motion-dvae", config),
+            InitialStatePredictor(D, H, Hm, G, velocity_mask(state, codec.num_joints)),
+            NoisePredictor(H, 3 * num_points, Hm, G),
         )
-        nets = {
-            "codec": codec,
-            "net": build_model("motion-dvae", config),
-            "x0_pred": InitialStatePredictor(D, H, Hm, G, velocity_mask(state, codec.num_joints)),
-            "noise_pred": NoisePredictor(H, 3 * num_points, Hm, G),
-        }
     except (TypeError, ValueError) as e:
         raise MotionFileError(path, f"bad Motion-DVAE sizes in the checkpoint ({e})") from None
-    for prefix, net in nets.items():
-        weights = {k[len(prefix) + 1 :]: v for k, v in state_dict.items() if k.startswith(prefix + ".")}
-        try:
-            net.load_state_dict(weights)
-        except RuntimeError as e:
-            first = " ".join(str(e).split())[:200]
-            raise MotionFileError(
-                path, f"weights do not fit the network its hyperparameters describe ({prefix}: {first})"
-            ) from None
-    return nets
+    for prefix, net in parts._asdict().items():
+        load_weights(path, net, network_weights(ckpt, prefix), "its hyperparameters describe", prefix)
+    return parts
+
+
+def load_weights(path, net: torch.nn.Module, weights: dict, described: str, part: str = "") -> None:
+    """net given a checkpoint's weights (network_weights); MotionFileError naming the file where
+    they do not fit the network the checkpoint `described` (the start of the message)."""
+    try:
+        net.load_state_dict(weights)
+    except RuntimeError as e:
+        first = " ".join(str(e).split())[:200]
+        raise MotionFileError(
+            path, f"weights do not fit the network {described} ({f'{part}: ' if part else ''}{first})"
+        ) from None
 
 
 class DVAERotationFixer(RotationFixer, DVAEFixer):
@@ -330,17 +320,12 @@ class JitterFixer(Fixer):
 
     @classmethod
     def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32", policy=None) -> JitterFixer:
-        skeleton, fps, _ = _window_hparams(path, ckpt["hyper_parameters"])
+        skeleton, fps, _ = window_settings(path, hyperparameters(ckpt))
         try:
-            net = build_model("jitter", ckpt["model"]["config"])
+            net = build_model("jitter", stored_config(path, ckpt))
         except (TypeError, ValueError) as e:
             raise MotionFileError(path, f"bad jitter-remover sizes in the checkpoint ({e})") from None
-        weights = {k[len("net.") :]: v for k, v in ckpt["state_dict"].items() if k.startswith("net.")}
-        try:
-            net.load_state_dict(weights)
-        except RuntimeError as e:
-            first = " ".join(str(e).split())[:200]
-            raise MotionFileError(path, f"weights do not fit the network its config describes ({first})") from None
+        load_weights(path, net, network_weights(ckpt), "its config describes")
         return cls(net, skeleton, fps, device)
 
     def fix_clips(self, clips: list[Clip], options: FixOptions) -> tuple[list[Clip], FixReport]:
@@ -372,20 +357,6 @@ class JitterFixer(Fixer):
         return base + correction
 
 
-def _window_hparams(path, hp: dict) -> tuple[Skeleton, float, int]:
-    missing = [k for k in ("skeleton", "window_fps", "window_frames") if hp.get(k) is None]
-    if missing:
-        raise MotionFileError(path, f"checkpoint lacks {', '.join(missing)} (saved before training set it up?)")
-    try:
-        skeleton = Skeleton.from_dict(hp["skeleton"])
-        fps, frames = float(hp["window_fps"]), int(hp["window_frames"])
-    except (KeyError, TypeError, ValueError) as e:
-        raise MotionFileError(path, f"checkpoint's skeleton or window is malformed ({e})") from None
-    if not (fps > 0 and frames > 0):
-        raise MotionFileError(path, f"checkpoint's window is {frames} frames at {fps} fps")
-    return skeleton, fps, frames
-
-
 # kind -> class with from_checkpoint(path, ckpt, device, precision, policy)
 FIXERS: dict[str, type] = {"xmae": XMAEFixer, "motion-dvae": DVAEFixer, "jitter": JitterFixer}
 # Checkpoints fix recognises but cannot use, and why. A prior alone has no initial-state
@@ -401,8 +372,7 @@ def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32"
     """The Fixer for a checkpoint file (FIXERS: XMAE, the Motion-DVAE denoising stage).
     precision: fp32, bf16 or auto (resolve_precision; XMAE only)."""
     ckpt = read_checkpoint(path)
-    if "model" in ckpt and not (isinstance(ckpt["model"], dict) and isinstance(ckpt["model"].get("config"), dict)):
-        raise MotionFileError(path, "the checkpoint's model entry is malformed (no kind and config)")
+    stored_config(path, ckpt)  # a malformed model entry is said before anything is built from it
     kind = model_kind(ckpt)
     if kind in REFUSED:
         raise MotionFileError(path, REFUSED[kind])
@@ -412,8 +382,9 @@ def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32"
         )
     # which fill for which hole, calibrated on the val split (fills/policy.py); None: the
     # model everywhere (checkpoints from before it, until `mocapfix validate --ckpt_path` adds one)
+    values = fill_policy_values(ckpt)
     try:
-        policy = FillPolicy.from_dict(ckpt["fill_policy"]) if "fill_policy" in ckpt else None
+        policy = FillPolicy.from_dict(values) if values is not None else None
     except (KeyError, TypeError, ValueError) as e:
         raise MotionFileError(path, f"the checkpoint's fill policy is malformed ({e})") from None
     return FIXERS[kind].from_checkpoint(path, ckpt, device, precision, policy)

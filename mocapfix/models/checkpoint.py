@@ -125,11 +125,22 @@ def network_weights(ckpt: dict, prefix: str = "net") -> dict:
     return {k[len(start) :]: v for k, v in ckpt[STATE_DICT].items() if k.startswith(start)}
 
 
+def stored_config(path, ckpt: dict) -> dict | None:
+    """The network config a checkpoint stores under "model" (plain values); None for one written
+    before checkpoints held it. MotionFileError naming the file when the entry is malformed."""
+    if MODEL not in ckpt:
+        return None
+    entry = ckpt[MODEL]
+    if not (isinstance(entry, dict) and isinstance(entry.get("config"), dict)):
+        raise MotionFileError(path, "the checkpoint's model entry is malformed (no kind and config)")
+    return entry["config"]
+
+
 def xmae_config(path, ckpt: dict) -> dict:
     """An XMAE checkpoint's network config as plain values: its model entry, or, written before
     checkpoints held one, rebuilt from the sizes that were then hyperparameters."""
     if MODEL in ckpt:
-        return ckpt[MODEL].get("config")
+        return stored_config(path, ckpt)
     hparams = ckpt[HYPER_PARAMETERS]
     skeleton, _, frames = window_settings(path, hparams)
     sizes = (f.name for f in dataclasses.fields(XMAEConfig) if f.name not in ("num_joints", "num_frames"))
