@@ -148,10 +148,8 @@ class DVAEFixer(PositionFixer):
         skeleton: Skeleton,
         fps: float,
         window: int,
-        noise_lambda: float,
-        fusion: bool,
+        settings: DVAEEstimate,
         device: str | torch.device = "cpu",
-        first_frame: str = "decoded",
         policy: FillPolicy | None = None,
     ):
         self.policy = policy
@@ -161,10 +159,10 @@ class DVAEFixer(PositionFixer):
         )
         self.codec, self.state = parts.codec.to(self.device), parts.codec.kind  # its body model and joint reference
         self.skeleton, self.fps, self.window = skeleton, float(fps), int(window)
-        self.noise_lambda, self.fusion, self.first_frame = float(noise_lambda), bool(fusion), first_frame
+        self.noise_lambda, self.fusion, self.first_frame = settings
         self.notes = (
             ["eq. 18 fuses 3D points, not rotations: the decoder's motion is used"]
-            if fusion and self.state == "rotations"
+            if self.fusion and self.state == "rotations"
             else []
         )
 
@@ -191,7 +189,8 @@ class DVAEFixer(PositionFixer):
         if state not in STATES:
             raise MotionFileError(path, f"Motion-DVAE checkpoint has an unknown state {state!r}")
         parts = _dvae_parts(path, ckpt, ph, state, skeleton, fps)
-        fusion = uses_noise_model(str(hparams["estimate"]), float(hparams["noise_lambda"]))
+        noise_lambda = float(hparams["noise_lambda"])
+        fusion = uses_noise_model(str(hparams["estimate"]), noise_lambda)
         first_frame = str(hparams.get("first_frame", "decoded"))  # checkpoints from before it: the module's default
         if first_frame not in FIRST_FRAMES:
             raise MotionFileError(path, f"Motion-DVAE checkpoint has an unknown first_frame {first_frame!r}")
@@ -201,10 +200,8 @@ class DVAEFixer(PositionFixer):
             skeleton,
             fps,
             frames,
-            float(hparams["noise_lambda"]),
-            fusion,
+            DVAEEstimate(noise_lambda, fusion, first_frame),
             device,
-            first_frame,
             policy,
         )
 
@@ -235,6 +232,14 @@ class DVAEFixer(PositionFixer):
         inf = self._infer(Observation(positions, rotations, root_translation, offsets))
         rot, root = rotation_estimate(inf, self.codec, self.first_frame)
         return rot.float().cpu(), root.float().cpu()
+
+
+class DVAEEstimate(NamedTuple):
+    """How the denoising stage makes its final estimate (its own hyperparameters)."""
+
+    noise_lambda: float
+    fusion: bool  # eq. 18: the decoder output fused with the observation (uses_noise_model)
+    first_frame: str  # FIRST_FRAMES
 
 
 class DVAEParts(NamedTuple):
