@@ -21,7 +21,7 @@ import torch
 from mocapfix.apps.fix_run import fix_files, parse_shard
 from mocapfix.fix import MODES
 from mocapfix.fix.fixers import PRECISIONS
-from mocapfix.io import add_read_arguments
+from mocapfix.io import add_read_arguments, read_options
 from mocapfix.io.joint_map import read_joint_map
 from mocapfix.pretrained import pretrained_path
 
@@ -154,14 +154,11 @@ def main(argv: list[str] | None = None) -> int:
             joint_map=joint_map,
             render_gif=args.render,
             joint_map_path=args.joint_map,
-            unit=args.unit,
-            up_axis=args.up_axis,
-            fps=args.fps,
-            body_model_path=args.body_model,
             jobs=args.jobs,
             shard=shard,
             resume=args.resume,
             library=args.library,
+            **read_options(args),
         )
     except KeyboardInterrupt:  # outputs are renamed into place whole: nothing half-written is left
         print(
@@ -178,14 +175,6 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
-
-
-class _Terminated(BaseException):
-    """SIGTERM, raised where the program is: not an Exception, so no per-file handler swallows it."""
-
-
-def _terminated(signum, frame):
-    raise _Terminated()
 
 
 class _Terminated(BaseException):

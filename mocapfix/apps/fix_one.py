@@ -195,18 +195,3 @@ class Progress:
         elif pct // 10 > self.last // 10 or done >= total:
             print(f"{self.label}: {done}/{total} {self.unit} ({pct}%)", file=self.stream, flush=True)
         self.last = pct
-
-
-def _one_line(path, e: BaseException) -> str:
-    """MotionFileError reads "path: problem"; anything else gets the path and its type. A
-    MotionFileError about another file (the body model) gets the input's path in front."""
-    text = " ".join(str(e).split())
-    if text.startswith(shown(path)):
-        return text
-    if isinstance(e, MotionFileError):
-        return text if Path(e.path).resolve() == Path(path).resolve() else f"{shown(path)}: {text}"
-    return f"{shown(path)}: {type(e).__name__}: {text}" if text else f"{shown(path)}: {type(e).__name__}"
-
-
-def _num(v: float) -> str:
-    return f"{v:.2f}" if math.isfinite(v) else "-"

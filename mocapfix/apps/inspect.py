@@ -16,7 +16,7 @@ import numpy as np
 
 from mocapfix.core.clip import Clip, body_limbs, limb_lengths, shown
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.io import add_read_arguments, list_motion_files, read_motion
+from mocapfix.io import add_read_arguments, list_motion_files, read_motion, read_options
 from mocapfix.io.joint_map import check_joint_map, read_joint_map
 from mocapfix.rig.labels import pelvis
 from mocapfix.rig.mapping import describe_mapping
@@ -238,10 +238,7 @@ def main(argv=None) -> int:
         model=model,
         joint_map=joint_map,
         source=args.source,
-        unit=args.unit,
-        up_axis=args.up_axis,
-        fps=args.fps,
-        body_model_path=args.body_model,
+        **read_options(args),
     )
 
 

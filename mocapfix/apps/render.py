@@ -15,7 +15,7 @@ from pathlib import Path
 
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.render import render, tracks_for
-from mocapfix.io import add_read_arguments, frame_rate, read_motion
+from mocapfix.io import add_read_arguments, frame_rate, read_motion, read_options
 from mocapfix.io.files import check_output, claimed, staged, writing
 
 
@@ -85,9 +85,7 @@ def main(argv: list[str] | None = None) -> int:
             args.fps,
             args.person,
             source=args.source,
-            unit=args.unit,
-            up_axis=args.up_axis,
-            body_model_path=args.body_model,
+            **read_options(args, fps=False),
         )
     except (ValueError, OSError) as e:  # MotionFileError is a ValueError: "path: problem"
         print(f"error: {' '.join(str(e).split())}", file=sys.stderr)

@@ -47,6 +47,12 @@ def add_read_arguments(parser, fps: bool = True) -> None:
     parser.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
 
 
+def read_options(args, fps: bool = True) -> dict:
+    """What add_read_arguments parsed (--source aside), as read_motion's keyword arguments."""
+    options = {"unit": args.unit, "up_axis": args.up_axis, "body_model_path": args.body_model}
+    return {**options, "fps": args.fps} if fps else options
+
+
 _EXTENSIONS = {
     "bvh": (".bvh",),
     "positions": (".npz", ".csv"),
