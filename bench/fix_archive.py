@@ -34,6 +34,7 @@ import numpy as np
 import torch  # noqa: E402
 from common import describe, write_result
 
+from mocapfix.evaluation.recording import random_holes, with_holes  # noqa: E402
 from mocapfix.io import read_motion  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"
@@ -50,13 +51,9 @@ def write_take(path: Path, positions: np.ndarray, clip) -> None:
     )
 
 
-def holed(positions: np.ndarray, fps: float, seed: int, holes: int = 12, hole_s: float = 0.5) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    out, n = positions.copy(), max(1, round(hole_s * fps))
-    for _ in range(holes):
-        start = int(rng.integers(0, max(1, len(out) - n)))
-        out[start : start + n, int(rng.integers(0, out.shape[1]))] = np.nan
-    return out
+def holed(positions: np.ndarray, fps: float, seed: int, holes: int = 12) -> np.ndarray:
+    """positions (T, J, 3) with `holes` holes of one joint for 0.5 s each (seeded): fix has work."""
+    return with_holes(positions, random_holes(*positions.shape[:2], fps, seed, count=holes))
 
 
 def fix(inputs: Path, out_dir: Path, *extra: str) -> tuple[float, int]:

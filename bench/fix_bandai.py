@@ -28,21 +28,11 @@ from common import describe, pick_device, print_table, write_result
 
 from mocapfix.apps.fix_run import fix_files  # noqa: E402
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
-from mocapfix.evaluation.recording import corrupt_recording  # noqa: E402
+from mocapfix.evaluation.recording import corrupt_recording, hole_lengths  # noqa: E402
 from mocapfix.fills.classical import lerp_infill  # noqa: E402
 from mocapfix.io.positions import write_positions  # noqa: E402
 
 DEFAULT_BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"
-
-
-def hole_frames(gap: np.ndarray) -> np.ndarray:
-    """gap (T, J) -> (T,) the length in frames of the hole each frame is in (0 outside holes)."""
-    frames = gap.any(-1).astype(int)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], frames, [0]])))  # start, end, start, end, ...
-    out = np.zeros(len(frames), dtype=int)
-    for start, end in zip(edges[::2], edges[1::2]):
-        out[start:end] = end - start
-    return out
 
 
 def main(argv=None) -> int:
@@ -110,7 +100,7 @@ def main(argv=None) -> int:
     ]
     # holes by length (corrupt_recording keeps 0.7 s of clean motion between holes: runs of
     # frames with a missing joint are single holes)
-    lengths = [hole_frames(g) for g in gap]
+    lengths = [hole_lengths(g) for g in gap]
     for lo, hi in ((0.1, 0.3), (0.3, 0.5), (0.5, 0.7), (0.7, 0.9)):
         sel = [g & ((n >= round(lo * 30)) & (n < round(hi * 30) + (hi == 0.9)))[:, None] for g, n in zip(gap, lengths)]
         if sum(s.sum() for s in sel):

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 from common import describe, pick_device, print_table, write_result
-from fix_policy_bandai import displace_arms
 
+from mocapfix.evaluation.recording import displace_arms, error_mm  # noqa: E402
 from mocapfix.fix import fix_clips  # noqa: E402
 from mocapfix.fix.fixers import load_fixer  # noqa: E402
 from mocapfix.io import list_motion_files, read_motion  # noqa: E402
@@ -53,7 +53,7 @@ def main(argv=None) -> int:
 
     t0 = time.perf_counter()
     clean_moved, clean_n, worst_m, per_take = 0, 0, 0.0, []
-    before, after, moved_n, other_moved, other_n = [], [], 0, 0, 0
+    bads, outs, truths, moveds, other_moved, other_n = [], [], [], [], 0, 0
     for f, c in zip(files, takes):
         seen = np.isfinite(c.positions).all(-1)
         (out,), _ = fix_clips([c], fixer, "both")
@@ -68,14 +68,16 @@ def main(argv=None) -> int:
         # as `fix` reads such a file: a jump faster than any body part is missing data (io/absurd.py)
         read = drop_absurd(c.replace(positions=bad), c.meta["stature_m"])
         (out,), _ = fix_clips([read], fixer, "both")
-        before.append(np.linalg.norm(bad - c.positions, axis=-1)[moved])
-        after.append(np.linalg.norm(out.positions - c.positions, axis=-1)[moved])
-        moved_n += int(moved.sum())
+        bads.append(bad)
+        outs.append(out.positions)
+        truths.append(c.positions)
+        moveds.append(moved)
         rest = seen & ~moved
         other_moved += int((np.linalg.norm(out.positions - bad, axis=-1)[rest] > MOVED_M).sum())
         other_n += int(rest.sum())
     seconds = time.perf_counter() - t0
-    err_before, err_after = 1000 * float(np.concatenate(before).mean()), 1000 * float(np.concatenate(after).mean())
+    err_before, err_after = error_mm(bads, truths, moveds), error_mm(outs, truths, moveds)
+    moved_n = int(sum(m.sum() for m in moveds))
     rows = [
         {"case": "clean takes", "tokens": clean_n, "moved_pct": 100 * clean_moved / clean_n, "before_mm": 0.0},
         {"case": "displaced arm tokens", "tokens": moved_n, "before_mm": err_before, "after_mm": err_after},

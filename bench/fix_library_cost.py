@@ -11,10 +11,10 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-from fix_strangers_cmu import DEFAULT_CMU, PARTS, holes
+from fix_strangers_cmu import DEFAULT_CMU, PARTS
 
 from mocapfix.core.skeleton import preset
+from mocapfix.evaluation.recording import spread_holes, with_holes
 from mocapfix.fix import fix_clips, measure_recordings, motion_library
 from mocapfix.fix.fixers import load_fixer
 from mocapfix.io import list_motion_files, read_motion
@@ -35,10 +35,11 @@ def main(argv=None) -> int:
     body = preset("body21")
     clips = (read_motion(f)[0] for f in list_motion_files(args.data, "bvh"))
     takes = [onto_skeleton(c, body) for c in clips if c.duration_s >= args.min_seconds]
+    joints = body.groups.get(PARTS[args.part])
     holed = []
     for c in takes:
-        hidden = holes(c.num_frames, c.fps, args.gap, body.groups.get(PARTS[args.part]), body.num_joints)
-        holed.append(c.replace(positions=np.where(hidden[..., None], np.nan, c.positions).astype(np.float32)))
+        hidden = spread_holes(c.num_frames, body.num_joints, c.fps, args.gap, joints)
+        holed.append(c.replace(positions=with_holes(c.positions, hidden)))
     recordings = [[c] for c in holed]
 
     t0 = time.perf_counter()

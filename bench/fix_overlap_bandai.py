@@ -5,7 +5,7 @@ overlaps, in one run.
 Three inputs per test clip, each against the clean clip:
 - mixed: recording-level corruption (evaluation/recording.py: gaps of 0.1-0.9 s on joints and
   limbs, displaced tokens), seeded per clip;
-- displaced arms: every 2 s one arm moved 0.5-1.0 m for 0.5 s (bench/fix_policy_bandai.py);
+- displaced arms: every 2 s one arm moved 0.5-1.0 m for 0.5 s (evaluation/recording.py: displace_arms);
 - clean: the clip as it is (what fix may not make worse).
 The error is the mean distance over every token of the output to the clean clip (mm), and the
 acceleration error: the mean distance of the output's second difference in time to the clean
@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 from common import describe, pick_device, print_table, write_result
-from fix_policy_bandai import DEFAULT_BVH, displace_arms
+from fix_policy_bandai import DEFAULT_BVH
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
-from mocapfix.evaluation.recording import corrupt_recording  # noqa: E402
+from mocapfix.evaluation.recording import corrupt_recording, displace_arms  # noqa: E402
 from mocapfix.fix import fix_clips  # noqa: E402
 from mocapfix.fix.fixers import load_fixer  # noqa: E402
 from mocapfix.pretrained import pretrained_path  # noqa: E402

@@ -23,26 +23,11 @@ import numpy as np
 from common import describe, pick_device, print_table, write_result
 
 from mocapfix.data.datamodule import MotionDataModule  # noqa: E402
+from mocapfix.evaluation.recording import displace_arms, error_mm  # noqa: E402
 from mocapfix.fix import fix_clips  # noqa: E402
 from mocapfix.fix.fixers import load_fixer  # noqa: E402
 
 DEFAULT_BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"
-
-
-def displace_arms(
-    positions: np.ndarray, fps: float, groups: dict, rng: np.random.Generator, every_s: float = 2.0, span_s: float = 0.5
-) -> tuple[np.ndarray, np.ndarray]:
-    """positions (T, J, 3) -> (displaced copy, (T, J) bool: the displaced tokens)."""
-    out, moved = positions.copy(), np.zeros(positions.shape[:2], dtype=bool)
-    arms = [g for g in ("left_arm", "right_arm") if g in groups]
-    span = int(round(span_s * fps))
-    for start in range(int(fps * 0.5), len(positions) - span, int(round(every_s * fps))):
-        joints = list(groups[arms[rng.integers(len(arms))]])
-        direction = rng.normal(size=3)
-        offset = direction / np.linalg.norm(direction) * rng.uniform(0.5, 1.0)
-        out[start : start + span, joints] += offset.astype(np.float32)
-        moved[start : start + span, joints] = True
-    return out, moved
 
 
 def main(argv=None) -> int:
@@ -71,17 +56,18 @@ def main(argv=None) -> int:
         seen = ~np.isnan(c.positions).any(-1)
         changed += int(((out[0].positions != c.positions).any(-1) & seen).sum())
         observed += int(seen.sum())
-    before, after, moved_n, clean_changed, clean_n = [], [], 0, 0, 0
+    bads, outs, moveds, clean_changed, clean_n = [], [], [], 0, 0
     for c in clips:
         bad, moved = displace_arms(c.positions, c.fps, c.skeleton.groups, rng)
         out, _ = fix_clips([c.replace(positions=bad)], fixer, "both")
-        before.append(np.linalg.norm(bad - c.positions, axis=-1)[moved])
-        after.append(np.linalg.norm(out[0].positions - c.positions, axis=-1)[moved])
-        moved_n += int(moved.sum())
+        bads.append(bad)
+        outs.append(out[0].positions)
+        moveds.append(moved)
         clean_changed += int(((out[0].positions != bad).any(-1) & ~moved).sum())
         clean_n += int((~moved).sum())
     seconds = time.perf_counter() - t0
-    err_before, err_after = 1000 * float(np.concatenate(before).mean()), 1000 * float(np.concatenate(after).mean())
+    truths, moved_n = [c.positions for c in clips], int(sum(m.sum() for m in moveds))
+    err_before, err_after = error_mm(bads, truths, moveds), error_mm(outs, truths, moveds)
     rows = [
         {
             "case": "clean clips",

@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mocapfix.apps.fix_run import fix_files  # noqa: E402
 from mocapfix.core.skeleton import preset  # noqa: E402
+from mocapfix.evaluation.recording import part_holes, with_holes  # noqa: E402
 from mocapfix.fix.fixers import load_fixer, resolve_precision  # noqa: E402
 from mocapfix.io.positions import write_positions  # noqa: E402
 from mocapfix.io.synthetic import generate_clips  # noqa: E402
@@ -49,13 +50,8 @@ def make_inputs(folder: Path, seconds: float, fps: float, seed: int = 0) -> dict
     clean = generate_clips(1, seconds, fps=fps, seed=seed)[0].positions  # (T, 22, 3)
     T = len(clean)
     rng = np.random.default_rng(seed)
-    gaps = clean.copy()
-    parts = [None] + [list(v) for v in skel.groups.values()]
-    for start in np.linspace(0.05 * T, 0.95 * T, 10).astype(int):
-        joints = parts[rng.integers(len(parts))]
-        gaps[start : start + int(0.5 * fps), slice(None) if joints is None else joints] = np.nan
-    spread = clean.copy()
-    spread[rng.random(spread.shape[:2]) < 0.05] = np.nan
+    gaps = with_holes(clean, part_holes(T, skel.num_joints, fps, skel.groups, rng))
+    spread = with_holes(clean, rng.random(clean.shape[:2]) < 0.05)
     paths = {}
     for case, pos in (("denoise", clean), ("infill-gaps", gaps), ("infill-spread", spread)):
         paths[case] = write_positions(folder / f"{case}.npz", pos, fps, skel)

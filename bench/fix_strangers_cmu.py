@@ -22,6 +22,7 @@ import torch
 from common import describe, pick_device, print_table, write_result
 
 from mocapfix.core.skeleton import preset  # noqa: E402
+from mocapfix.evaluation.recording import spread_holes, with_holes  # noqa: E402
 from mocapfix.fills.classical import CLASSICAL  # noqa: E402
 from mocapfix.fills.motion_matching import FILLS as MATCH_FILLS  # noqa: E402
 from mocapfix.fills.motion_matching import match_fills  # noqa: E402
@@ -39,16 +40,6 @@ from mocapfix.rig.mapping import onto_skeleton  # noqa: E402
 DEFAULT_CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu-sample"
 GAPS_S = (0.1, 0.3, 0.5, 0.7, 0.9)
 PARTS = {"full": None, "arm": "left_arm", "leg": "left_leg"}
-
-
-def holes(num_frames: int, fps: float, gap_s: float, joints, num_joints: int, count: int = 4) -> np.ndarray:
-    """(T, J) bool: `count` holes of gap_s, evenly spread, over `joints` (None: all)."""
-    mask = np.zeros((num_frames, num_joints), dtype=bool)
-    n = max(1, int(round(gap_s * fps)))
-    for k in range(count):
-        start = int((k + 1) * num_frames / (count + 1)) - n // 2
-        mask[start : start + n, slice(None) if joints is None else list(joints)] = True
-    return mask
 
 
 def main(argv=None) -> int:
@@ -95,12 +86,10 @@ def main(argv=None) -> int:
             holed_takes, hiddens = [], []
             for clip in takes:
                 truth = clip.positions.astype(np.float64)
-                hidden = holes(clip.num_frames, clip.fps, gap, body.groups.get(group), body.num_joints)
+                hidden = spread_holes(clip.num_frames, body.num_joints, clip.fps, gap, body.groups.get(group))
                 hidden &= np.isfinite(truth).all(-1)
                 hiddens.append(hidden)
-                holed_takes.append(
-                    clip.replace(positions=np.where(hidden[..., None], np.nan, truth).astype(np.float32))
-                )
+                holed_takes.append(clip.replace(positions=with_holes(truth, hidden)))
             # the folder's policy and motion library: what `mocapfix fix FOLDER` measures and searches
             recordings = [[c] for c in holed_takes]
             library = motion_library(recordings, fixer)  # the folder's takes first, then the extra ones

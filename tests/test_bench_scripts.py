@@ -490,33 +490,43 @@ def test_fast_path_accuracy_compares_against_the_seed_range():
     assert compare(runs[1:], ["plain", "fast"])[0]["within_seed_range"] is None  # one plain seed: no verdict
 
 
-def test_build_corpus_puts_each_performer_in_a_folder_and_keeps_check_subjects_out(tmp_path, bandai_files, cmu_files):
-    import shutil
+def _one_take(folder: Path, cmu_files: list[Path], seconds: float = 4.0) -> Path:
+    """folder/ with a link to the CMU take nearest `seconds` long (120 fps; the header says)."""
 
-    from mocapfix.data.windows import load_clips
+    def frames(f: Path) -> int:
+        with f.open() as lines:
+            return next(int(line.split()[1]) for line in lines if line.startswith("Frames:"))
 
-    idle, cmu = tmp_path / "reactidle" / "acted", tmp_path / "cmu"
-    idle.mkdir(parents=True)
-    cmu.mkdir()
-    shutil.copy(bandai_files[0], idle / "000_acted.bvh")  # person 000
-    shutil.copy(bandai_files[1], idle / "007_acted.bvh")  # person 007
-    shutil.copy(cmu_files[0], cmu / "35_01.bvh")  # a subject to train on
-    shutil.copy(cmu_files[1], cmu / "05_01.bvh")  # the stranger benchmark's: never trained on
-    out = tmp_path / "corpus.npz"
-    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
-    args = ["--reactidle", tmp_path / "reactidle", "--cmu", cmu, "--out", out, "--cache-dir", tmp_path / "cache"]
-    run = subprocess.run(
-        [sys.executable, str(REPO / "bench" / "build_corpus.py"), *map(str, args)],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
+    take = min(cmu_files, key=lambda f: abs(frames(f) - 120 * seconds))
+    folder.mkdir()
+    (folder / take.name).symlink_to(take)
+    return folder
+
+
+def test_fix_both_strangers(tmp_path, cmu_files):
+    """One CMU take through the shipped model: clean, then with an arm displaced every 2 s
+    (evaluation/recording.py: displace_arms); the displaced error comes down."""
+    _one_take(tmp_path / "takes", cmu_files)
+    r = bench("fix_both_strangers", "--data", tmp_path / "takes", tmp_path=tmp_path)
+    rows = {x["case"]: x for x in r["rows"]}
+    assert r["takes"] == 1 and rows["displaced arm tokens"]["tokens"] > 0
+    assert rows["displaced arm tokens"]["after_mm"] < rows["displaced arm tokens"]["before_mm"]
+
+
+def test_fix_strangers_cmu_fills_only(tmp_path, cmu_files):
+    """The classical and motion-matching fills on one CMU take's evenly spread holes
+    (evaluation/recording.py: spread_holes), every part and length: a cell each."""
+    _one_take(tmp_path / "takes", cmu_files)
+    r = bench(
+        "fix_strangers_cmu",
+        "--data",
+        tmp_path / "takes",
+        "--min-seconds",
+        "0",
+        "--model-only",
+        "--no-model",
+        tmp_path=tmp_path,
     )
-    assert run.returncode == 0, run.stderr[-3000:]
-    clips = load_clips(out)
-    assert sorted(c.source for c in clips) == [
-        "corpus/cmu35/35_01.bvh",
-        "corpus/reactidle000/000_acted.bvh",
-        "corpus/reactidle007/007_acted.bvh",
-    ]
-    assert all(c.skeleton.num_joints == 21 and c.fps == 30.0 for c in clips)
+    cells = {(x["part"], x["method"]): x for x in r["rows"]}
+    assert r["takes"] == 1 and {"full", "arm", "leg"} == {p for p, _ in cells}
+    assert 0 < cells["full", "limb"]["0.1s"] < cells["full", "limb"]["0.9s"] < 1000

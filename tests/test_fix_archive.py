@@ -9,6 +9,7 @@ import pytest
 
 from mocapfix.apps.fix_run import parse_shard, shard_of
 from mocapfix.apps.main import main
+from mocapfix.evaluation.recording import random_holes, with_holes
 from mocapfix.io import read_motion
 
 
@@ -26,13 +27,9 @@ def test_shards_are_disjoint_and_together_the_whole_run():
 def takes(tmp_path_factory, bandai_files) -> Path:
     """Four Bandai takes with holes, as positions .npz."""
     folder = tmp_path_factory.mktemp("archive")
-    rng = np.random.default_rng(0)
-    for f in bandai_files[:4]:
+    for i, f in enumerate(bandai_files[:4]):
         clip = read_motion(f)[0]
-        x = clip.positions.copy()
-        for _ in range(3):
-            s = int(rng.integers(0, len(x) - 20))
-            x[s : s + 12, int(rng.integers(0, x.shape[1]))] = np.nan
+        x = with_holes(clip.positions, random_holes(*clip.positions.shape[:2], clip.fps, seed=i, count=3, hole_s=0.4))
         names, parents = np.array(clip.skeleton.joint_names), np.array(clip.skeleton.parents)
         np.savez(folder / f"{f.stem}.npz", positions=x, fps=np.float64(clip.fps), joint_names=names, parents=parents)
     return folder
