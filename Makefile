@@ -31,12 +31,12 @@ test: $(VENV)/.installed lint
 	$(PY) -m pytest -q -ra -m "not slow" -n $(TEST_JOBS) --durations=15
 
 lint: $(VENV)/.installed
-	$(VENV)/bin/ruff check mocapfix tests bench
-	$(VENV)/bin/ruff format --check mocapfix tests bench
+	$(VENV)/bin/ruff check mocapfix tests bench scripts
+	$(VENV)/bin/ruff format --check mocapfix tests bench scripts
 
 format: $(VENV)/.installed
-	$(VENV)/bin/ruff check --fix mocapfix tests bench
-	$(VENV)/bin/ruff format mocapfix tests bench
+	$(VENV)/bin/ruff check --fix mocapfix tests bench scripts
+	$(VENV)/bin/ruff format mocapfix tests bench scripts
 
 test-all: $(VENV)/.installed
 	$(PY) -m pytest -q -ra -n $(TEST_JOBS)

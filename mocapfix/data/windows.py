@@ -195,7 +195,7 @@ def load_clips(path: Path) -> list[Clip]:
         raise MotionFileError(
             path,
             "not an archive of parsed clips (the .npz the data cache and "
-            "`bench/gpu_session.sh prepare` write: header, positions, lengths, fps)",
+            "`scripts/gpu_session.sh prepare` write: header, positions, lengths, fps)",
         )
     with z:
         header = json.loads(str(z["header"]))

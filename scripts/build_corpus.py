@@ -8,7 +8,7 @@ their licences); nothing is downloaded here and nothing is committed. Bandai Nam
 in ../shared/data/bandai-namco's val or test split (seeded hash, seed 0, 10 % / 10 %) are left
 out, so the Bandai test table stays a table of takes the model never saw.
 
-    python bench/build_corpus.py --bandai ~/Bandai-Namco-Research-Motiondataset \\
+    python scripts/build_corpus.py --bandai ~/Bandai-Namco-Research-Motiondataset \\
         --reactidle ~/ReActIdle --cmu ~/PFNN-Project/animations --out .device_data/corpus_body21.npz
 """
 

@@ -3,18 +3,18 @@
 # (device time is 30 minutes a session: make the calls back to back, the machine stays warm
 # only ~30 s between calls).
 #
-#   bash bench/gpu_session.sh xmae    # issue 3: XMAE on Bandai (fit + test), a small checkpoint back for fix (issue 5)
-#   bash bench/gpu_session.sh bench   # issue 6: inference, training vs ref_xmae, data pipeline, fix and DVAE speed
-#   bash bench/gpu_session.sh dvae    # issue 4: Motion-DVAE prior (+ its test) + denoising + test
-#   bash bench/gpu_session.sh dvae-prior     # issue 4 over several calls: the prior only (RESUME=1 goes on)
-#   bash bench/gpu_session.sh dvae-denoise   # ... then its test, the denoising stage and its test
-#   bash bench/gpu_session.sh dvae-speed     # the prior's training step eager vs compiled (minutes)
-#   bash bench/gpu_session.sh profile        # issue 6: where the compiled XMAE training step's time goes (~2 min)
-#   bash bench/gpu_session.sh tune           # issue 6: the kernel-time levers: attention backends, max-autotune
-#   bash bench/gpu_session.sh gpu-tests      # the tests marked gpu (CUDA paths: CUDA graphs, bf16, resume across devices)
-#   bash bench/gpu_session.sh accuracy       # issue 6: XMAE test tables, fast path vs plain path, two seeds each
-#   bash bench/gpu_session.sh many-holes     # issue 31: Hermite-correcting XMAEs trained on the fix case's holes
-#   bash bench/gpu_session.sh many           # issue 31: XMAE across studios (configs/xmae_many.yaml), paper
+#   bash scripts/gpu_session.sh xmae    # issue 3: XMAE on Bandai (fit + test), a small checkpoint back for fix (issue 5)
+#   bash scripts/gpu_session.sh bench   # issue 6: inference, training vs ref_xmae, data pipeline, fix and DVAE speed
+#   bash scripts/gpu_session.sh dvae    # issue 4: Motion-DVAE prior (+ its test) + denoising + test
+#   bash scripts/gpu_session.sh dvae-prior     # issue 4 over several calls: the prior only (RESUME=1 goes on)
+#   bash scripts/gpu_session.sh dvae-denoise   # ... then its test, the denoising stage and its test
+#   bash scripts/gpu_session.sh dvae-speed     # the prior's training step eager vs compiled (minutes)
+#   bash scripts/gpu_session.sh profile        # issue 6: where the compiled XMAE training step's time goes (~2 min)
+#   bash scripts/gpu_session.sh tune           # issue 6: the kernel-time levers: attention backends, max-autotune
+#   bash scripts/gpu_session.sh gpu-tests      # the tests marked gpu (CUDA paths: CUDA graphs, bf16, resume across devices)
+#   bash scripts/gpu_session.sh accuracy       # issue 6: XMAE test tables, fast path vs plain path, two seeds each
+#   bash scripts/gpu_session.sh many-holes     # issue 31: Hermite-correcting XMAEs trained on the fix case's holes
+#   bash scripts/gpu_session.sh many           # issue 31: XMAE across studios (configs/xmae_many.yaml), paper
 #                                            # sizes on the GPU and the cpu preset on 8 of its CPU cores at once
 #
 # A run longer than one call: the machine keeps checkpoints/ while it stays warm (~30 s between
@@ -28,8 +28,8 @@
 #   .whl/          wheels: roma omegaconf antlr4-python3-runtime jsonargparse docstring-parser typeshed-client,
 #                  pytest pluggy iniconfig pygments (for gpu-tests)
 #   .device_data/  bandai_pos30.npz and bandai_rot30.npz (parsed Bandai), ref_xmae.py (../shared does not travel);
-#                  corpus_body21.npz for `many`: bench/build_corpus.py (docs/data.md), a compact archive
-# Make both here first: `PYTHON=.venv/bin/python bash bench/gpu_session.sh prepare` (then carry [".whl", ".device_data"]).
+#                  corpus_body21.npz for `many`: scripts/build_corpus.py (docs/data.md), a compact archive
+# Make both here first: `PYTHON=.venv/bin/python bash scripts/gpu_session.sh prepare` (then carry [".whl", ".device_data"]).
 # STEPS / MAX_TIME (xmae), PRIOR_TIME / DENOISE_TIME (dvae) trim the runs to the call's 10 minutes.
 # Results land in $OUT (the device tool brings them back): eval tables, bench JSON, a small checkpoint.
 set -euo pipefail
@@ -67,7 +67,7 @@ nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/gpu.t
 read -ra EXTRA_ARGS <<< "${EXTRA:-}"
 read -ra FIT_ARGS <<< "${FIT_EXTRA:-}"
 COMMON=(--data.source archive --data.cache_dir null --trainer.enable_progress_bar false "${EXTRA_ARGS[@]}")
-# many, many-hermite (issue 31): the corpus of bench/build_corpus.py, performers held out for
+# many, many-hermite (issue 31): the corpus of scripts/build_corpus.py, performers held out for
 # validation (CMU 39, ReActIdle 014 and 015), each source's share of the batches
 CORPUS=(--data.source archive --data.path .device_data/corpus_body21.npz --data.cache_dir null
   --data.split_by file --data.val_fraction 0 --data.test_fraction 0
