@@ -32,7 +32,8 @@ from mocapfix.fix import (  # noqa: E402
     motion_library,  # noqa: E402
 )
 from mocapfix.fix.fixers import load_fixer  # noqa: E402
-from mocapfix.fix.positions import model_fill, take_keys  # noqa: E402
+from mocapfix.fix.measure import model_fill  # noqa: E402
+from mocapfix.fix.positions import take_keys  # noqa: E402
 from mocapfix.io import list_motion_files, read_motion  # noqa: E402
 from mocapfix.pretrained import pretrained_path  # noqa: E402
 from mocapfix.rig.mapping import onto_skeleton  # noqa: E402

@@ -13,7 +13,9 @@ from cli_utils import CONFIGS, QUIET, SMALL_DATA, TINY, run_cli
 from mocapfix.core.clip import Clip
 from mocapfix.core.skeleton import PRESETS
 from mocapfix.fills.classical import lerp_infill, spline_infill
-from mocapfix.fills.policy import FillPolicy, apply_fill_policy, hole_frames, suspect_tokens, token_parts
+from mocapfix.fills.holes import hole_frames, token_parts
+from mocapfix.fills.jumps import suspect_tokens
+from mocapfix.fills.policy import FillPolicy, apply_fill_policy
 from mocapfix.fix import fix_clips
 from mocapfix.fix.fixers import load_fixer
 from mocapfix.fix.position_fixer import PositionFixer
@@ -89,7 +91,7 @@ def test_apply_fill_policy_takes_the_best_method_per_hole_length():
         },
         None,
     )
-    assert policy.best("full", 0.1) == "spline" and policy.best("arm", 0.6) == "xmae"
+    assert policy.choose("full", 0.1) == "spline" and policy.choose("arm", 0.6) == "xmae"
     obs = torch.ones(1, 30, 22, dtype=torch.bool)
     obs[0, 2:5, 20] = False  # 0.1 s at 30 fps
     obs[0, 10:25, 21] = False  # 0.5 s
@@ -105,7 +107,8 @@ def test_apply_fill_policy_takes_the_best_method_per_hole_length():
 def test_a_blend_of_two_fills_is_measured_and_taken_where_it_is_best():
     """Two fills that err in opposite directions: their mean is exact, and the policy takes it;
     a blend with the model counts as the model (it needs MODEL_MARGIN over every classical one)."""
-    from mocapfix.fills.policy import Calibration, blends
+    from mocapfix.fills.fill import blends
+    from mocapfix.fills.policy import Calibration
 
     truth = torch.zeros(2, 30, 22, 3)
     obs = torch.ones(2, 30, 22, dtype=torch.bool)
@@ -117,14 +120,14 @@ def test_a_blend_of_two_fills_is_measured_and_taken_where_it_is_best():
         cal.add_fills(part, 0.5, fills, truth, ~obs)
     policy = cal.compute()
     assert policy.error_mm["arm"]["limb+spline"][0] == pytest.approx(0.0, abs=1e-4)
-    assert policy.best("arm", 0.5) == "limb+spline" and policy.methods() == ["limb", "spline", "xmae"]
+    assert policy.choose("arm", 0.5) == "limb+spline" and policy.methods() == ["limb", "spline", "xmae"]
     out, chosen = apply_fill_policy(policy, truth, obs, fills, 30.0, SMPL)
     assert out[~obs].abs().max() < 1e-6 and (chosen[~obs] == 3).all()  # the blend, after the 3 singles
     # the model's blend is 5 mm at best against the classical blend's 0: never taken
-    assert "xmae" not in policy.best("leg", 0.5)
+    assert "xmae" not in policy.choose("leg", 0.5)
     # a blend no better than its best single fill: the single one (in doubt, the simpler)
     tie = FillPolicy([0.5], {"full": {"limb": [10.0], "spline": [12.0], "limb+spline": [9.95]}})
-    assert tie.best("full", 0.5) == "limb"
+    assert tie.choose("full", 0.5) == "limb"
 
 
 def test_suspects_are_the_tokens_the_model_disagrees_with_beyond_the_threshold():
@@ -245,7 +248,7 @@ class OracleFixer(PositionFixer):
 
 
 def test_fix_with_a_policy_replaces_only_what_the_model_disagrees_with_and_fills_by_it():
-    clip = generate_clips(1, 60.0, fps=30, seed=11)[0]  # room to cut 40 holes of a kind (recording_policy.py)
+    clip = generate_clips(1, 60.0, fps=30, seed=11)[0]  # room to cut 40 holes of a kind (FillPolicy.fit)
     clean = Clip(clip.positions, clip.fps, clip.skeleton, "clean", meta={"format": "positions-npz"})
     table = {"xmae": [5.0, 5.0], "spline": [1.0, 50.0]}
     fixer = OracleFixer(clean.positions, FillPolicy([0.1, 0.5], {p: table for p in ("full", "arm", "leg")}, 0.1))
@@ -261,7 +264,7 @@ def test_fix_with_a_policy_replaces_only_what_the_model_disagrees_with_and_fills
     untouched[40:55, 20] = False
     assert np.array_equal(out[0].positions[untouched], clean.positions[untouched])
     # infill: the table says the model for long holes, and a model must earn its place on the
-    # recording (fills/recording_policy.py): holes cut into these 60 s, the oracle model fills them
+    # recording (FillPolicy.fit): holes cut into these 60 s, the oracle model fills them
     # exactly, so it fills the recording's holes
     holed = clean.positions.copy()
     holed[60:63] = np.nan
@@ -275,17 +278,17 @@ def test_fix_with_a_policy_replaces_only_what_the_model_disagrees_with_and_fills
 def test_a_preferred_fill_is_kept_over_near_ties_and_survives_the_checkpoint():
     table = {"limb": [10.0, 10.0], "pchip": [9.7, 8.0], "limb+pchip": [9.6, 9.9], "xmae": [9.9, 7.0]}
     policy = FillPolicy([0.3, 0.9], {"full": table}, preferred=("limb", 0.95))
-    assert policy.best("full", 0.3) == "limb"  # 3-4 % better is a near-tie: the limb fill
+    assert policy.choose("full", 0.3) == "limb"  # 3-4 % better is a near-tie: the limb fill
     plain = FillPolicy([0.3, 0.9], {"full": {m: e for m, e in table.items() if m != "xmae"}})
-    assert plain.best("full", 0.3) == "limb+pchip"  # without a preference, the lowest
+    assert plain.choose("full", 0.3) == "limb+pchip"  # without a preference, the lowest
     # 20 % better wins; the model still has to beat the classical choice by MODEL_MARGIN
     assert (
         FillPolicy(
             [0.3, 0.9], {"full": {m: e for m, e in table.items() if m != "xmae"}}, preferred=("limb", 0.95)
-        ).best("full", 0.9)
+        ).choose("full", 0.9)
         == "pchip"
     )
-    assert policy.best("full", 0.9) == "xmae"
+    assert policy.choose("full", 0.9) == "xmae"
     assert FillPolicy.from_dict(policy.to_dict()).preferred == ("limb", 0.95)
     assert FillPolicy.from_dict({"gaps_s": [0.3], "error_mm": {"full": {"limb": [1.0]}}}).preferred is None
 
@@ -294,7 +297,7 @@ def test_an_over_tight_threshold_is_raised_by_the_recordings_own_steps():
     """A fine-tuned model can bring a replace threshold from its val split that a stranger's take
     crosses every few frames (the demo's: a 32-mm step): the recording's own residual steps lift
     the first step an excursion needs, and a real 35-cm jump is still found, and only it."""
-    from mocapfix.fills.policy import excursions, recording_step_floor
+    from mocapfix.fills.jumps import excursions, recording_step_floor
 
     g = torch.Generator().manual_seed(0)
     T, J = 300, 21

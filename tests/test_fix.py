@@ -794,7 +794,7 @@ def test_a_hermite_correcting_model_starts_from_the_whole_takes_hermite_fill(tmp
     frame rate); with its output layer zeroed the model answers exactly that fill, not the
     fill of its 1-s windows."""
     from mocapfix.fills.classical import hermite_infill
-    from mocapfix.fix.positions import model_fill
+    from mocapfix.fix.measure import model_fill
     from mocapfix.io.synthetic import generate_clips
     from mocapfix.models.xmae import XMAE
     from mocapfix.rig.mapping import onto_skeleton

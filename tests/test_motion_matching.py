@@ -193,18 +193,18 @@ def test_the_recording_policy_never_searches_the_truth_of_its_cut_holes():
     """A take that never repeats (every joint on its own random path): the motion-matching fills
     of the holes cut into it cannot be exact, as they would be if the take's uncut copy in the
     library were searched."""
-    from mocapfix.fills.recording_policy import measure_on_takes
+    from mocapfix.fills.errors import measure_on_takes
 
     rng = np.random.default_rng(5)
     steps = rng.normal(0, 0.004, (600, BODY.num_joints, 3)).cumsum(0).cumsum(0) * 0.05
     x = steps + rng.normal(0, 0.3, (1, BODY.num_joints, 3)) + [0, 0, 1.0]
     table, holes = measure_on_takes([(x, 30.0), (x + [5.0, 0.0, 0.0], 30.0)], BODY, (0.5,), {("full", 0.5)})
     assert holes[("full", 0.5)] >= 8
-    full = {m: e[0] for m, e in table.error_mm["full"].items()}
+    full = {m: e[0] for m, e in table["full"].items()}
     # the second take is the first moved 5 m: each one's cut holes are found in the other, uncut
     assert full["match"] < 0.01 * full["hermite"]
     one, _ = measure_on_takes([(x, 30.0)], BODY, (0.5,), {("full", 0.5)})
-    alone = {m: e[0] for m, e in one.error_mm["full"].items()}
+    alone = {m: e[0] for m, e in one["full"].items()}
     assert alone["match"] > 0.3 * alone["hermite"] and alone["hermite"] > 1.0
 
 

@@ -1,4 +1,4 @@
-"""The fill policy is measured on the recording being fixed (fills/recording_policy.py): a model
+"""The fill policy is measured on the recording being fixed (FillPolicy.fit, fills/errors.py): a model
 that its own val split believes in, and that is bad on this recording, does not fill its holes.
 Real motion (Bandai Namco takes); the model is the shipped one, or the shipped one broken."""
 
@@ -103,7 +103,7 @@ def test_too_little_to_measure_the_model_on_gets_the_classical_fills(tmp_path, t
 
 
 def test_holes_are_cut_only_where_there_is_data_around_them():
-    from mocapfix.fills.recording_policy import cut_holes
+    from mocapfix.fills.holes import cut_holes
 
     observed = np.ones((120, 4), dtype=bool)
     observed[40:52] = False  # the recording's own hole
@@ -124,7 +124,7 @@ def test_the_classical_fills_are_ranked_on_the_take_itself():
     """A take whose joints move on cubics: the spline fills its holes exactly, Lerp does not; the
     val split's ranking (here: Lerp first) is not what the take says."""
     from mocapfix.core.skeleton import preset
-    from mocapfix.fills.recording_policy import measure_on_takes
+    from mocapfix.fills.errors import measure_on_takes
 
     body = preset("body21")
     t = np.linspace(0, 4, 120)[:, None, None]
@@ -134,10 +134,10 @@ def test_the_classical_fills_are_ranked_on_the_take_itself():
     x[50:60] = np.nan
     table, holes = measure_on_takes([(x, 30.0)], body, (0.3, 0.5), {("full", 0.5), ("arm", 0.3)})
     assert holes[("full", 0.5)] >= 4 and set(holes) == {("full", 0.5), ("arm", 0.3)}
-    full = {m: e[1] for m, e in table.error_mm["full"].items()}
+    full = {m: e[1] for m, e in table["full"].items()}
     assert full["spline"] < 0.01 * full["lerp"] and full["lerp"] > 1.0
-    assert np.isfinite(table.error_mm["arm"]["spline"][0])  # (arm, 0.3 s) was asked for
-    assert not np.isfinite(table.error_mm["full"]["spline"][0])  # (full, 0.3 s) was not asked for
+    assert np.isfinite(table["arm"]["spline"][0])  # (arm, 0.3 s) was asked for
+    assert not np.isfinite(table["full"]["spline"][0])  # (full, 0.3 s) was not asked for
 
 
 def test_a_folder_is_measured_once_over_its_files(tmp_path, takes, capsys):
@@ -164,15 +164,12 @@ def test_a_perfect_model_needs_as_many_cut_holes_as_a_classical_fill_to_take_a_k
     holes, as another classical fill must: fewer, and even a model exact on every cut hole is not
     chosen (one 12-s take let XMAE's blend win a leg cell it then lost on the take's own hole)."""
     from mocapfix.core.skeleton import preset
-    from mocapfix.fills.policy import FillPolicy, is_learned
-    from mocapfix.fills.recording_policy import TRUSTED_HOLES, measure_policy
+    from mocapfix.fills.fill import Made, is_learned
+    from mocapfix.fills.policy import TRUSTED_HOLES, FillPolicy
     from mocapfix.io.synthetic import generate_clips
     from mocapfix.rig.mapping import onto_skeleton
 
     body = preset("body21")
-
-    class Fixer:
-        skeleton, fps = body, 30.0
 
     def policy_for(seconds: float) -> tuple[str, int]:
         x = onto_skeleton(generate_clips(1, seconds, 30.0, seed=5)[0], body).positions.astype(np.float64)
@@ -180,8 +177,9 @@ def test_a_perfect_model_needs_as_many_cut_holes_as_a_classical_fill_to_take_a_k
         x[60:81, list(body.groups["right_leg"])] = np.nan  # one 0.7-s leg hole
         gaps = [0.1, 0.3, 0.5, 0.7, 0.9]
         val = {p: {m: [50.0] * 5 for m in ("lerp", "limb", "spline", "pchip", "xmae")} for p in ("full", "arm", "leg")}
-        policy, note = measure_policy(Fixer(), [x], [(x, 30.0)], FillPolicy(gaps, val, None), lambda y, fps: truth)
-        return policy.best("leg", 0.7), int(note.split("(")[1].split(" holes")[0])
+        oracle = Made("xmae", torch.from_numpy(truth)[None])  # exact on every cut hole
+        policy, note = FillPolicy(gaps, val, None).fit([(x, 30.0)], body, oracle, holes_of=([x], 30.0))
+        return policy.choose("leg", 0.7), int(note.split("(")[1].split(" holes")[0])
 
     short, cut_short = policy_for(12.0)
     assert cut_short < TRUSTED_HOLES and not is_learned(short)

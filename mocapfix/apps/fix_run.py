@@ -18,12 +18,12 @@ from mocapfix.apps.fix_one import FileOutcome, Progress, RunSettings, _one_line,
 from mocapfix.apps.fix_plan import RunPlan, plan_run
 from mocapfix.apps.processes import die_with_parent
 from mocapfix.core.clip import Clip, MotionFileError, shown
-from mocapfix.fills.recording_policy import measure_take
+from mocapfix.fills.errors import measure_take
 from mocapfix.fix import measure_recordings, motion_library
 from mocapfix.fix.fixer import Fixer
 from mocapfix.fix.fixers import load_fixer
 from mocapfix.fix.output import FIXED
-from mocapfix.fix.positions import model_fill
+from mocapfix.fix.measure import model_fill
 from mocapfix.io import list_motion_files, read_motion
 from mocapfix.io.joint_map import check_joint_map
 

@@ -11,6 +11,8 @@ import numpy as np
 import torch
 from scipy.interpolate import CubicSpline, PchipInterpolator
 
+from mocapfix.fills.fill import Fill
+
 
 def _observed_neighbours(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """obs: (B, T, J) bool -> t, prev, nxt (B, T, J): each token's frame, the last observed frame
@@ -172,6 +174,22 @@ CLASSICAL = {
     "hermite": lambda p, o, parents: hermite_infill(p, o),
     "limb": limb_infill,
 }
+
+
+class Classical(Fill):
+    """A classical fill of CLASSICAL as a Fill (found by name when it runs: a worker of fix --jobs
+    gets it pickled)."""
+
+    def __init__(self, name: str):
+        self.names = (name,)
+
+    def fill(self, positions, observed, fps, skeleton) -> dict[str, torch.Tensor]:
+        return {self.names[0]: CLASSICAL[self.names[0]](positions, observed, skeleton.parents)}
+
+
+def classical_fills() -> list[Fill]:
+    """Every classical fill, in CLASSICAL's order."""
+    return [Classical(name) for name in CLASSICAL]
 
 
 def gaussian_smooth(positions: torch.Tensor, sigma_frames: float) -> torch.Tensor:

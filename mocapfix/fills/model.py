@@ -10,22 +10,34 @@ from collections.abc import Callable
 import torch
 
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.fills.classical import CLASSICAL
-from mocapfix.fills.policy import FillPolicy, apply_fill_policy, suspect_tokens
+from mocapfix.fills.classical import classical_fills
+from mocapfix.fills.fill import Fill, made
+from mocapfix.fills.jumps import suspect_tokens
+from mocapfix.fills.policy import FillPolicy, apply_fill_policy
 
 # positions: (B, T, J, 3) metres, NaN allowed at unobserved tokens; observed: (B, T, J) -> (B, T, J, 3)
 Reconstruct = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
 
+class ModelFill(Fill):
+    """A model's fill of windows as a Fill: its estimate of every token (observed ones included:
+    the replace threshold reads them)."""
+
+    names = ("xmae",)
+
+    def __init__(self, reconstruct: Reconstruct):
+        self.reconstruct = reconstruct
+
+    def fill(self, positions, observed, fps, skeleton) -> dict[str, torch.Tensor]:
+        return {self.names[0]: self.reconstruct(positions, observed)}
+
+
 def candidate_fills(
     reconstruct: Reconstruct, positions: torch.Tensor, observed: torch.Tensor, skeleton: Skeleton
 ) -> dict[str, torch.Tensor]:
-    """Every candidate fill of the unobserved tokens: the model's ("xmae") and the classical ones
-    (which leave observed tokens as given)."""
-    return {
-        "xmae": reconstruct(positions, observed),
-        **{name: fill(positions, observed, skeleton.parents) for name, fill in CLASSICAL.items()},
-    }
+    """Every candidate fill of the unobserved tokens of windows: the model's ("xmae") and the
+    classical ones (which leave observed tokens as given)."""
+    return made([ModelFill(reconstruct), *classical_fills()], positions, observed, None, skeleton)
 
 
 def policy_output(

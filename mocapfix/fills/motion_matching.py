@@ -8,7 +8,7 @@ holds much of it. For each hole this finds the stretches of the library whose fr
 the hole (every joint in the context frames; the joints still observed inside the hole) match
 best after a turn about the vertical and a shift over the floor (2D Procrustes, closed form),
 and fills the hole from the NEIGHBOURS best, weighted by how well each matched. Two fills come
-out of one search (the recording's policy picks per kind of hole, fills/recording_policy.py):
+out of one search (the recording's policy picks per kind of hole, policy.py):
 - "match": the neighbours' own motion, its residual to the data at the hole's observed tokens
   interpolated across the hole (as fix anchors the model's estimate), so it meets both ends;
 - "match_delta": the cubic Hermite fill plus how far each neighbour's motion departs from its own
@@ -34,6 +34,7 @@ import torch
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.augment import mirror_index
 from mocapfix.fills.classical import hermite_infill, lerp_infill
+from mocapfix.fills.fill import Fill
 
 FILLS = ("match", "match_delta")
 # Context each side of a hole, as a fraction of its length (at least MIN_CONTEXT frames): on CMU
@@ -172,6 +173,32 @@ class MotionLibrary:
         if key not in self.keys:
             return library
         return library._replace(hidden=spans[self.keys.index(key)])
+
+
+def library_of(
+    takes: list[tuple[np.ndarray, float]], keys: list, skeleton: Skeleton, library: MotionLibrary | None = None
+) -> MotionLibrary:
+    """A library of these takes (x (T, J, 3) at the skeleton's joints, fps) first, then `library`'s
+    (the run's other files, fix --library), mirrored where the skeleton's sides pair up."""
+    return MotionLibrary(takes, keys, mirror_of(skeleton)) if library is None else library.including(takes, keys)
+
+
+class MotionMatching(Fill):
+    """Motion matching as a Fill: "match" and "match_delta" from one search of `library` (a
+    MotionLibrary.without(...): the takes besides this one; None: the take itself only)."""
+
+    names = FILLS
+
+    def __init__(self, library: Searchable | None):
+        self.library = library
+
+    def fill(self, positions, observed, fps, skeleton) -> dict[str, torch.Tensor]:
+        hermite = hermite_infill(positions, observed)  # (B, T, J, 3): what a hole nothing matches keeps
+        found = [
+            match_fills(x.numpy(), o.numpy(), h.numpy(), self.library, fps)
+            for x, o, h in zip(positions, observed, hermite)
+        ]
+        return {name: torch.stack([torch.from_numpy(f[name]) for f in found]) for name in FILLS}
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:

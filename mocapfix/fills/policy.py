@@ -1,5 +1,9 @@
-"""The fill policy: which method fills each hole, and which observed tokens a model may replace,
+"""The fill policy: which fill fills each hole, and which observed tokens a model may replace,
 decided on held-out data so that mocapfix never outputs worse than the best classical fill.
+An estimator with scikit-learn's shape, its fitted state plain values (to_dict / from_dict: a
+checkpoint's `fill_policy`, models/checkpoint.py): fit (on the val split's windows, Calibration;
+on holes cut into recordings, FillPolicy.fit), then choose (the candidate for a kind of hole) and
+transform (a take's holes filled by the Fills handed in, fills/fill.py).
 
 A small model can lose to a cubic spline on short holes and win on long ones; a large one can
 lose at 0.1 s and win everywhere else. So the model's error and each classical fill's error are
@@ -18,36 +22,48 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from mocapfix.core.skeleton import Skeleton
+from mocapfix.fills.errors import ErrorSums, measure_on_takes
+from mocapfix.fills.fill import BLEND, Fill, components, is_learned, made
+from mocapfix.fills.holes import PARTS, hole_frames, hole_kinds, token_parts
 
-PARTS = ("full", "arm", "leg")
 CLEAN_QUANTILE = 0.995  # of the model's disagreement with clean observed tokens: above it, a token is suspect
-LEARNED = ("xmae",)  # the methods that are models; every other is a classical fill
 MODEL_MARGIN = 0.98  # a model fills a hole only where its val error is 2 % below the best classical fill's
-BLEND = "+"  # "a+b": the mean of fills a and b
 BLEND_MARGIN = 0.99  # a blend of classical fills only where 1 % below the best single one (in doubt, the simpler)
 
-
-def components(method: str) -> list[str]:
-    """The single methods a candidate averages: "limb+spline" -> ["limb", "spline"]."""
-    return method.split(BLEND)
-
-
-def is_learned(method: str) -> bool:
-    """A candidate with a model in it (a model alone, or a model averaged with a classical fill)."""
-    return any(m in LEARNED for m in components(method))
-
-
-def blends(fills: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """fills: method -> (..., 3) -> the same plus the mean of every pair, named "a+b" (sorted)."""
-    names = sorted(fills)
-    out = dict(fills)
-    for i, a in enumerate(names):
-        for b in names[i + 1 :]:
-            out[a + BLEND + b] = 0.5 * (fills[a] + fills[b])
-    return out
+# RECORDINGS: the policy fitted again on the recording being fixed, not only on the val split.
+# A model's val split shares performers, motions and the studio with its training split, so the
+# policy calibrated there believes the model where it has learned a studio, not human motion: a
+# paper-sized XMAE trained on 70 CMU takes beat the classical fills on its val split and was 2.5x
+# worse than a cubic spline on other performers. The recording itself is the only evidence about
+# the recording: holes of the kinds it has (body part and length) are cut into it where the part
+# is observed, the model and every classical fill fill them exactly as fix fills the recording's
+# own holes (errors.py), and the policy is the one those errors give. A kind of hole with too few
+# places to cut it gets the classical fills only: the model has not earned its place there. The
+# val split ranks the classical fills otherwise (1-s windows leave 0.05 s of context around a
+# 0.9-s hole, and Lerp wins there; on whole CMU takes it is the worst of the four, 94 mm against
+# the limb fill's 68), and the model against them (the stretches of an earlier version, 2 s with
+# 0.5 s of context, let a model win cells it lost on the take's holes, where the classical fills
+# had seconds of context).
+#
+# The classical fill kept unless another classical candidate measures PREFERRED_MARGIN better:
+# the limb fill (bone lengths kept, the parent followed) was the best classical fill in 14 of 15
+# cells on CMU takes (PCHIP by 0.01 mm at 0.1 s) and at 0.3-0.9 s on Bandai, while the ranking
+# of near-ties changes from one set of holes to another (a blend measured 3 % ahead on the cut
+# holes was 9 % behind on the take's own 0.5-s leg holes). A fill much better here still wins.
+PREFERRED = "limb"
+PREFERRED_MARGIN = 0.95
+# Fewer holes of a kind than this (one short take): the preferred fill only among the classical
+# ones. Within one take the motion differs from place to place: on 14 CMU takes, each measured
+# alone on its 10-20 cut holes, PCHIP came out 20 % ahead of the limb fill in one take and was
+# twice as bad on that take's own 0.5-s leg holes; over a folder's takes the ranking held.
+# The model takes a kind of hole on the same evidence: on one 12-s take, 8-39 cut holes of a kind
+# let XMAE's blend win a 0.7-s leg cell it then lost on the take's own hole (`mocapfix demo`, its
+# synthetic take: 123.6 mm against the limb fill's 92.4).
+TRUSTED_HOLES = 40
 
 
 @dataclass
@@ -61,7 +77,7 @@ class FillPolicy:
     # margin x its error (near-ties rank differently on other holes); None: the lowest error
     preferred: tuple[str, float] | None = None
 
-    def best(self, part: str, gap_s: float) -> str:
+    def choose(self, part: str, gap_s: float) -> str:
         """The method with the lowest error for holes of this part, at the measured length nearest
         gap_s; a blend of classical fills only where it beats the best single one by BLEND_MARGIN,
         the model (or a blend with it) only where it beats the best classical fill by MODEL_MARGIN
@@ -85,8 +101,79 @@ class FillPolicy:
         return best
 
     def methods(self) -> list[str]:
-        """The single methods its candidates are made of (the fills a caller computes)."""
+        """The single fills its candidates are made of (those it measured)."""
         return sorted({c for table in self.error_mm.values() for m in table for c in components(m)})
+
+    def chosen(self) -> set[str]:
+        """The single fills of the candidates it chooses for some kind of hole (the fills transform makes)."""
+        return {c for p in PARTS for g in self.gaps_s for c in components(self.choose(p, g))}
+
+    def transform(
+        self,
+        positions: torch.Tensor,
+        observed: torch.Tensor,
+        fps: float,
+        skeleton: Skeleton,
+        fills: list[Fill],
+        counted: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, dict[str, int]]:
+        """positions (B, T, J, 3), observed (B, T, J) -> each hole filled by the candidate chosen
+        for its part and length (observed tokens as given), and the tokens each candidate filled
+        in the joints `counted` ((J,) bool; None: all of them). fills: the Fills it may take them
+        from; only those it chooses are run."""
+        candidates = made(fills, positions, observed, fps, skeleton, wanted=self.chosen())
+        out, chosen = apply_fill_policy(self, positions, observed, candidates, fps, skeleton)
+        chosen = chosen if counted is None else chosen[..., counted]
+        names = policy_names(self, candidates)
+        counts = torch.bincount(chosen[chosen >= 0], minlength=len(names)).tolist()
+        return out, {names[i]: n for i, n in enumerate(counts) if n}
+
+    def fit(
+        self,
+        takes: list[tuple[np.ndarray, float]],
+        skeleton: Skeleton,
+        model_fill: Fill | None,
+        holes_of: tuple[list[np.ndarray], float] | None = None,
+        map_takes=None,
+        keys=None,
+        library=None,
+    ) -> tuple[FillPolicy, str | None]:
+        """This policy fitted again on holes cut into recordings (see RECORDINGS below) -> (the
+        policy, a line for the report). takes: (x (T, J, 3) at the skeleton's joints, NaN =
+        missing, fps); model_fill: the model's Fill as fix fills (None: none); holes_of: (the
+        takes at the model's frames, its fps): only the kinds of hole they have are measured (None:
+        every kind, for a run's policy in --mode both, whose jumps make holes of any kind), the
+        others keep this policy's numbers, the classical ones only where nothing of the recording
+        could be measured. A kind with fewer than TRUSTED_HOLES cut holes gets the preferred
+        classical fill (neither the model nor another classical fill has earned its place there).
+        map_takes, keys, library: errors.measure_on_takes'."""
+        gaps = tuple(self.gaps_s)
+        cells = None if holes_of is None else hole_kinds(holes_of[0], skeleton, holes_of[1], gaps)
+        if cells is not None and not cells:  # no hole to fill
+            return self, None
+        measured, cut = measure_on_takes(takes, skeleton, gaps, cells, model_fill, map_takes, keys, library)
+        asked = sorted(cells) if cells is not None else [(p, g) for p in PARTS for g in gaps]
+        earned = {cell for cell in asked if cut.get(cell, 0) >= TRUSTED_HOLES}
+        base = self if earned else self._classical_only()
+        tables = _with_measured(base.error_mm, measured or {}, gaps, asked, earned, cut)
+        out = FillPolicy(
+            gaps,
+            tables,
+            self.replace_threshold_m,
+            self.windows,
+            ["measured on the recording"],
+            (PREFERRED, PREFERRED_MARGIN),
+        )
+        chosen = ", ".join(f"{p} {g:g}s {out.choose(p, g)}" for p, g in asked if (p, g) in cut)
+        evidence = f"{sum(cut.values())} holes cut into it" + (
+            "" if earned else f"; classical fills only: fewer than {TRUSTED_HOLES} holes of a kind"
+        )
+        return out, f"fill policy measured on this recording ({evidence}): {chosen or 'nothing could be cut'}"
+
+    def _classical_only(self) -> FillPolicy:
+        """This policy with the model's candidates taken out: the classical fills as it ranks them."""
+        tables = {part: {m: e for m, e in t.items() if not is_learned(m)} for part, t in self.error_mm.items()}
+        return FillPolicy(self.gaps_s, tables, self.replace_threshold_m, self.windows, ["classical only"])
 
     def describe(self) -> list[str]:
         """One line per part: the method chosen at each measured gap, with its error and the best
@@ -95,7 +182,7 @@ class FillPolicy:
         for part, table in self.error_mm.items():
             cells = []
             for i, g in enumerate(self.gaps_s):
-                m = self.best(part, g)
+                m = self.choose(part, g)
                 classical = min(v[i] for k, v in table.items() if not is_learned(k))
                 cells.append(f"{g:g}s {m} {table[m][i]:.1f} (classical {classical:.1f})")
             lines.append(f"{part}: " + ", ".join(cells))
@@ -129,26 +216,31 @@ class FillPolicy:
         )
 
 
-def hole_frames(observed: torch.Tensor) -> torch.Tensor:
-    """observed: (B, T, J) bool -> (B, T, J) long: for a missing token, the length in frames of the
-    run of missing frames of its joint that it is in; 0 for observed tokens."""
-    B, T, J = observed.shape
-    t = torch.arange(T, device=observed.device).view(1, T, 1).expand(B, T, J)
-    prev = torch.where(observed, t, -1).cummax(dim=1).values  # last observed at or before t
-    nxt = torch.where(observed, t, T).flip(1).cummin(dim=1).values.flip(1)  # first observed at or after t
-    return torch.where(observed, 0, nxt - prev - 1)
-
-
-def token_parts(observed: torch.Tensor, skeleton: Skeleton) -> torch.Tensor:
-    """observed: (B, T, J) -> (B, T, J) index into PARTS of the table a missing token is filled by:
-    "full" in frames that miss at least half the joints (a body-wide hole), else the limb the joint
-    belongs to (arm, leg), else "full"."""
-    B, T, J = observed.shape
-    limb = torch.zeros(J, dtype=torch.long, device=observed.device)
-    for group, members in skeleton.groups.items():
-        limb[list(members)] = PARTS.index(group.split("_")[-1])
-    body_wide = (~observed).float().mean(dim=-1, keepdim=True) >= 0.5  # (B, T, 1)
-    return torch.where(body_wide, 0, limb.view(1, 1, J).expand(B, T, J))
+def _with_measured(base: dict, measured: dict, gaps, asked, earned, cut) -> dict:
+    """A policy's error tables with what the recording measured (FillPolicy.fit): per candidate
+    and cell the recording's number, else the val split's; the model's candidates only in cells
+    with TRUSTED_HOLES holes measured, the classical ones other than the preferred fill only in
+    cells where none or TRUSTED_HOLES holes could be cut."""
+    tables = {part: {m: list(e) for m, e in t.items()} for part, t in base.items()}
+    for part, here in measured.items():
+        for method, errors in here.items():  # fills the checkpoint's policy did not measure (older ones)
+            tables.setdefault(part, {}).setdefault(method, list(errors))
+    for part, table in tables.items():
+        here = measured.get(part, {})
+        for method, errors in table.items():
+            for i, g in enumerate(gaps):
+                if is_learned(method) and (part, g) in asked and (part, g) not in earned:
+                    errors[i] = float("inf")
+                elif (
+                    not is_learned(method)
+                    and method != PREFERRED
+                    and PREFERRED in table
+                    and 0 < cut.get((part, g), 0) < TRUSTED_HOLES
+                ):
+                    errors[i] = float("inf")  # too few holes to overrule the preferred fill
+                elif method in here and np.isfinite(here[method][i]):
+                    errors[i] = here[method][i]
+    return tables
 
 
 def apply_fill_policy(
@@ -172,7 +264,7 @@ def apply_fill_policy(
     edges = torch.tensor([(a + b) / 2 for a, b in zip(policy.gaps_s, policy.gaps_s[1:])], device=observed.device)
     gap_index = torch.bucketize(seconds.contiguous(), edges)  # (B, T, J) into gaps_s
     table = torch.tensor(
-        [[names.index(policy.best(p, g)) for g in policy.gaps_s] for p in PARTS], device=observed.device
+        [[names.index(policy.choose(p, g)) for g in policy.gaps_s] for p in PARTS], device=observed.device
     )  # (parts, gaps)
     choice = table[parts, gap_index]  # (B, T, J)
     out = stacked.gather(0, choice[None, ..., None].expand(1, *choice.shape, 3))[0]
@@ -182,7 +274,7 @@ def apply_fill_policy(
 def policy_names(policy: FillPolicy, fills: dict[str, torch.Tensor]) -> list[str]:
     """The candidates apply_fill_policy may take: the single fills given, then the blends the
     policy names (the index its `chosen` refers to)."""
-    chosen = {policy.best(p, g) for p in PARTS for g in policy.gaps_s}
+    chosen = {policy.choose(p, g) for p in PARTS for g in policy.gaps_s}
     return list(fills) + sorted(m for m in chosen if m not in fills)
 
 
@@ -191,97 +283,15 @@ def _candidate(fills: dict[str, torch.Tensor], method: str) -> torch.Tensor:
     return fills[method] if method in fills else sum(fills[m] for m in parts) / len(parts)
 
 
-def suspect_tokens(
-    policy: FillPolicy, estimate: torch.Tensor, positions: torch.Tensor, observed: torch.Tensor
-) -> torch.Tensor:
-    """(B, T, J) bool: observed tokens the model disagrees with by more than it does with clean data
-    (displaced or glitched joints); none without a calibrated threshold.
-    estimate: the model's estimate with every available token observed."""
-    if policy.replace_threshold_m is None:
-        return torch.zeros_like(observed)
-    far = (estimate.float() - torch.nan_to_num(positions.float())).norm(dim=-1) > policy.replace_threshold_m
-    return observed & far
-
-
-# An excursion's first step must also stand out from the recording's own residual steps: this
-# many times their STEP_QUANTILE. (A tenth of the steps' 1 % tail would have to be jumps to raise it.)
-STEP_QUANTILE, STEP_FACTOR = 0.99, 3.0
-
-
-def recording_step_floor(residual: torch.Tensor, observed: torch.Tensor) -> float:
-    """The smallest jump (metres) that can start an excursion on this recording, measured on it:
-    STEP_FACTOR x the STEP_QUANTILE of the residual's frame-to-frame steps over observed tokens.
-
-    The checkpoint's replace threshold was calibrated on its val split; a model fine-tuned on a few
-    takes agrees with those far more closely than with a stranger's take (`mocapfix demo`: after 300
-    steps on 40 Bandai takes the threshold fell from 228 to 48 mm, while a held-out take's residual
-    steps reach 39 mm at the 99th percentile, and 774 of its 9,021 clean tokens were replaced).
-    residual: (T, J, 3), observed: (T, J) bool."""
-    both = observed[1:] & observed[:-1]
-    steps = (residual[1:] - residual[:-1]).norm(dim=-1)[both]  # (n,)
-    if steps.numel() == 0:
-        return 0.0
-    every = -(-steps.numel() // 1_000_000)  # a sample over the whole take: torch.quantile refuses very large inputs
-    return STEP_FACTOR * float(torch.quantile(steps[::every].double(), STEP_QUANTILE))
-
-
-def excursions(residual: torch.Tensor, observed: torch.Tensor, min_step_m: float, max_frames: int) -> torch.Tensor:
-    """The tokens of one take that jumped away and came back: (T, J) bool.
-
-    residual: (T, J, 3) the data minus the model's estimate; observed: (T, J) bool. The estimate
-    moves as the body does, so a frame-to-frame step of the residual is the data's own jump; an
-    excursion is a step of more than min_step_m answered, within max_frames, by a step back of
-    about the same vector (the two sum to less than half of the first): the frames between are
-    where the joint was away. A model that disagrees with a stranger's motion does so smoothly,
-    and a jumped joint in a plausible pose (its arm rotated with it) fools the model's
-    disagreement mid-jump but not its edges: on the 70 CMU takes with the shipped Bandai model,
-    0.06 % of the clean tokens are in excursions (2.7 % are beyond the replace threshold) and
-    99.6 % of the tokens of arms displaced 0.5-1 m for 0.5 s; on Bandai's test takes 0.2 % and
-    98.9 %. A run at the take's first or last frame has one edge: nothing shows it came back
-    (CMU's takes start with a bind pose a metre from the next frame: the take's, kept)."""
-    step = residual[1:] - residual[:-1]  # (T-1, J, 3): into frame t+1
-    size = torch.where(observed[1:] & observed[:-1], step.norm(dim=-1), 0.0)  # (T-1, J)
-    out = torch.zeros_like(observed)
-    for j in torch.nonzero((size > min_step_m).any(0)).flatten().tolist():
-        jumps = torch.nonzero(size[:, j] > min_step_m).flatten().tolist()
-        done = -1
-        for a in jumps:
-            if a <= done:
-                continue
-            for b in (b for b in jumps if a < b <= a + max_frames):
-                if float((step[a, j] + step[b, j]).norm()) < 0.5 * float(size[a, j]):
-                    out[a + 1 : b + 1, j] = True
-                    done = b
-                    break
-    return out
-
-
-class Calibration:
-    """Accumulates, over validation batches, each method's error per (part, gap) on infill tasks
-    and the model's disagreement with clean observed tokens -> FillPolicy."""
+class Calibration(ErrorSums):
+    """The policy fitted on the val split: accumulates, over validation batches, each candidate's
+    error per (part, gap) on infill tasks (ErrorSums) and the model's disagreement with clean
+    observed tokens -> FillPolicy (evaluation/policy_fit.py feeds it)."""
 
     def __init__(self, gaps_s):
-        self.gaps_s = sorted(float(g) for g in gaps_s)
-        self.sums: dict[tuple[str, float, str], list[float]] = {}  # (part, gap, method) -> [error sum m, count]
+        super().__init__(gaps_s)
         self.clean: list[torch.Tensor] = []
         self.windows = 0
-
-    def add_infill(
-        self, part: str, gap_s: float, method: str, pred: torch.Tensor, target: torch.Tensor, scored: torch.Tensor
-    ) -> None:
-        """pred, target: (B, T, J, 3) metres; scored: (B, T, J) bool (the filled tokens with truth).
-        Pass blends(fills) through add_fills to measure the pairs too."""
-        err = (pred.float() - torch.nan_to_num(target.float())).norm(dim=-1)[scored]
-        s = self.sums.setdefault((part, float(gap_s), method), [0.0, 0])
-        s[0] += float(err.sum())
-        s[1] += int(err.numel())
-
-    def add_fills(
-        self, part: str, gap_s: float, fills: dict[str, torch.Tensor], target: torch.Tensor, scored: torch.Tensor
-    ) -> None:
-        """Every single fill and the mean of every pair of them (see the module's docstring)."""
-        for method, pred in blends(fills).items():
-            self.add_infill(part, gap_s, method, pred, target, scored)
 
     def add_clean(self, estimate: torch.Tensor, positions: torch.Tensor, observed: torch.Tensor) -> None:
         """The model's estimate of windows it saw whole: how far it strays from clean data."""
@@ -291,20 +301,6 @@ class Calibration:
     def compute(self) -> FillPolicy | None:
         if not self.sums:
             return None
-        error: dict[str, dict[str, list[float]]] = {}
-        for part in PARTS:
-            methods = sorted({m for (p, _, m) in self.sums if p == part})
-            rows = {
-                m: [
-                    1000.0 * self.sums[(part, g, m)][0] / max(self.sums[(part, g, m)][1], 1)
-                    if (part, g, m) in self.sums
-                    else float("inf")
-                    for g in self.gaps_s
-                ]
-                for m in methods
-            }
-            if rows:
-                error[part] = rows
         threshold = None
         if self.clean:
             d = torch.cat(self.clean)
@@ -312,4 +308,4 @@ class Calibration:
                 # a sample is enough for the quantile (torch.quantile refuses very large inputs)
                 d = d[torch.randperm(d.numel(), generator=torch.Generator().manual_seed(0))[:1_000_000]]
                 threshold = float(torch.quantile(d.double(), CLEAN_QUANTILE))
-        return FillPolicy(self.gaps_s, error, threshold, self.windows)
+        return FillPolicy(self.gaps_s, self.tables(), threshold, self.windows)

@@ -50,7 +50,7 @@ class Fixer:
     kind = "fixer"  # the model's name in reports ("xmae", "motion-dvae", "jitter")
     default_mode = "infill"  # the mode `fix` runs without --mode
     gives_rotations = False  # fixes joint rotations: a BVH comes back with the model's rotations
-    measures_policy = False  # its fill policy is measured again on each recording (fills/recording_policy.py)
+    measures_policy = False  # its fill policy is measured again on each recording (FillPolicy.fit)
     policy: FillPolicy | None = None  # which fill for which hole (fills/policy.py), given when it is built
     skeleton: Skeleton
     fps: float

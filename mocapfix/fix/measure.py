@@ -1,16 +1,43 @@
-"""The fill policy measured on recordings as `fix` fills them (fills/recording_policy.py): the
-model's fill made by the positions pass itself (windows, blending, anchoring on the data), and
-the takes a run's motion-matching fills search."""
+"""The fill policy fitted on recordings as `fix` fills them (FillPolicy.fit): the model enters
+as a Fill, its fill of a take made by the positions pass itself (windows, blending, anchoring on
+the data); and the takes a run's motion-matching fills search."""
 
 from __future__ import annotations
 
+import numpy as np
+import torch
+
 from mocapfix.core.clip import Clip, MotionFileError
-from mocapfix.fills.motion_matching import MotionLibrary, mirror_of
+from mocapfix.fills.fill import Fill
+from mocapfix.fills.motion_matching import MotionLibrary, library_of
 from mocapfix.fills.policy import FillPolicy
-from mocapfix.fills.recording_policy import measure_policy
-from mocapfix.fix.fixer import Fixer
+from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.joints import ModelView, model_view
-from mocapfix.fix.positions import model_fill, take_keys
+from mocapfix.fix.positions import positions_pass, take_keys
+
+
+class TakeFill(Fill):
+    """A positions model's fill of whole takes as fix makes it (windows, blending, anchoring on
+    the data; no policy): take(x (T, J, 3) at the model's joints and the take's fps, NaN =
+    missing) -> (T, J, 3)."""
+
+    names = ("xmae",)
+
+    def __init__(self, fixer: Fixer, overlap: float, batch_size: int):
+        self.fixer, self.options = fixer, FixOptions("infill", overlap, batch_size)
+
+    def take(self, x: np.ndarray, fps: float) -> np.ndarray:
+        take = Clip(x.astype(np.float32), fps, self.fixer.skeleton)
+        out, _ = positions_pass([take], self.fixer, self.options, None, fill_other_joints=False)
+        return out[0].positions
+
+    def fill(self, positions, observed, fps, skeleton) -> dict[str, torch.Tensor]:
+        return {self.names[0]: torch.stack([torch.from_numpy(self.take(x.numpy(), fps)).double() for x in positions])}
+
+
+def model_fill(fixer: Fixer, overlap: float, batch_size: int) -> TakeFill:
+    """The model's fill of takes as fix makes it, the Fill a policy is fitted with."""
+    return TakeFill(fixer, overlap, batch_size)
 
 
 def measure_recordings(
@@ -24,7 +51,7 @@ def measure_recordings(
     library: MotionLibrary | None = None,
 ) -> tuple[FillPolicy | None, str | None]:
     """The fill policy of several recordings measured together (the takes of one folder: one
-    performer or session, whose holes alone are too few to rank the fills by; recording_policy.py)
+    performer or session, whose holes alone are too few to rank the fills by; FillPolicy.fit)
     -> (policy, a line for the report); pass it to fix_clips(measured=...). (None, None) for a
     fixer that does not measure its policy (Fixer.measures_policy), one without a policy, or
     denoise. A recording the model's joints cannot be found in is left out (fixing it says why).
@@ -54,12 +81,14 @@ def measure_views(
     map_takes=None,
     library: MotionLibrary | None = None,
 ) -> tuple[FillPolicy | None, str | None]:
-    """measure_policy over recordings seen at the model's joints (model_view) -> (policy, note)."""
+    """The fixer's policy fitted on recordings seen at the model's joints (model_view) -> (policy,
+    note); in --mode both every kind of hole (its jumps make holes of any kind)."""
     tracks = [x for v in views for x in v.x_m]  # (K, Jm, 3) per clip, the model's fps
     takes = [(x, c.fps) for v, clips in zip(views, recordings) for x, c in zip(v.x_in, clips)]  # the input's fps
     keys = [key for clips in recordings for key in take_keys(clips)]
+    holes_of = None if mode == "both" else (tracks, fixer.fps)
     fill = model_fill(fixer, overlap, batch_size)
-    return measure_policy(fixer, tracks, takes, fixer.policy, fill, mode == "both", map_takes, keys, library)
+    return fixer.policy.fit(takes, fixer.skeleton, fill, holes_of, map_takes, keys, library)
 
 
 def motion_library(
@@ -75,4 +104,4 @@ def motion_library(
             continue
         takes += [(x, c.fps) for x, c in zip(view.x_in, clips)]
         keys += take_keys(clips)
-    return MotionLibrary(takes, keys, mirror_of(fixer.skeleton)) if takes else None
+    return library_of(takes, keys, fixer.skeleton) if takes else None

@@ -25,11 +25,11 @@ from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.resample import hold_last_frame, resample_frames
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.evaluation.metrics import LimbSigma
-from mocapfix.fills.classical import hermite_infill, lerp_infill, limb_infill
+from mocapfix.fills.classical import classical_fills, hermite_infill, lerp_infill, limb_infill
+from mocapfix.fills.fill import Made
 from mocapfix.fills.motion_matching import FILLS as MATCH_FILLS
-from mocapfix.fills.motion_matching import MotionLibrary, mirror_of
+from mocapfix.fills.motion_matching import MotionMatching, library_of
 from mocapfix.fills.policy import FillPolicy
-from mocapfix.fills.policy_fill import policy_fill
 from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.joints import ModelView, model_view
 from mocapfix.fix.report import NOT_JUDGED, FixReport, frames_and_people, who
@@ -148,9 +148,8 @@ def positions_pass(
     source = clips[0].source or clips[0].name
     view = view if view is not None else model_view(clips, model, fps_m, options.joint_map)
     keys, library = take_keys(clips), options.library
-    if policy is not None and any(m in MATCH_FILLS for m in policy.methods()):
-        own = [(x, c.fps) for x, c in zip(view.x_in, clips)]
-        library = MotionLibrary(own, keys, mirror_of(model)) if library is None else library.including(own, keys)
+    if policy is not None and policy.chosen() & set(MATCH_FILLS):  # the policy's motion matching searches these too
+        library = library_of([(x, c.fps) for x, c in zip(view.x_in, clips)], keys, model, library)
 
     # Windows with data go to the model; windows without any (a hole longer than a window) get
     # Lerp instead, blended the same way, so there is no seam where the estimate meets the fallback.
@@ -197,7 +196,11 @@ def _merge(
     if policy is not None:
         absent = index < 0
         model_fill = new[:, absent]
-        new = policy_fill(policy, x, obs, new, fps, model, filled_by, library)
+        fills = [Made("xmae", torch.from_numpy(new)[None]), *classical_fills(), MotionMatching(library)]
+        out, counts = policy.transform(torch.from_numpy(x)[None], torch.from_numpy(obs)[None], fps, model, fills)
+        for method, n in counts.items():
+            filled_by[method] = filled_by.get(method, 0) + n
+        new = out[0].numpy()
         new[:, absent] = model_fill  # no classical fill has anything to go on there
     return new
 
@@ -261,19 +264,6 @@ def _pass_report(clips, view: ModelView, fixer: Fixer, options: FixOptions, blen
     return FixReport(
         frames, people, tally.filled, tally.replaced, before, after, blended.windows, notes, tally.filled_by
     )
-
-
-def model_fill(fixer: Fixer, overlap: float, batch_size: int):
-    """The model's fill of a take as fix makes it (windows, blending, anchoring on the data; no
-    policy): x (T, J, 3) at the model's joints and the take's fps, NaN = missing -> (T, J, 3)."""
-    options = FixOptions("infill", overlap, batch_size)
-
-    def fill(x: np.ndarray, fps: float) -> np.ndarray:
-        take = Clip(x.astype(np.float32), fps, fixer.skeleton)
-        out, _ = positions_pass([take], fixer, options, None, fill_other_joints=False)
-        return out[0].positions
-
-    return fill
 
 
 def with_mode(options: FixOptions, mode: str) -> FixOptions:

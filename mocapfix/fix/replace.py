@@ -1,6 +1,6 @@
 """`--mode both` and `denoise` with a fill policy: observed tokens are replaced only where a joint
 jumped away from the model's estimate and back. Two passes: the model's estimate of every token
-(pass 1) says which observed tokens jumped (fills/policy.py: excursions); they are taken out and
+(pass 1) says which observed tokens jumped (fills/jumps.py: excursions); they are taken out and
 filled like holes with the rest (pass 2: the model's estimate with the wrong value in view would
 be pulled towards it). Every other observed token stays bit-identical: a model that disagrees
 with an unusual motion does not move it.
@@ -12,7 +12,8 @@ import numpy as np
 import torch
 
 from mocapfix.core.clip import Clip
-from mocapfix.fills.policy import FillPolicy, excursions, recording_step_floor
+from mocapfix.fills.jumps import excursions, recording_step_floor
+from mocapfix.fills.policy import FillPolicy
 from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.joints import ModelView, map_joints, model_view
 from mocapfix.fix.measure import measure_views
@@ -22,7 +23,7 @@ from mocapfix.fix.report import NOT_JUDGED, FixReport
 # A joint's observed tokens are replaced where it jumped away from the model's estimate by more
 # than JUMP_STEP x the checkpoint's replace threshold (0.15 m for the shipped XMAE), and by more
 # than the recording's own residual steps allow (recording_step_floor), and back within
-# MAX_REPLACED_S (fills/policy.py: excursions).
+# MAX_REPLACED_S (fills/jumps.py: excursions).
 JUMP_STEP = 2 / 3
 MAX_REPLACED_S = 2.0
 
@@ -44,7 +45,7 @@ def replace_jumps(
     suspects = sum(int(bad.sum()) for _, bad in replaced)
     if fixer.measures_policy and policy_note is None:
         masked_view = model_view(masked, fixer.skeleton, fixer.fps, options.joint_map)
-        if any(not np.isfinite(x).all() for x in masked_view.x_in):  # holes or jumps to fill
+        if masked_view.has_holes():  # holes or jumps to fill
             policy, policy_note = measure_views(
                 fixer, [masked_view], [masked], "infill", options.overlap, options.batch_size, library=options.library
             )

@@ -1,0 +1,79 @@
+"""What a fill is: the one interface every way of filling a hole has, and the candidates a fill
+policy chooses among (a fill, or the mean of two).
+
+A Fill gives one or more named candidates for the same holes: the classical fills one each
+(classical.py), motion matching two from one search (motion_matching.py), a model one (model.py;
+fix/ hands in its own, its windows blended over the take). Whoever needs fills holds Fill objects
+and asks them for the candidates it needs (`made`); nothing here knows which fill is which.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from mocapfix.core.skeleton import Skeleton
+
+BLEND = "+"  # "a+b": the mean of fills a and b
+LEARNED = ("xmae",)  # the candidates that are models; every other is a classical fill
+
+
+class Fill:
+    """One way to fill holes. names: the candidates it gives.
+
+    fill(positions (B, T, J, 3) metres, NaN allowed at missing tokens; observed (B, T, J) bool;
+    fps of the takes (None where unknown); skeleton) -> name -> (B, T, J, 3)."""
+
+    names: tuple[str, ...] = ()
+
+    def fill(
+        self, positions: torch.Tensor, observed: torch.Tensor, fps: float | None, skeleton: Skeleton
+    ) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+
+class Made(Fill):
+    """A fill already made elsewhere: (B, T, J, 3) under its name (fix's model fill, made by the
+    windows that fixed the take)."""
+
+    def __init__(self, name: str, values: torch.Tensor):
+        self.names, self.values = (name,), values
+
+    def fill(self, positions, observed, fps, skeleton) -> dict[str, torch.Tensor]:
+        return {self.names[0]: self.values}
+
+
+def made(
+    fills: list[Fill],
+    positions: torch.Tensor,
+    observed: torch.Tensor,
+    fps: float | None,
+    skeleton: Skeleton,
+    wanted: set[str] | None = None,
+) -> dict[str, torch.Tensor]:
+    """Every candidate of `fills` (in their order), or those with a name in `wanted`: a fill none
+    of whose names is wanted is not run."""
+    out: dict[str, torch.Tensor] = {}
+    for f in fills:
+        if wanted is None or wanted & set(f.names):
+            out.update(f.fill(positions, observed, fps, skeleton))
+    return out
+
+
+def components(method: str) -> list[str]:
+    """The single fills a candidate averages: "limb+spline" -> ["limb", "spline"]."""
+    return method.split(BLEND)
+
+
+def is_learned(method: str) -> bool:
+    """A candidate with a model in it (a model alone, or a model averaged with a classical fill)."""
+    return any(m in LEARNED for m in components(method))
+
+
+def blends(fills: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """fills: name -> (..., 3) -> the same plus the mean of every pair, named "a+b" (sorted)."""
+    names = sorted(fills)
+    out = dict(fills)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            out[a + BLEND + b] = 0.5 * (fills[a] + fills[b])
+    return out

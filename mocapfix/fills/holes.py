@@ -1,0 +1,72 @@
+"""What a hole is, as a fill policy reads it: the body part it is in and its length; and holes cut
+into a take where its data is, to measure the fills on (errors.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from mocapfix.core.skeleton import Skeleton
+
+PARTS = ("full", "arm", "leg")
+
+
+def hole_frames(observed: torch.Tensor) -> torch.Tensor:
+    """observed: (B, T, J) bool -> (B, T, J) long: for a missing token, the length in frames of the
+    run of missing frames of its joint that it is in; 0 for observed tokens."""
+    B, T, J = observed.shape
+    t = torch.arange(T, device=observed.device).view(1, T, 1).expand(B, T, J)
+    prev = torch.where(observed, t, -1).cummax(dim=1).values  # last observed at or before t
+    nxt = torch.where(observed, t, T).flip(1).cummin(dim=1).values.flip(1)  # first observed at or after t
+    return torch.where(observed, 0, nxt - prev - 1)
+
+
+def token_parts(observed: torch.Tensor, skeleton: Skeleton) -> torch.Tensor:
+    """observed: (B, T, J) -> (B, T, J) index into PARTS of the table a missing token is filled by:
+    "full" in frames that miss at least half the joints (a body-wide hole), else the limb the joint
+    belongs to (arm, leg), else "full"."""
+    B, T, J = observed.shape
+    limb = torch.zeros(J, dtype=torch.long, device=observed.device)
+    for group, members in skeleton.groups.items():
+        limb[list(members)] = PARTS.index(group.split("_")[-1])
+    body_wide = (~observed).float().mean(dim=-1, keepdim=True) >= 0.5  # (B, T, 1)
+    return torch.where(body_wide, 0, limb.view(1, 1, J).expand(B, T, J))
+
+
+def hole_kinds(tracks: list[np.ndarray], skeleton, fps: float, gaps_s) -> set[tuple[str, float]]:
+    """The (part, measured gap) cells the recording's holes fall in (as apply_fill_policy reads them)."""
+    kinds = set()
+    for x in tracks:
+        observed = torch.from_numpy(np.isfinite(x).all(-1))[None]  # (1, K, J)
+        if observed.all():
+            continue
+        seconds = hole_frames(observed).float() / fps
+        parts = token_parts(observed, skeleton)
+        for part, s in zip(parts[~observed].tolist(), seconds[~observed].tolist()):
+            kinds.add((PARTS[part], min(gaps_s, key=lambda g: abs(g - s))))
+    return kinds
+
+
+def cut_holes(observed: np.ndarray, options: list[list[int]], frames: int, budget: int, margin: int = 1) -> np.ndarray:
+    """observed: (T, J) bool -> (T, J) bool, up to `budget` holes of `frames` frames, spread over
+    the take, each over the joints of one of `options` in turn (left and right alternate), only
+    where those joints are observed for `margin` frames before and after the hole, margins
+    included in no other cut hole (each has data at both ends, as the recording's own holes)."""
+    T = len(observed)
+    hidden = np.zeros_like(observed)
+    taken = np.zeros(T, dtype=bool)  # frames in a cut hole
+    valid = []
+    for joints in options:
+        seen = observed[:, joints].all(-1).astype(np.int64)
+        run = np.convolve(seen, np.ones(frames + 2 * margin, dtype=np.int64), mode="valid")
+        valid.append(np.nonzero(run == frames + 2 * margin)[0] + margin)  # hole starts
+    for k in range(budget):
+        starts = valid[k % len(options)]
+        # the k-th hole of this option near its share of the take, the nearest free place
+        want = (k // len(options) + 0.5) / -(-budget // len(options)) * T
+        for s in starts[np.argsort(np.abs(starts - want))]:
+            if not taken[s - margin : s + frames + margin].any():
+                hidden[s : s + frames, options[k % len(options)]] = True
+                taken[s : s + frames] = True
+                break
+    return hidden
