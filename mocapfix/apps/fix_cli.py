@@ -11,6 +11,7 @@ never over an existing file without --force.
 from __future__ import annotations
 
 import argparse
+import functools
 import signal
 import sys
 import threading
@@ -32,7 +33,7 @@ def _device(name: str) -> str:
     return name
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="mocapfix fix",
         description=__doc__.split("\n")[0],
@@ -107,6 +108,11 @@ def main(argv: list[str] | None = None) -> int:
         help="YAML, `input name: model name` per line, for joints the automatic matching misses",
     )
     add_read_arguments(ap)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = build_parser()
     args = ap.parse_args(argv)
     if args.out and (len(args.paths) > 1 or Path(args.paths[0]).is_dir()):
         ap.error("-o/--out takes one input file; use --out-dir for several")
@@ -130,36 +136,43 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:  # MotionFileError is one
         print(f"error: {e}", file=sys.stderr)
         return 1
-    # SIGTERM (a scheduler's time limit, `kill`) ends the run the way Ctrl-C does: as an exception,
-    # so the output being written loses its temporary file (atomic_write) instead of the process
-    # dying with it on disk.
+    run = functools.partial(
+        fix_files,
+        args.paths,
+        ckpt,
+        args.out,
+        args.out_dir,
+        args.mode,
+        _device(args.device),
+        args.batch_size,
+        args.overlap,
+        args.force,
+        args.source,
+        args.progress,
+        args.json,
+        precision=args.precision,
+        joint_map=joint_map,
+        render_gif=args.render,
+        joint_map_path=args.joint_map,
+        jobs=args.jobs,
+        shard=shard,
+        resume=args.resume,
+        library=args.library,
+        **read_options(args),
+    )
+    return _until_stopped(run)
+
+
+def _until_stopped(run) -> int:
+    """run() -> its exit code; Ctrl-C and SIGTERM end it with theirs and a line saying so.
+    SIGTERM (a scheduler's time limit, `kill`) ends the run the way Ctrl-C does: as an exception,
+    so the output being written loses its temporary file (atomic_write) instead of the process
+    dying with it on disk."""
     previous = (
         signal.signal(signal.SIGTERM, _terminated) if threading.current_thread() is threading.main_thread() else None
     )
     try:
-        return fix_files(
-            args.paths,
-            ckpt,
-            args.out,
-            args.out_dir,
-            args.mode,
-            _device(args.device),
-            args.batch_size,
-            args.overlap,
-            args.force,
-            args.source,
-            args.progress,
-            args.json,
-            precision=args.precision,
-            joint_map=joint_map,
-            render_gif=args.render,
-            joint_map_path=args.joint_map,
-            jobs=args.jobs,
-            shard=shard,
-            resume=args.resume,
-            library=args.library,
-            **read_options(args),
-        )
+        return run()
     except KeyboardInterrupt:  # outputs are renamed into place whole: nothing half-written is left
         print(
             "mocapfix fix: interrupted (outputs written so far are whole; the one in progress was not written)",

@@ -10,9 +10,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from mocapfix.core.clip import Clip
+import numpy as np
+
+from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.resample import model_frames
 from mocapfix.core.skeleton import Skeleton
+from mocapfix.fix.joints import map_joints
 
 if TYPE_CHECKING:
     from mocapfix.fills.motion_matching import MotionLibrary
@@ -20,6 +23,11 @@ if TYPE_CHECKING:
     from mocapfix.fix.report import FixReport
 
 MODES = ("infill", "denoise", "both")
+# What a message names where a model cannot take a rig: the shipped models (mocapfix/pretrained)
+# that can. Both work on joint positions, so any rig whose joints map; XMAE also estimates the
+# model joints a rig lacks (toes), which the others need.
+FOR_ANY_RIG = "jitter on any rig: --model jitter-many; holes and jumps: --model xmae-cpu-bandai"
+FOR_A_RIG_LACKING_JOINTS = "a model that estimates joints a rig lacks: --model xmae-cpu-bandai"
 
 
 @dataclass(frozen=True)
@@ -69,6 +77,14 @@ class Fixer:
         observed token against (mostly padding in view): denoise and both keep its observed tokens
         and only fill its holes. (A 1-frame take once had its feet moved 0.8 m.)"""
         return model_frames(clip.num_frames, clip.fps, self.fps) < self.window
+
+    def model_joints(self, clip: Clip, source, joint_map: dict[str, str] | None = None) -> np.ndarray:
+        """(Jm,) the clip's joint that plays each model joint, for a model that needs every one of
+        them; a MotionFileError naming those the clip lacks and the shipped model that takes it."""
+        try:
+            return map_joints(clip.skeleton, self.skeleton, source, joint_map)
+        except MotionFileError as e:
+            raise MotionFileError(e.path, f"{e.problem}; {FOR_A_RIG_LACKING_JOINTS}") from None
 
     def load_note(self, ckpt) -> str | None:
         """A line `fix` prints once about the checkpoint it loaded, or None."""

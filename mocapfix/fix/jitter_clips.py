@@ -16,10 +16,8 @@ import numpy as np
 import torch
 
 from mocapfix.core.clip import Clip, MotionFileError
-from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.fills.classical import lerp_infill
-from mocapfix.fix.joints import map_joints
-from mocapfix.fix.report import NOT_JUDGED, FixReport, frames_and_people, who
+from mocapfix.fix.report import NOT_JUDGED, FixReport, LimbSpread, frames_and_people, who
 from mocapfix.models.jitter import lowpass
 
 MIN_TAKE_S = 1.0  # shorter takes are kept as recorded
@@ -42,9 +40,9 @@ def denoise_clips(
         )
     name = who(clips)
     out, replaced, passengers, notes = [], 0, 0, []
-    sigma_before, sigma_after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
+    spread = LimbSpread(model)
     for k, c in enumerate(clips):
-        index = map_joints(c.skeleton, model, source, joint_map)  # (Jm,) every model joint, or a MotionFileError
+        index = fixer.model_joints(c, source, joint_map)  # (Jm,) every model joint, or a MotionFileError
         x = torch.from_numpy(c.positions.astype(np.float64))[None]  # (1, T, J, 3)
         observed = ~torch.isnan(x).any(-1)  # (1, T, J)
         never = [model.joint_names[m] for m, j in enumerate(index) if not observed[0, :, j].any()]
@@ -76,8 +74,7 @@ def denoise_clips(
                 passengers += 1
         positions = np.where(observed[0, ..., None].numpy(), positions, np.nan).astype(np.float32)
         replaced += int(observed[0][:, index].sum())
-        sigma_before.update(torch.from_numpy(c.positions[:, index])[None])
-        sigma_after.update(torch.from_numpy(positions[:, index])[None])
+        spread.add(c.positions[:, index], positions[:, index])
         out.append(c.replace(positions=positions, rotations=None, root_translation=None, offsets=None))
         if progress is not None:
             progress(k + 1, len(clips))
@@ -88,11 +85,5 @@ def denoise_clips(
             1, f"{passengers} joints the model does not use low-passed and moved with the model joint above them"
         )
     frames, people = frames_and_people(clips)
-    report = FixReport(frames, people, 0, replaced, _mean(sigma_before), _mean(sigma_after), len(clips), notes)
+    report = FixReport(frames, people, 0, replaced, *spread.values(), len(clips), notes)
     return out, report
-
-
-def _mean(metric: LimbSigma) -> float:
-    """The metric's value; NaN (shown "-") when no take was long enough to judge, without the
-    warning torchmetrics prints for a compute() before any update()."""
-    return float(metric.compute()) if metric.update_count else float("nan")

@@ -52,6 +52,11 @@ class ModelView(NamedTuple):
     x_in: list[np.ndarray]
     x_m: list[np.ndarray]
 
+    def has_holes(self) -> bool:
+        """Whether a joint the recording has is missing somewhere: a model joint it lacks is
+        estimated, never written, and no hole of the recording to fill."""
+        return any(not np.isfinite(x[:, i >= 0]).all() for x, i in zip(self.x_in, self.index))
+
 
 def model_view(clips: list[Clip], model: Skeleton, fps_m: float, joint_map: dict[str, str] | None) -> ModelView:
     source, name = clips[0].source or clips[0].name, who(clips)

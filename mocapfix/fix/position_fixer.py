@@ -47,7 +47,7 @@ class PositionFixer(Fixer):
             view = model_view(clips, self.skeleton, self.fps, options.joint_map)
             if options.measured is not None and options.measured[1] and options.mode != "denoise":  # the run's
                 policy, note = options.measured
-            elif options.mode == "infill" and any(not np.isfinite(x).all() for x in view.x_in):  # else nothing to fill
+            elif options.mode == "infill" and view.has_holes():  # else nothing to fill
                 policy, note = measure_views(
                     self, [view], [clips], options.mode, options.overlap, options.batch_size, library=options.library
                 )

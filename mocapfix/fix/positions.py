@@ -24,7 +24,6 @@ import torch
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.resample import hold_last_frame, resample_frames
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.evaluation.metrics import LimbSigma
 from mocapfix.fills.classical import classical_fills, hermite_infill, lerp_infill, limb_infill
 from mocapfix.fills.fill import Made
 from mocapfix.fills.motion_matching import FILLS as MATCH_FILLS
@@ -32,7 +31,7 @@ from mocapfix.fills.motion_matching import MotionMatching, library_of
 from mocapfix.fills.policy import FillPolicy
 from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.joints import ModelView, model_view
-from mocapfix.fix.report import NOT_JUDGED, FixReport, frames_and_people, who
+from mocapfix.fix.report import NOT_JUDGED, FixReport, LimbSpread, frames_and_people, who
 from mocapfix.fix.windowing import blend_windows, window_layout
 
 
@@ -125,7 +124,7 @@ class _Tally:
     notes: list[str] = field(default_factory=list)
 
     def __post_init__(self):
-        self.before, self.after = LimbSigma(list(self.model.limbs)), LimbSigma(list(self.model.limbs))
+        self.limbs = LimbSpread(self.model)
 
 
 def positions_pass(
@@ -197,7 +196,9 @@ def _merge(
         absent = index < 0
         model_fill = new[:, absent]
         fills = [Made("xmae", torch.from_numpy(new)[None]), *classical_fills(), MotionMatching(library)]
-        out, counts = policy.transform(torch.from_numpy(x)[None], torch.from_numpy(obs)[None], fps, model, fills)
+        # counted: the joints the recording has (the fill of one it lacks is not written)
+        xt, ot, counted = torch.from_numpy(x)[None], torch.from_numpy(obs)[None], torch.from_numpy(~absent)
+        out, counts = policy.transform(xt, ot, fps, model, fills, counted)
         for method, n in counts.items():
             filled_by[method] = filled_by.get(method, 0) + n
         new = out[0].numpy()
@@ -237,8 +238,7 @@ def _clip_fixed(c, k, new, view, fixer, mode, seen, fill_other_joints, tally: _T
     if fill_other_joints and mode != "denoise":
         positions, n = fill_other_joints_of(positions, index, c.skeleton)
         tally.other_filled += n
-    tally.before.update(torch.from_numpy(x_in)[None])
-    tally.after.update(torch.from_numpy(new)[None])
+    tally.limbs.add(x_in, new, index)  # the limbs of the joints the clip has
     return c.replace(positions=positions, rotations=None, root_translation=None, offsets=None)
 
 
@@ -260,7 +260,7 @@ def _pass_report(clips, view: ModelView, fixer: Fixer, options: FixOptions, blen
     if whole:
         notes.append(f"{whole} windows had a joint missing throughout ({fate})")
     frames, people = frames_and_people(clips)
-    before, after = float(tally.before.compute()), float(tally.after.compute())
+    before, after = tally.limbs.values()
     return FixReport(
         frames, people, tally.filled, tally.replaced, before, after, blended.windows, notes, tally.filled_by
     )

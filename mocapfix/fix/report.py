@@ -1,5 +1,11 @@
 """What `fix` tells about one file, as a value: FixReport (counts, the limbs' spread before and
-after, notes), and the names a message gives a file's clips."""
+after, notes), and the names a message gives a file's clips.
+
+A report is about the file: its counts are of the file's own tokens that fix wrote, and the
+limbs it measures are the model's limbs between two joints the file has. A model joint the rig
+lacks (toes on a rig without them) is estimated, as the rest of the body needs it, but neither
+written, counted nor measured (LimbSpread).
+"""
 
 from __future__ import annotations
 
@@ -7,7 +13,12 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numpy as np
+import torch
+
 from mocapfix.core.clip import Clip
+from mocapfix.core.skeleton import Skeleton
+from mocapfix.evaluation.metrics import LimbSigma
 
 NOT_JUDGED = "observed tokens kept, not judged"
 
@@ -18,7 +29,7 @@ class FixReport:
     people: int  # clips of the file (people; sequences for Human3.6M)
     filled: int  # missing tokens given a value
     replaced: int  # observed tokens replaced by the estimate
-    limb_sigma_before_mm: float  # the model's limbs, over the input's tokens
+    limb_sigma_before_mm: float  # the model's limbs the file has (LimbSpread), over the input's tokens
     limb_sigma_after_mm: float
     windows: int  # windows the model ran on
     notes: list[str] = field(default_factory=list)
@@ -45,6 +56,32 @@ class FixReport:
 
 def _finite_or_none(v: float) -> float | None:
     return v if math.isfinite(v) else None
+
+
+class LimbSpread:
+    """Limb sigma (the std over time of each limb's length) of a file's clips as read and as
+    fixed, over the model's limbs between two joints the file has: a limb to a joint the rig
+    lacks has nothing read to compare with, and what the model estimated there is not written."""
+
+    def __init__(self, model: Skeleton):
+        self.before, self.after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
+
+    def add(self, before: np.ndarray, after: np.ndarray, index: np.ndarray | None = None) -> None:
+        """before, after: (T, Jm, 3) one clip at the model's joints as read and as fixed; index:
+        (Jm,) the clip's joint of each model joint, -1 where the clip has none (None: it has all)."""
+        if index is not None and (index < 0).any():
+            before, after = before.copy(), after.copy()
+            before[:, index < 0] = np.nan
+            after[:, index < 0] = np.nan
+        self.before.update(torch.from_numpy(before)[None])
+        self.after.update(torch.from_numpy(after)[None])
+
+    def values(self) -> tuple[float, float]:
+        """(before, after) in mm; NaN (shown "-") where no clip was measured, without the warning
+        torchmetrics prints for a compute() before any update()."""
+        if not self.before.update_count:
+            return float("nan"), float("nan")
+        return float(self.before.compute()), float(self.after.compute())
 
 
 def who(clips: list[Clip]) -> Callable[[int], str]:

@@ -15,11 +15,8 @@ import torch
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.resample import model_frames, resample_motion
-from mocapfix.core.skeleton import Skeleton
-from mocapfix.evaluation.metrics import LimbSigma
-from mocapfix.fix.fixer import Fixer, FixOptions
-from mocapfix.fix.joints import map_joints
-from mocapfix.fix.report import NOT_JUDGED, FixReport, frames_and_people, who
+from mocapfix.fix.fixer import FOR_ANY_RIG, Fixer, FixOptions
+from mocapfix.fix.report import NOT_JUDGED, FixReport, LimbSpread, frames_and_people, who
 from mocapfix.fix.windowing import blend_windows
 from mocapfix.io import read_motion
 
@@ -37,13 +34,13 @@ class RotationFixer(Fixer):
         return fix_rotations(clips, self, options)
 
     def clips_for(self, path, clips: list[Clip], source: str = "auto", joint_map=None, **read_options) -> list[Clip]:
-        return rotation_clips(path, clips, self.skeleton, source, joint_map, **read_options)
+        return rotation_clips(path, clips, self, source, joint_map, **read_options)
 
 
 def rotation_clips(
     path,
     clips: list[Clip],
-    model: Skeleton,
+    fixer: RotationFixer,
     source: str = "auto",
     joint_map: dict[str, str] | None = None,
     **read_options,
@@ -51,14 +48,31 @@ def rotation_clips(
     """The clips of a file as a rotation model needs them. A BVH file is read again with only
     the model's joints (read_bvh keep_joints), as the model was trained (without a helper root
     such as Bandai Namco's joint_Root): with a joint whose translation moves below the root, the
-    whole tree has no exact rotations, the model's joints do. Other formats come as they are."""
+    whole tree has no exact rotations, the model's joints do. Other formats come as they are.
+    A rig whose joints that play the model's do not hang as one tree is a MotionFileError naming
+    the shipped models that take it."""
     first = clips[0]
     if first.meta.get("format") != "bvh":
         return clips
-    index = map_joints(first.skeleton, model, path, joint_map)
+    index = fixer.model_joints(first, path, joint_map)
     if first.has_rotations and len(index) == first.skeleton.num_joints:
         return clips
-    keep = [first.skeleton.joint_names[i] for i in index]
+    names, parents, kept = first.skeleton.joint_names, first.skeleton.parents, set(index.tolist())
+    tops = []  # the kept joints below no other kept joint: one, the model's root, for one tree
+    for j in index:
+        a = parents[j]
+        while a >= 0 and a not in kept:
+            a = parents[a]
+        if a < 0:
+            tops.append(names[j])
+    if len(tops) > 1:
+        raise MotionFileError(
+            path,
+            f"the model ({fixer.kind}) fixes the rotations of its {len(index)} joints as one tree; in this rig the "
+            f"joints that play them hang apart ({', '.join(tops)} meet only at joints the model does not have); "
+            + FOR_ANY_RIG,
+        )
+    keep = [names[i] for i in index]
     return read_motion(path, "bvh" if source == "auto" else source, **read_options, keep_joints=keep)
 
 
@@ -101,17 +115,13 @@ def fix_rotations(clips: list[Clip], fixer: RotationFixer, options: FixOptions) 
     positions (resampled to the model's fps by slerp, windows of the model's length, stride
     window * (1 - overlap)); a clip shorter than a window is kept as it is (too_short: too little
     motion to judge it by). Overlapping windows are blended as RotationWindows says."""
-    model, fps_m, name, source = fixer.skeleton, fixer.fps, who(clips), clips[0].source or clips[0].name
+    fps_m, name, source = fixer.fps, who(clips), clips[0].source or clips[0].name
     notes = list(fixer.notes)
     index = [_rotation_joints(c, i, fixer, options.joint_map, name, source) for i, c in enumerate(clips)]
-    sigma_before = LimbSigma(list(model.limbs))
-    for c, idx in zip(clips, index):
-        sigma_before.update(torch.from_numpy(c.positions[:, idx])[None])
     frames, people = frames_and_people(clips)
     if options.mode == "infill":
         notes.append("rotation input has no missing tokens: nothing to fill (--mode denoise replaces them)")
-        before = float(sigma_before.compute())
-        return list(clips), FixReport(frames, people, 0, 0, before, before, 0, notes)
+        return list(clips), FixReport(frames, people, 0, 0, *_spread(fixer, clips, index), 0, notes)
 
     # Each clip long enough to judge (too_short) at the model's fps; every frame needs the estimate.
     judged = [k for k, c in enumerate(clips) if not fixer.too_short(c)]
@@ -121,8 +131,7 @@ def fix_rotations(clips: list[Clip], fixer: RotationFixer, options: FixOptions) 
             f"({fixer.window} frames at {fps_m:g} fps): {NOT_JUDGED}"
         )
     if not judged:
-        before = float(sigma_before.compute())
-        return list(clips), FixReport(frames, people, 0, 0, before, before, 0, notes)
+        return list(clips), FixReport(frames, people, 0, 0, *_spread(fixer, clips, index), 0, notes)
     rot_m, root_m = [], []
     for k in judged:
         c, idx = clips[k], index[k]
@@ -133,18 +142,27 @@ def fix_rotations(clips: list[Clip], fixer: RotationFixer, options: FixOptions) 
     windows = RotationWindows(fixer, rot_m, root_m, [clips[k].offsets[index[k]] for k in judged])
     need = [np.ones(len(r), dtype=bool) for r in rot_m]
     blended = blend_windows(windows, need, need, options.overlap, options.batch_size, options.progress)
-    out, replaced, sigma_after = _posed(clips, index, dict(zip(judged, blended.tracks)), fixer, name, source)
+    out, replaced, posed = _posed(clips, index, dict(zip(judged, blended.tracks)), fixer, name, source)
     if blended.failed:
         notes.append(f"{blended.failed} windows gave non-finite estimates: the input blended in there")
-    before, after = float(sigma_before.compute()), float(sigma_after.compute())
-    return out, FixReport(frames, people, 0, replaced, before, after, blended.windows, notes)
+    spread = _spread(fixer, clips, index, posed)
+    return out, FixReport(frames, people, 0, replaced, *spread, blended.windows, notes)
+
+
+def _spread(fixer: RotationFixer, clips: list[Clip], index: list[np.ndarray], posed=None) -> tuple[float, float]:
+    """The limbs' spread (LimbSpread) before and after; posed: each clip's positions (T, J, 3) as
+    fixed (float64, before they are written as float32), None: as read."""
+    spread = LimbSpread(fixer.skeleton)
+    for k, (c, idx) in enumerate(zip(clips, index)):
+        spread.add(c.positions[:, idx], (c.positions if posed is None else posed[k])[:, idx])
+    return spread.values()
 
 
 def _rotation_joints(c: Clip, i: int, fixer: RotationFixer, joint_map, name, source) -> np.ndarray:
     """(Jm,) clip i's index of each model joint, or a MotionFileError saying why its rotations
     cannot be fixed by the model (none, another hierarchy, not finite)."""
     model = fixer.skeleton
-    idx = map_joints(c.skeleton, model, source, joint_map)
+    idx = fixer.model_joints(c, source, joint_map)
     if not c.has_rotations:
         why = c.meta.get("no_rotations")
         if why == "the kept joints have no constant bone offsets":  # the rig's own rotations do not fit
@@ -156,15 +174,15 @@ def _rotation_joints(c: Clip, i: int, fixer: RotationFixer, joint_map, name, sou
             problem = f"this input has none{f' ({why})' if why else ''}"
         raise MotionFileError(
             source,
-            f"{name(i)}the model ({fixer.kind}, rotations state) needs joint rotations; {problem} "
-            "(jitter on any rig: --model jitter-many)",
+            f"{name(i)}the model ({fixer.kind}, rotations state) needs joint rotations; {problem} ({FOR_ANY_RIG})",
         )
     hangs = [c.skeleton.parents[idx[m]] == (idx[p] if p >= 0 else -1) for m, p in enumerate(model.parents)]
     if not all(hangs):
         bad = model.joint_names[hangs.index(False)]
         raise MotionFileError(
             source,
-            f"{name(i)}skeleton hierarchy differs from the model's ({model.name}): joint {bad} has another parent",
+            f"{name(i)}skeleton hierarchy differs from the model's ({model.name}): joint {bad} has another parent "
+            f"({FOR_ANY_RIG})",
         )
     if not (np.isfinite(c.rotations).all() and np.isfinite(c.root_translation).all()):
         raise MotionFileError(source, f"{name(i)}rotations are not finite")
@@ -173,12 +191,13 @@ def _rotation_joints(c: Clip, i: int, fixer: RotationFixer, joint_map, name, sou
 
 def _posed(clips, index, tracks: dict, fixer: RotationFixer, name, source):
     """Each clip with its blended track (K, 4 Jm + 3) at its own frames, posed by forward
-    kinematics (a clip without a track as it was) -> (clips, tokens replaced, the LimbSigma after)."""
-    model, Jm = fixer.skeleton, fixer.skeleton.num_joints
-    out, replaced, sigma_after = [], 0, LimbSigma(list(model.limbs))
+    kinematics (a clip without a track as it was) -> (clips, tokens replaced, each clip's
+    positions (T, J, 3) as posed)."""
+    Jm = fixer.skeleton.num_joints
+    out, replaced, posed = [], 0, []
     for k, (c, idx) in enumerate(zip(clips, index)):
         if k not in tracks:
-            sigma_after.update(torch.from_numpy(c.positions[:, idx])[None])
+            posed.append(c.positions)
             out.append(c)
             continue
         track = torch.from_numpy(tracks[k])  # (K, 4 Jm + 3)
@@ -197,7 +216,7 @@ def _posed(clips, index, tracks: dict, fixer: RotationFixer, name, source):
         if not (np.isfinite(positions).all() and np.isfinite(rotations).all()):  # a bug, never data
             raise MotionFileError(source, f"{name(k)}the estimate is not finite; nothing written")
         replaced += c.num_frames * len(idx)
-        sigma_after.update(torch.from_numpy(positions[:, idx])[None])
+        posed.append(positions)
         out.append(
             c.replace(
                 positions=positions.astype(np.float32),
@@ -205,4 +224,4 @@ def _posed(clips, index, tracks: dict, fixer: RotationFixer, name, source):
                 root_translation=root.astype(np.float32),
             )
         )
-    return out, replaced, sigma_after
+    return out, replaced, posed
