@@ -164,8 +164,8 @@ def test_a_perfect_model_needs_as_many_cut_holes_as_a_classical_fill_to_take_a_k
     holes, as another classical fill must: fewer, and even a model exact on every cut hole is not
     chosen (one 12-s take let XMAE's blend win a leg cell it then lost on the take's own hole)."""
     from mocapfix.core.skeleton import preset
-    from mocapfix.fills.fill import Made, is_learned
-    from mocapfix.fills.policy import TRUSTED_HOLES, FillPolicy
+    from mocapfix.fills.fill import Made
+    from mocapfix.fills.policy import TRUSTED_HOLES, FillPolicy, is_learned
     from mocapfix.io.synthetic import generate_clips
     from mocapfix.rig.mapping import onto_skeleton
 

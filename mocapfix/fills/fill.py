@@ -14,7 +14,6 @@ import torch
 from mocapfix.core.skeleton import Skeleton
 
 BLEND = "+"  # "a+b": the mean of fills a and b
-LEARNED = ("xmae",)  # the candidates that are models; every other is a classical fill
 
 
 class Fill:
@@ -50,11 +49,12 @@ def made(
     skeleton: Skeleton,
     wanted: set[str] | None = None,
 ) -> dict[str, torch.Tensor]:
-    """Every candidate of `fills` (in their order), or those with a name in `wanted`: a fill none
-    of whose names is wanted is not run."""
+    """Every candidate of `fills` (in their order), or those that `wanted`'s candidates (blends
+    too) are made of: a fill none of whose names is wanted is not run."""
+    needed = None if wanted is None else {c for m in wanted for c in components(m)}
     out: dict[str, torch.Tensor] = {}
     for f in fills:
-        if wanted is None or wanted & set(f.names):
+        if needed is None or needed & set(f.names):
             out.update(f.fill(positions, observed, fps, skeleton))
     return out
 
@@ -62,11 +62,6 @@ def made(
 def components(method: str) -> list[str]:
     """The single fills a candidate averages: "limb+spline" -> ["limb", "spline"]."""
     return method.split(BLEND)
-
-
-def is_learned(method: str) -> bool:
-    """A candidate with a model in it (a model alone, or a model averaged with a classical fill)."""
-    return any(m in LEARNED for m in components(method))
 
 
 def blends(fills: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -77,3 +72,24 @@ def blends(fills: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         for b in names[i + 1 :]:
             out[a + BLEND + b] = 0.5 * (fills[a] + fills[b])
     return out
+
+
+def pick(
+    fills: dict[str, torch.Tensor],
+    names: list[str],
+    choice: torch.Tensor,
+    positions: torch.Tensor,
+    observed: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each missing token from the candidate names[choice] (a fill of `fills`, or the mean of the
+    fills a blend names) -> (B, T, J, 3) with observed tokens as given, and (B, T, J) the index
+    into names of the candidate each token took (-1 for observed tokens).
+    choice: (B, T, J) index into names; positions (B, T, J, 3); observed (B, T, J) bool."""
+    stacked = torch.stack([_candidate(fills, m) for m in names])  # (M, B, T, J, 3)
+    out = stacked.gather(0, choice[None, ..., None].expand(1, *choice.shape, 3))[0]
+    return torch.where(observed[..., None], positions, out), torch.where(observed, -1, choice)
+
+
+def _candidate(fills: dict[str, torch.Tensor], method: str) -> torch.Tensor:
+    parts = components(method)
+    return fills[method] if method in fills else sum(fills[m] for m in parts) / len(parts)

@@ -180,23 +180,24 @@ def library_of(
 ) -> MotionLibrary:
     """A library of these takes (x (T, J, 3) at the skeleton's joints, fps) first, then `library`'s
     (the run's other files, fix --library), mirrored where the skeleton's sides pair up."""
-    return MotionLibrary(takes, keys, mirror_of(skeleton)) if library is None else library.including(takes, keys)
+    return library.including(takes, keys) if library is not None else MotionLibrary(takes, keys, mirror_of(skeleton))
 
 
 class MotionMatching(Fill):
-    """Motion matching as a Fill: "match" and "match_delta" from one search of `library` (a
-    MotionLibrary.without(...): the takes besides this one; None: the take itself only)."""
+    """Motion matching as a Fill: "match" and "match_delta" from one search of `library`'s takes
+    besides the one of `key` (MotionLibrary.without: a take is searched as it is, holes and all;
+    None: the take itself only)."""
 
     names = FILLS
 
-    def __init__(self, library: Searchable | None):
-        self.library = library
+    def __init__(self, library: MotionLibrary | None, key=None):
+        self.library, self.key = library, key
 
     def fill(self, positions, observed, fps, skeleton) -> dict[str, torch.Tensor]:
+        searched = None if self.library is None else self.library.without(self.key, fps)
         hermite = hermite_infill(positions, observed)  # (B, T, J, 3): what a hole nothing matches keeps
         found = [
-            match_fills(x.numpy(), o.numpy(), h.numpy(), self.library, fps)
-            for x, o, h in zip(positions, observed, hermite)
+            match_fills(x.numpy(), o.numpy(), h.numpy(), searched, fps) for x, o, h in zip(positions, observed, hermite)
         ]
         return {name: torch.stack([torch.from_numpy(f[name]) for f in found]) for name in FILLS}
 

@@ -27,9 +27,10 @@ import torch
 
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.fills.errors import ErrorSums, measure_on_takes
-from mocapfix.fills.fill import BLEND, Fill, components, is_learned, made
-from mocapfix.fills.holes import PARTS, hole_frames, hole_kinds, token_parts
+from mocapfix.fills.fill import BLEND, Fill, made, pick
+from mocapfix.fills.holes import PARTS, hole_kinds, token_choice
 
+LEARNED = ("xmae",)  # the candidates that are models; every other is a classical fill
 CLEAN_QUANTILE = 0.995  # of the model's disagreement with clean observed tokens: above it, a token is suspect
 MODEL_MARGIN = 0.98  # a model fills a hole only where its val error is 2 % below the best classical fill's
 BLEND_MARGIN = 0.99  # a blend of classical fills only where 1 % below the best single one (in doubt, the simpler)
@@ -64,6 +65,11 @@ PREFERRED_MARGIN = 0.95
 # let XMAE's blend win a 0.7-s leg cell it then lost on the take's own hole (`mocapfix demo`, its
 # synthetic take: 123.6 mm against the limb fill's 92.4).
 TRUSTED_HOLES = 40
+
+
+def is_learned(method: str) -> bool:
+    """A candidate with a model in it (a model alone, or a model averaged with a classical fill)."""
+    return any(m in LEARNED for m in method.split(BLEND))
 
 
 @dataclass
@@ -102,11 +108,15 @@ class FillPolicy:
 
     def methods(self) -> list[str]:
         """The single fills its candidates are made of (those it measured)."""
-        return sorted({c for table in self.error_mm.values() for m in table for c in components(m)})
+        return sorted({c for table in self.error_mm.values() for m in table for c in m.split(BLEND)})
 
-    def chosen(self) -> set[str]:
-        """The single fills of the candidates it chooses for some kind of hole (the fills transform makes)."""
-        return {c for p in PARTS for g in self.gaps_s for c in components(self.choose(p, g))}
+    def chosen(self) -> list[str]:
+        """The candidates it chooses for some kind of hole (those transform makes), sorted."""
+        return sorted({self.choose(p, g) for p in PARTS for g in self.gaps_s})
+
+    def table(self, names: list[str]) -> torch.Tensor:
+        """(parts, gaps) long: the index into names of the candidate chosen for each cell."""
+        return torch.tensor([[names.index(self.choose(p, g)) for g in self.gaps_s] for p in PARTS])
 
     def transform(
         self,
@@ -121,10 +131,11 @@ class FillPolicy:
         for its part and length (observed tokens as given), and the tokens each candidate filled
         in the joints `counted` ((J,) bool; None: all of them). fills: the Fills it may take them
         from; only those it chooses are run."""
-        candidates = made(fills, positions, observed, fps, skeleton, wanted=self.chosen())
-        out, chosen = apply_fill_policy(self, positions, observed, candidates, fps, skeleton)
+        names = self.chosen()
+        table = self.table(names)
+        choice = token_choice(observed, fps, skeleton, self.gaps_s, table)
+        out, chosen = pick(made(fills, positions, observed, fps, skeleton, names), names, choice, positions, observed)
         chosen = chosen if counted is None else chosen[..., counted]
-        names = policy_names(self, candidates)
         counts = torch.bincount(chosen[chosen >= 0], minlength=len(names)).tolist()
         return out, {names[i]: n for i, n in enumerate(counts) if n}
 
@@ -257,30 +268,14 @@ def apply_fill_policy(
     every single method of policy.methods() -> (B, T, J, 3), and (B, T, J) the index into
     policy_names(policy, fills) of the candidate each token took (-1 for observed tokens)."""
     names = policy_names(policy, fills)
-    stacked = torch.stack([_candidate(fills, m) for m in names])  # (M, B, T, J, 3)
-    seconds = hole_frames(observed).float() / fps
-    parts = token_parts(observed, skeleton)
-    # the choice depends only on (part, nearest measured gap): a lookup table, not a per-token loop
-    edges = torch.tensor([(a + b) / 2 for a, b in zip(policy.gaps_s, policy.gaps_s[1:])], device=observed.device)
-    gap_index = torch.bucketize(seconds.contiguous(), edges)  # (B, T, J) into gaps_s
-    table = torch.tensor(
-        [[names.index(policy.choose(p, g)) for g in policy.gaps_s] for p in PARTS], device=observed.device
-    )  # (parts, gaps)
-    choice = table[parts, gap_index]  # (B, T, J)
-    out = stacked.gather(0, choice[None, ..., None].expand(1, *choice.shape, 3))[0]
-    return torch.where(observed[..., None], positions, out), torch.where(observed, -1, choice)
+    choice = token_choice(observed, fps, skeleton, policy.gaps_s, policy.table(names))
+    return pick(fills, names, choice, positions, observed)
 
 
 def policy_names(policy: FillPolicy, fills: dict[str, torch.Tensor]) -> list[str]:
     """The candidates apply_fill_policy may take: the single fills given, then the blends the
     policy names (the index its `chosen` refers to)."""
-    chosen = {policy.choose(p, g) for p in PARTS for g in policy.gaps_s}
-    return list(fills) + sorted(m for m in chosen if m not in fills)
-
-
-def _candidate(fills: dict[str, torch.Tensor], method: str) -> torch.Tensor:
-    parts = components(method)
-    return fills[method] if method in fills else sum(fills[m] for m in parts) / len(parts)
+    return list(fills) + [m for m in policy.chosen() if m not in fills]
 
 
 class Calibration(ErrorSums):

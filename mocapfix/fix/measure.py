@@ -18,21 +18,21 @@ from mocapfix.fix.positions import positions_pass, take_keys
 
 class TakeFill(Fill):
     """A positions model's fill of whole takes as fix makes it (windows, blending, anchoring on
-    the data; no policy): take(x (T, J, 3) at the model's joints and the take's fps, NaN =
-    missing) -> (T, J, 3)."""
+    the data; no policy): fill(x (T, J, 3) at the model's joints, the take's fps; NaN =
+    missing) -> (T, J, 3), and the same over a batch of takes as a Fill."""
 
     names = ("xmae",)
 
     def __init__(self, fixer: Fixer, overlap: float, batch_size: int):
         self.fixer, self.options = fixer, FixOptions("infill", overlap, batch_size)
 
-    def take(self, x: np.ndarray, fps: float) -> np.ndarray:
+    def __call__(self, x: np.ndarray, fps: float) -> np.ndarray:
         take = Clip(x.astype(np.float32), fps, self.fixer.skeleton)
         out, _ = positions_pass([take], self.fixer, self.options, None, fill_other_joints=False)
         return out[0].positions
 
     def fill(self, positions, observed, fps, skeleton) -> dict[str, torch.Tensor]:
-        return {self.names[0]: torch.stack([torch.from_numpy(self.take(x.numpy(), fps)).double() for x in positions])}
+        return {self.names[0]: torch.stack([torch.from_numpy(self(x.numpy(), fps)).double() for x in positions])}
 
 
 def model_fill(fixer: Fixer, overlap: float, batch_size: int) -> TakeFill:

@@ -26,7 +26,6 @@ from mocapfix.core.resample import hold_last_frame, resample_frames
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.fills.classical import classical_fills, hermite_infill, lerp_infill, limb_infill
 from mocapfix.fills.fill import Made
-from mocapfix.fills.motion_matching import FILLS as MATCH_FILLS
 from mocapfix.fills.motion_matching import MotionMatching, library_of
 from mocapfix.fills.policy import FillPolicy
 from mocapfix.fix.fixer import Fixer, FixOptions
@@ -147,7 +146,7 @@ def positions_pass(
     source = clips[0].source or clips[0].name
     view = view if view is not None else model_view(clips, model, fps_m, options.joint_map)
     keys, library = take_keys(clips), options.library
-    if policy is not None and policy.chosen() & set(MATCH_FILLS):  # the policy's motion matching searches these too
+    if policy is not None:  # what the policy's motion matching searches (if it chooses it): these takes too
         library = library_of([(x, c.fps) for x, c in zip(view.x_in, clips)], keys, model, library)
 
     # Windows with data go to the model; windows without any (a hole longer than a window) get
@@ -162,9 +161,12 @@ def positions_pass(
         est_m = blended.tracks[k].reshape(-1, model.num_joints, 3)  # (K, Jm, 3); NaN at frames no window needed
         tally.lerped += int((~blended.by_model[k] & need_m[k]).sum())
         est = resample_frames(est_m, fps_m, c.fps, c.num_frames)  # (T, Jm, 3)
-        searched = None if library is None else library.without(keys[k], c.fps)
-        new = _merge(est, view.x_in[k], view.index[k], mode, policy, c.fps, model, tally.filled_by, searched)
-        out_clips.append(_clip_fixed(c, k, new, view, fixer, mode, seen, fill_other_joints, tally, who(clips), source))
+        match = MotionMatching(library, keys[k])  # this take's own data searched as it is, holes and all
+        new = _merge(est, view.x_in[k], view.index[k], mode, policy, c.fps, model, tally.filled_by, match)
+        keep = mode == "infill" or fixer.too_short(c)  # its observed tokens kept
+        out_clips.append(
+            _clip_fixed(c, k, new, view, fixer, mode, keep, seen, fill_other_joints, tally, who(clips), source)
+        )
     return out_clips, _pass_report(clips, view, fixer, options, blended, tally)
 
 
@@ -177,7 +179,7 @@ def _merge(
     fps: float,
     model: Skeleton,
     filled_by: dict[str, int],
-    library,
+    match: MotionMatching,
 ) -> np.ndarray:
     """est: (T, Jm, 3) the model's estimate at a clip's frames, x_in (T, Jm, 3) the clip at the
     model's joints -> (T, Jm, 3) float64, the two merged as the mode says."""
@@ -195,7 +197,7 @@ def _merge(
     if policy is not None:
         absent = index < 0
         model_fill = new[:, absent]
-        fills = [Made("xmae", torch.from_numpy(new)[None]), *classical_fills(), MotionMatching(library)]
+        fills = [Made("xmae", torch.from_numpy(new)[None]), *classical_fills(), match]
         # counted: the joints the recording has (the fill of one it lacks is not written)
         xt, ot, counted = torch.from_numpy(x)[None], torch.from_numpy(obs)[None], torch.from_numpy(~absent)
         out, counts = policy.transform(xt, ot, fps, model, fills, counted)
@@ -206,12 +208,11 @@ def _merge(
     return new
 
 
-def _clip_fixed(c, k, new, view, fixer, mode, seen, fill_other_joints, tally: _Tally, name, source) -> Clip:
+def _clip_fixed(c, k, new, view, fixer, mode, keep, seen, fill_other_joints, tally: _Tally, name, source) -> Clip:
     """Clip k with the merged estimate `new` (T, Jm, 3) written into its model joints; counted."""
     model, x_in, index = fixer.skeleton, view.x_in[k], view.index[k]
     obs = np.isfinite(x_in).all(-1)  # (T, Jm)
     new = new.astype(np.float32)
-    keep = mode == "infill" or fixer.too_short(c)
     if keep:
         new[obs] = x_in[obs]  # bit-identical, whatever float64 did
     if keep and mode != "infill":
