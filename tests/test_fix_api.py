@@ -7,9 +7,10 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from mocapfix.apps.main import main
-from mocapfix.core.clip import Clip
+from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.skeleton import preset
 from mocapfix.fix import FixReport, fix_clips, fix_file, load_fixer
 from mocapfix.fix.fixer import Fixer
@@ -42,6 +43,14 @@ def test_fix_file_writes_the_commands_bytes_and_its_report_is_the_json_report(ba
     for key in ("input", "output", "seconds"):
         printed.pop(key)
     assert fixed.report.as_dict() == printed
+    # and as the command: never onto the input, an existing output only when asked
+    before = take.read_bytes()
+    with pytest.raises(MotionFileError, match="is the input"):
+        fixed.write(take, overwrite=True)
+    with pytest.raises(MotionFileError, match="exists"):
+        fixed.write(tmp_path / "cmd.bvh")
+    assert take.read_bytes() == before
+    assert fixed.write(tmp_path / "cmd.bvh", overwrite=True) == tmp_path / "cmd.bvh"
 
 
 class _Halver(Fixer):

@@ -111,7 +111,7 @@ def _publish(fixed: FixedFile, outputs: list[Path], force: bool, render_gif: boo
     with staged(outputs, force, path) as temps:
         with writing(target, path):
             try:
-                fixed.write(temps[0])
+                fixed.write(temps[0], overwrite=True)  # our own staged file
             except MotionFileError as e:  # name the output, not its temporary file
                 if Path(e.path) != temps[0]:
                     raise

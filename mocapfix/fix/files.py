@@ -13,18 +13,20 @@ none is lost or overwritten, workers, printing.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.core.clip import Clip, MotionFileError, shown
 from mocapfix.fix.clips import fix_clips
 from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.hierarchy import bvh_reference, onto_hierarchy
 from mocapfix.fix.output import output_path, write_output
 from mocapfix.fix.report import FixReport
 from mocapfix.io import read_motion
+from mocapfix.io.files import check_output
 
 
 @dataclass
@@ -64,9 +66,16 @@ class FixedFile:
     path: Path  # the input file
     output: Path  # where the command would write it (its kind: .bvh, .npz, .csv)
 
-    def write(self, target=None) -> None:
-        """Write the fixed file (to `output` by default) with the command's writer."""
-        write_output(Path(target or self.output), self.clips, self.inputs, self.path)
+    def write(self, target=None, overwrite: bool = False) -> Path:
+        """Write the fixed file (to `output` by default) with the command's writer and return
+        where. As the command: never onto the input, never through a link, and an existing file
+        only with overwrite=True (MotionFileError otherwise, before anything is written)."""
+        target = Path(target if target is not None else self.output)
+        if target.exists() and self.path.exists() and os.path.samefile(target, self.path):
+            raise MotionFileError(self.path, f"output {shown(target)} is the input; fix never overwrites its input")
+        check_output(target, overwrite, source=self.path)
+        write_output(target, self.clips, self.inputs, self.path)
+        return target
 
 
 def fix_recording(
