@@ -79,8 +79,7 @@ def test_workers_shards_and_resume_write_what_one_process_writes(takes, tmp_path
 def test_a_long_take_is_fixed_in_pieces_with_context(bandai_files, monkeypatch):
     """A take longer than a piece and its margins goes through fix piece by piece (memory bounded
     by a piece): every hole filled, every observed token kept, the counts those of the take."""
-    from mocapfix.fix import pieces
-    from mocapfix.fix import fix_clips
+    from mocapfix.fix import fix_clips, pieces
     from mocapfix.fix.fixers import load_fixer
     from mocapfix.pretrained import pretrained_path
 

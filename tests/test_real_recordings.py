@@ -12,10 +12,10 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, TINY, run_cli
 
-from mocapfix.fix.output import write_output
 from mocapfix.apps.inspect import inspect_files
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.skeleton import PRESETS
+from mocapfix.fix.output import write_output
 from mocapfix.io import list_motion_files, read_motion
 from mocapfix.io.bvh import read_bvh, write_bvh
 from mocapfix.io.conventions import parse_unit, resolve_unit

@@ -22,8 +22,8 @@ from mocapfix.fills.errors import measure_take
 from mocapfix.fix import measure_recordings, motion_library
 from mocapfix.fix.fixer import Fixer
 from mocapfix.fix.fixers import load_fixer
-from mocapfix.fix.output import FIXED
 from mocapfix.fix.measure import model_fill
+from mocapfix.fix.output import FIXED
 from mocapfix.io import list_motion_files, read_motion
 from mocapfix.io.joint_map import check_joint_map
 
