@@ -4,6 +4,7 @@ licences that travel with the wheel."""
 from __future__ import annotations
 
 import re
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -52,8 +53,15 @@ def test_bench_results_hold_at_most_28_files():
 
 
 def test_the_wheel_carries_the_docs_the_model_cards_and_both_licences(tmp_path):
+    # built from a copy of what the wheel is made of: setuptools leaves build/ and *.egg-info
+    # beside the sources it builds, and no test writes into the checkout
+    source = tmp_path / "source"
+    ignore = shutil.ignore_patterns("__pycache__", "*.egg-info")
+    shutil.copytree(ROOT / "mocapfix", source / "mocapfix", ignore=ignore)
+    for name in ("pyproject.toml", "README.md", "LICENSE"):
+        shutil.copy(ROOT / name, source / name)
     subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation", "-q", "-w", tmp_path],
+        [sys.executable, "-m", "pip", "wheel", str(source), "--no-deps", "--no-build-isolation", "-q", "-w", tmp_path],
         check=True,
         capture_output=True,
     )
