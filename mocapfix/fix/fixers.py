@@ -22,7 +22,7 @@ from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.jitter_clips import denoise_clips
 from mocapfix.fix.joints import ModelView
 from mocapfix.fix.position_fixer import PositionFixer
-from mocapfix.fix.positions import hermite_take_fills
+from mocapfix.fix.position_windows import hermite_take_fills
 from mocapfix.fix.report import FixReport
 from mocapfix.fix.rotations import RotationFixer
 from mocapfix.models.body import build_body_model

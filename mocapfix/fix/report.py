@@ -1,5 +1,6 @@
 """What `fix` tells about one file, as a value: FixReport (counts, the limbs' spread before and
-after, notes), and the names a message gives a file's clips.
+after, notes), what a positions pass counts on its way to one (PassTally), and the names a
+message gives a file's clips.
 
 A report is about the file: its counts are of the file's own tokens that fix wrote, and the
 limbs it measures are the model's limbs between two joints the file has. A model joint the rig
@@ -82,6 +83,49 @@ class LimbSpread:
         if not self.before.update_count:
             return float("nan"), float("nan")
         return float(self.before.compute()), float(self.after.compute())
+
+
+@dataclass
+class PassTally:
+    """What one positions pass counts over the clips of a file (write_back.clip_fixed), and the
+    report it makes of them."""
+
+    model: Skeleton
+    filled: int = 0
+    replaced: int = 0
+    lerped: int = 0
+    other_filled: int = 0
+    filled_by: dict[str, int] = field(default_factory=dict)
+    never: dict[str, list[str]] = field(default_factory=dict)  # person -> model joints never observed
+    absent: dict[str, list[str]] = field(default_factory=dict)  # person -> model joints the recording lacks
+    notes: list[str] = field(default_factory=list)
+
+    def __post_init__(self):
+        self.limbs = LimbSpread(self.model)
+
+    def report(self, clips: list[Clip], fps_m: float, mode: str, windows: int, failed: int, whole: int) -> FixReport:
+        """windows: the windows the model ran on, failed: of those, the non-finite ones; whole:
+        windows with a joint missing throughout (position_windows.joints_missing_for_a_window)."""
+        notes = self.notes
+        if self.other_filled:
+            notes.append(
+                f"{self.other_filled} missing tokens of joints the model does not use filled along the skeleton"
+            )
+            self.filled += self.other_filled
+        if self.lerped:
+            notes.append(f"{self.lerped} frames at {fps_m:g} fps had no data within a window: linear interpolation")
+        if failed:
+            notes.append(f"{failed} windows gave non-finite estimates: linear interpolation there")
+        fate = "left missing" if mode == "denoise" else "estimated from the rest of the body"
+        for person, joints in self.never.items():
+            notes.append(f"{person}joints never observed: {', '.join(joints)} ({fate})")
+        for person, joints in self.absent.items():
+            notes.append(f"{person}model joints not in the recording: {', '.join(joints)} (estimated, not written)")
+        if whole:
+            notes.append(f"{whole} windows had a joint missing throughout ({fate})")
+        frames, people = frames_and_people(clips)
+        before, after = self.limbs.values()
+        return FixReport(frames, people, self.filled, self.replaced, before, after, windows, notes, self.filled_by)
 
 
 def who(clips: list[Clip]) -> Callable[[int], str]:

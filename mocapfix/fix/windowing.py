@@ -3,8 +3,8 @@ model's length -> the model's estimates blended back into one track per clip.
 
 Nothing here knows what a frame holds (positions, rotations): blend_windows asks a WindowSource
 for the estimate of a batch of windows as flat per-frame vectors and blends them with sin^2
-weights. clips.py has the two sources (joint positions; joint rotations) and what is done
-with the blended tracks.
+weights. position_windows.py and rotations.py have the two sources (joint positions; joint
+rotations); positions.py and rotations.py say what is done with the blended tracks.
 """
 
 from __future__ import annotations

@@ -197,7 +197,7 @@ class XMAE(nn.Module):
         # fill_kind "hermite": a cubic that leaves and meets the data at its velocities
         # (fills/classical.py: hermite_infill), about a cubic spline's accuracy; fix then hands
         # the network the take's whole-context fill at the recording's own frame rate
-        # (fix/positions.py), and the untrained network is that fill.
+        # (fix/position_windows.py), and the untrained network is that fill.
         self.fill_input, self.fill_kind = fill_input, fill_kind
         # The network reads and writes positions in units of position_unit_m (default 0.1 m).
         # In metres, a joint's motion within a window (cm) is a tiny signal beside the metre-scale
