@@ -53,3 +53,13 @@ def run_cli(args: list[str], cwd: Path) -> int:
         return main([str(a) for a in args])
     finally:
         os.chdir(old)
+
+
+def run_mocapfix(args, capsys) -> tuple[int, str, str]:
+    """`mocapfix ARGS` in-process (pytest's capsys): its exit code and what it printed."""
+    from mocapfix.apps.main import main
+
+    capsys.readouterr()
+    rc = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return rc, out.out, out.err

@@ -10,7 +10,7 @@ import pickle
 import numpy as np
 import pytest
 import torch
-from cli_utils import CONFIGS, QUIET, TINY, run_cli
+from cli_utils import CONFIGS, QUIET, TINY, run_cli, run_mocapfix
 
 from mocapfix.apps.main import main
 from mocapfix.core.clip import Clip, MotionFileError
@@ -55,10 +55,7 @@ def motion():
 
 
 def fix(args, capsys) -> tuple[int, str, str]:
-    capsys.readouterr()
-    rc = main(["fix", *[str(a) for a in args]])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
+    return run_mocapfix(["fix", *args], capsys)
 
 
 def _npz(path):

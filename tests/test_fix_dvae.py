@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from cli_utils import run_mocapfix
 from scipy.spatial.transform import Rotation, Slerp
 
 from mocapfix.apps.main import main
@@ -71,10 +72,7 @@ def _save(path, module) -> Path:
 
 
 def fix(args, capsys) -> tuple[int, str, str]:
-    capsys.readouterr()
-    rc = main(["fix", *[str(a) for a in args]])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
+    return run_mocapfix(["fix", *args], capsys)
 
 
 @pytest.fixture(scope="module")
@@ -351,7 +349,6 @@ def test_python_m_mocapfix_fix_with_a_dvae_checkpoint(tmp_path, bandai_file, rot
 
 
 def test_bf16_is_refused_for_a_dvae_checkpoint(positions_ckpt, capsys):
-    from mocapfix.apps.main import main
 
     capsys.readouterr()
     assert main(["fix", str(positions_ckpt), "--ckpt", str(positions_ckpt), "--precision", "bf16"]) == 1

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_utils import run_mocapfix as run
 
 from mocapfix.apps.main import main
 from mocapfix.core.clip import MotionFileError
@@ -27,13 +28,6 @@ from mocapfix.io.positions import write_positions
 
 BANDAI_FILE = "dataset-1_bow_active_001.bvh"  # 128 frames at 30 fps; Hips has position channels 6-8
 HIPS_X = 6
-
-
-def run(args, capsys) -> tuple[int, str, str]:
-    capsys.readouterr()
-    rc = main([str(a) for a in args])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
 
 
 def one_error_line(err: str, name) -> None:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from cli_utils import run_mocapfix
 
 from mocapfix.apps.main import main
 from mocapfix.core.clip import MotionFileError
@@ -49,10 +50,7 @@ def take(path: Path, seconds: float = 1.0, seed: int = 0) -> Path:
 
 
 def fix(args, capsys) -> tuple[int, str, str]:
-    capsys.readouterr()
-    rc = main(["fix", *[str(a) for a in args]])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
+    return run_mocapfix(["fix", *args], capsys)
 
 
 def one_line(err: str, *names) -> None:
@@ -263,6 +261,16 @@ def _children(pid: int) -> set[int]:
     return found
 
 
+def still_alive_after_kill(proc: subprocess.Popen, workers: set[int]) -> set[int]:
+    """Kill proc as `kill -9` would; the workers still alive 5 s later."""
+    proc.kill()
+    proc.wait()
+    deadline = time.monotonic() + 5.0
+    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return {w for w in workers if _alive(w)}
+
+
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -299,12 +307,7 @@ def test_pool_workers_die_with_their_parent(tmp_path):
         workers = _children(proc.pid) - {proc.pid}
         workers = {w for w in workers if "resource_tracker" not in Path(f"/proc/{w}/cmdline").read_bytes().decode()}
         assert len(workers) == 2
-        proc.kill()
-        proc.wait()
-        deadline = time.monotonic() + 5.0
-        while any(_alive(w) for w in workers) and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert not any(_alive(w) for w in workers)
+        assert not still_alive_after_kill(proc, workers)
         assert proc.stdout.read() == b""  # and the caller's pipe is closed: nothing holds it open
     finally:
         for w in workers:
@@ -333,12 +336,7 @@ def test_workers_die_with_their_parent(tmp_path, ckpt):
         assert b"->" in proc.stdout.readline()  # a worker has fixed a file: both are up
         workers = _children(proc.pid)
         assert len(workers) >= 2
-        proc.kill()
-        proc.wait()
-        deadline = time.monotonic() + 5.0
-        while any(_alive(w) for w in workers) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert not any(_alive(w) for w in workers)
+        assert not still_alive_after_kill(proc, workers)
     finally:  # whatever happened, nothing of this run is left running
         for w in workers | (_children(proc.pid) if proc.poll() is None else set()):
             if _alive(w):

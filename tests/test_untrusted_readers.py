@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_utils import run_mocapfix as run
 
-from mocapfix.apps.main import main
 from mocapfix.core.clip import MotionFileError
 from mocapfix.io import list_motion_files, read_motion
 from mocapfix.io.bvh import read_bvh
@@ -30,13 +30,6 @@ fifos = pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this s
 @pytest.fixture(scope="module")
 def bandai(bandai_files) -> Path:
     return {f.name: f for f in bandai_files}[BANDAI_FILE]
-
-
-def run(args, capsys) -> tuple[int, str, str]:
-    capsys.readouterr()
-    rc = main([str(a) for a in args])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
 
 
 def within(seconds: float, work, fifos=()):

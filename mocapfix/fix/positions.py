@@ -16,6 +16,7 @@ import numpy as np
 
 from mocapfix.core.clip import Clip
 from mocapfix.core.resample import resample_frames
+from mocapfix.fills.motion_matching import FILLS as MATCH_FILLS
 from mocapfix.fills.motion_matching import MotionMatching, library_of
 from mocapfix.fills.policy import FillPolicy
 from mocapfix.fix.fixer import Fixer, FixOptions
@@ -52,7 +53,8 @@ def positions_pass(
     source = clips[0].source or clips[0].name
     view = view if view is not None else model_view(clips, model, fps_m, options.joint_map)
     keys, library = take_keys(clips), options.library
-    if policy is not None:  # what the policy's motion matching searches (if it chooses it): these takes too
+    if policy is not None and any(m in MATCH_FILLS for m in policy.methods()):
+        # what the policy's motion matching searches: these takes too (a copy of each: only when it may)
         library = library_of([(x, c.fps) for x, c in zip(view.x_in, clips)], keys, model, library)
 
     # Windows with data go to the model; windows without any (a hole longer than a window) get
