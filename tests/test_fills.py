@@ -35,7 +35,7 @@ class Refused(Fill):
 
     names = ("pchip",)
 
-    def fill(self, positions, observed, fps, skeleton):
+    def fill(self, positions, observed, fps, skeleton, asked=None):
         raise AssertionError("a fill the policy never chooses was run")
 
 

@@ -814,3 +814,26 @@ def test_a_hermite_correcting_model_starts_from_the_whole_takes_hermite_fill(tmp
         np.abs(hermite[80:106] - take[80:106]).mean()
         < np.abs(lerp_infill(x, ~torch.isnan(x).any(-1))[0].numpy()[80:106] - take[80:106]).mean()
     )
+
+
+def test_the_model_asked_for_some_holes_runs_their_windows_only_and_fills_them_as_for_all(tmp_path):
+    """The model's fill a policy is measured with, asked for one hole of a take: the windows that
+    hole needs run (the far hole's do not: Lerp there), and that hole comes out as when every
+    hole of the take is filled (its windows the same: the holes are far apart)."""
+    from mocapfix.fix.measure import model_fill
+    from mocapfix.pretrained import pretrained_path
+    from mocapfix.rig.mapping import onto_skeleton
+
+    body = preset("body21")
+    take = onto_skeleton(generate_clips(1, 12.0, 30.0, seed=5)[0], body).positions.astype(np.float32)
+    holed = take.copy()
+    holed[40:55, body.groups["left_arm"]] = np.nan
+    holed[250:270] = np.nan
+    fill = model_fill(load_fixer(pretrained_path("xmae-cpu-bandai")), overlap=0.5, batch_size=16)
+    asked = np.zeros(len(take), dtype=bool)
+    asked[250:270] = True
+    every, some = fill(holed, 30.0), fill(holed, 30.0, asked)
+    np.testing.assert_allclose(some[250:270], every[250:270], atol=1e-5)
+    x = torch.from_numpy(holed.astype(np.float64))[None]
+    np.testing.assert_allclose(some[40:55], lerp_infill(x, ~torch.isnan(x).any(-1))[0].numpy()[40:55])
+    assert np.abs(every[40:55] - some[40:55]).max() > 1e-3

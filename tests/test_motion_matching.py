@@ -233,3 +233,21 @@ def test_holes_shorter_than_the_minimum_keep_the_cubic_when_the_frame_rate_is_kn
         assert np.array_equal(with_fps[name][40:43], hermite[40:43]), name
         assert not np.array_equal(without[name][40:43], hermite[40:43]), name
         assert np.array_equal(with_fps[name][100:127], without[name][100:127]), name
+
+
+def test_a_hole_not_asked_for_is_not_searched_and_an_asked_one_comes_out_the_same():
+    """The recording's policy asks for the holes it cut, not the take's own: those keep the
+    cubic (no search), the asked hole's fills are those of the whole take's search."""
+    x = _walk(8.0, 30.0, seed=9)
+    holed, _ = _hole(x, slice(60, 81), BODY.groups["left_leg"])  # the take's own hole
+    holed[150:177] = np.nan  # a cut hole
+    observed = np.isfinite(holed).all(-1)
+    asked = np.zeros_like(observed)
+    asked[150:177] = True
+    hermite = _hermite(holed, observed)
+    every = match_fills(holed, observed, hermite, fps=30.0)
+    some = match_fills(holed, observed, hermite, None, 30.0, asked)
+    for name in every:
+        assert np.array_equal(some[name][60:81], hermite[60:81]), name
+        assert not np.array_equal(every[name][60:81], hermite[60:81]), name
+        assert np.array_equal(some[name][150:177], every[name][150:177]), name

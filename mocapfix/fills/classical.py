@@ -183,7 +183,7 @@ class Classical(Fill):
     def __init__(self, name: str):
         self.names = (name,)
 
-    def fill(self, positions, observed, fps, skeleton) -> dict[str, torch.Tensor]:
+    def fill(self, positions, observed, fps, skeleton, asked=None) -> dict[str, torch.Tensor]:
         return {self.names[0]: CLASSICAL[self.names[0]](positions, observed, skeleton.parents)}
 
 

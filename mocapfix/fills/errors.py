@@ -143,6 +143,7 @@ def measure_take(
             cut[(part, gap)] = int((np.diff(hidden.any(-1).astype(np.int64), prepend=0) == 1).sum())
             holed = truth.masked_fill(torch.from_numpy(hidden)[None, ..., None], float("nan"))
             obs = torch.from_numpy(observed & ~hidden)[None]
-            candidates = made(fills, holed, obs, fps, skeleton)
+            # only the cut holes are scored: the fills that can skip the take's own holes do
+            candidates = made(fills, holed, obs, fps, skeleton, asked=torch.from_numpy(hidden)[None])
             errors.add_fills(part, gap, candidates, truth, torch.from_numpy(hidden)[None])
     return errors.sums, cut

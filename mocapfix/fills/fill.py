@@ -20,12 +20,20 @@ class Fill:
     """One way to fill holes. names: the candidates it gives.
 
     fill(positions (B, T, J, 3) metres, NaN allowed at missing tokens; observed (B, T, J) bool;
-    fps of the takes (None where unknown); skeleton) -> name -> (B, T, J, 3)."""
+    fps of the takes (None where unknown); skeleton; asked (B, T, J) bool, the missing tokens
+    whose fill is wanted, None: all) -> name -> (B, T, J, 3). Where nothing of a hole is asked
+    for, a fill may skip its work and give a cheaper answer (a policy measured on holes cut into
+    a take asks for those, not for the take's own)."""
 
     names: tuple[str, ...] = ()
 
     def fill(
-        self, positions: torch.Tensor, observed: torch.Tensor, fps: float | None, skeleton: Skeleton
+        self,
+        positions: torch.Tensor,
+        observed: torch.Tensor,
+        fps: float | None,
+        skeleton: Skeleton,
+        asked: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         raise NotImplementedError
 
@@ -37,7 +45,7 @@ class Made(Fill):
     def __init__(self, name: str, values: torch.Tensor):
         self.names, self.values = (name,), values
 
-    def fill(self, positions, observed, fps, skeleton) -> dict[str, torch.Tensor]:
+    def fill(self, positions, observed, fps, skeleton, asked=None) -> dict[str, torch.Tensor]:
         return {self.names[0]: self.values}
 
 
@@ -48,14 +56,15 @@ def made(
     fps: float | None,
     skeleton: Skeleton,
     wanted: set[str] | None = None,
+    asked: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """Every candidate of `fills` (in their order), or those that `wanted`'s candidates (blends
-    too) are made of: a fill none of whose names is wanted is not run."""
+    too) are made of: a fill none of whose names is wanted is not run. asked: Fill.fill's."""
     needed = None if wanted is None else {c for m in wanted for c in components(m)}
     out: dict[str, torch.Tensor] = {}
     for f in fills:
         if needed is None or needed & set(f.names):
-            out.update(f.fill(positions, observed, fps, skeleton))
+            out.update(f.fill(positions, observed, fps, skeleton, asked))
     return out
 
 

@@ -193,11 +193,13 @@ class MotionMatching(Fill):
     def __init__(self, library: MotionLibrary | None, key=None):
         self.library, self.key = library, key
 
-    def fill(self, positions, observed, fps, skeleton) -> dict[str, torch.Tensor]:
+    def fill(self, positions, observed, fps, skeleton, asked=None) -> dict[str, torch.Tensor]:
         searched = None if self.library is None else self.library.without(self.key, fps)
         hermite = hermite_infill(positions, observed)  # (B, T, J, 3): what a hole nothing matches keeps
+        asked = [None] * len(positions) if asked is None else asked.numpy()
         found = [
-            match_fills(x.numpy(), o.numpy(), h.numpy(), searched, fps) for x, o, h in zip(positions, observed, hermite)
+            match_fills(x.numpy(), o.numpy(), h.numpy(), searched, fps, a)
+            for x, o, h, a in zip(positions, observed, hermite, asked)
         ]
         return {name: torch.stack([torch.from_numpy(f[name]) for f in found]) for name in FILLS}
 
@@ -342,14 +344,16 @@ def match_fills(
     hermite: np.ndarray,
     library: Searchable | np.ndarray | None = None,
     fps: float | None = None,
+    asked: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """positions: (T, J, 3) metres, NaN where missing; observed: (T, J) bool; hermite: (T, J, 3)
     its cubic Hermite fill (fills/classical.py), what a hole nothing matches keeps;
     library: other takes at the same fps and joints (MotionLibrary.without, or (N, J, 3) frames),
     the take itself is always searched (mirrored too where the library's takes are); fps: the
-    take's, for MIN_HOLE_S (None: every hole is searched) -> {"match", "match_delta"}: (T, J, 3)
-    each, observed tokens as given. A hole at the take's start or end (no data on one side), or shorter than
-    MIN_HOLE_S, keeps the Hermite fill's answer."""
+    take's, for MIN_HOLE_S (None: every hole is searched); asked: (T, J) bool, the tokens whose
+    fill is wanted (None: all) -> {"match", "match_delta"}: (T, J, 3) each, observed tokens as
+    given. A hole at the take's start or end (no data on one side), shorter than MIN_HOLE_S, or
+    with no token asked for, keeps the Hermite fill's answer."""
     T, J, _ = positions.shape
     x = np.where(observed[..., None], positions, np.nan).astype(np.float64)
     out = {name: hermite.astype(np.float64).copy() for name in FILLS}
@@ -361,6 +365,8 @@ def match_fills(
     sources: list[Searchable] = []  # made at the first hole searched
     for s, e in _runs(~observed[:, seen].all(1)):
         if s == 0 or e == T or (fps is not None and e - s < MIN_HOLE_S * fps):
+            continue
+        if asked is not None and not asked[s:e].any():
             continue
         n = e - s
         missing = ~observed[s:e].all(0) & seen  # (J,) observed at s - 1 and e (the run is maximal)

@@ -8,31 +8,47 @@ import numpy as np
 import torch
 
 from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.fills.classical import lerp_infill
 from mocapfix.fills.fill import Fill
-from mocapfix.fills.motion_matching import MotionLibrary, library_of
+from mocapfix.fills.motion_matching import MotionLibrary, MotionMatching, library_of
 from mocapfix.fills.policy import FillPolicy
 from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.joints import ModelView, model_view
-from mocapfix.fix.positions import positions_pass, take_keys
+from mocapfix.fix.merge import merge
+from mocapfix.fix.position_windows import needed_frames
+from mocapfix.fix.positions import model_estimates, take_keys
 
 
 class TakeFill(Fill):
     """A positions model's fill of whole takes as fix makes it (windows, blending, anchoring on
     the data; no policy): fill(x (T, J, 3) at the model's joints, the take's fps; NaN =
-    missing) -> (T, J, 3), and the same over a batch of takes as a Fill."""
+    missing) -> (T, J, 3), and the same over a batch of takes as a Fill. Asked for some holes
+    (the ones a policy is measured on), it runs the windows those need and no others: a hole of
+    the take's own keeps the Lerp fill there."""
 
     names = ("xmae",)
 
     def __init__(self, fixer: Fixer, overlap: float, batch_size: int):
         self.fixer, self.options = fixer, FixOptions("infill", overlap, batch_size)
 
-    def __call__(self, x: np.ndarray, fps: float) -> np.ndarray:
+    def __call__(self, x: np.ndarray, fps: float, asked: np.ndarray | None = None) -> np.ndarray:
+        """x: (T, J, 3); asked: (T,) bool, the frames whose holes are wanted (None: all)."""
         take = Clip(x.astype(np.float32), fps, self.fixer.skeleton)
-        out, _ = positions_pass([take], self.fixer, self.options, None, fill_other_joints=False)
-        return out[0].positions
+        view = model_view([take], self.fixer.skeleton, self.fixer.fps, None)
+        need_m = needed_frames([take], view, "infill", self.fixer.fps, None if asked is None else [asked])
+        (est,), _ = model_estimates([take], self.fixer, view, need_m, self.options)
+        skeleton = self.fixer.skeleton
+        new = merge(est, view.x_in[0], view.index[0], "infill", None, fps, skeleton, {}, MotionMatching(None))
+        if asked is None:
+            return new
+        # the holes not asked for: no window ran there (est NaN); Lerp keeps the output finite
+        xt = torch.from_numpy(x.astype(np.float64))[None]
+        return np.where(np.isfinite(new), new, lerp_infill(xt, ~torch.isnan(xt).any(-1))[0].numpy())
 
-    def fill(self, positions, observed, fps, skeleton) -> dict[str, torch.Tensor]:
-        return {self.names[0]: torch.stack([torch.from_numpy(self(x.numpy(), fps)).double() for x in positions])}
+    def fill(self, positions, observed, fps, skeleton, asked=None) -> dict[str, torch.Tensor]:
+        frames = [None] * len(positions) if asked is None else asked.any(-1).numpy()  # (B, T)
+        out = [torch.from_numpy(self(x.numpy(), fps, a)).double() for x, a in zip(positions, frames)]
+        return {self.names[0]: torch.stack(out)}
 
 
 def model_fill(fixer: Fixer, overlap: float, batch_size: int) -> TakeFill:

@@ -61,15 +61,18 @@ def hermite_take_fills(fps_m: float, clips: list[Clip], view: ModelView) -> list
     return fills
 
 
-def needed_frames(clips: list[Clip], view: ModelView, mode: str, fps_m: float) -> list[np.ndarray]:
+def needed_frames(
+    clips: list[Clip], view: ModelView, mode: str, fps_m: float, asked: list[np.ndarray] | None = None
+) -> list[np.ndarray]:
     """(K,) bool per clip: the model frames that need an estimate. Infill only uses it at missing
     tokens and at the observed frames next to them (anchors); the other modes use it wherever
-    there is data."""
+    there is data. asked: (T,) bool per clip, in infill the frames whose holes are wanted (the
+    holes a fill policy is measured on); None: every frame with a missing token."""
     need_m = []
-    for c, x, xm in zip(clips, view.x_in, view.x_m):
+    for k, (c, x, xm) in enumerate(zip(clips, view.x_in, view.x_m)):
         obs = np.isfinite(x).all(-1)  # (T, Jm)
         if mode == "infill":
-            gap = ~obs.all(-1)
+            gap = ~obs.all(-1) if asked is None else asked[k] & ~obs.all(-1)
             need = gap.copy()
             need[1:] |= gap[:-1]
             need[:-1] |= gap[1:]

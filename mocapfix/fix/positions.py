@@ -24,7 +24,7 @@ from mocapfix.fix.joints import ModelView, model_view
 from mocapfix.fix.merge import merge
 from mocapfix.fix.position_windows import PositionWindows, joints_missing_for_a_window, needed_frames
 from mocapfix.fix.report import FixReport, PassTally, who
-from mocapfix.fix.windowing import blend_windows
+from mocapfix.fix.windowing import Blended, blend_windows
 from mocapfix.fix.write_back import clip_fixed
 
 
@@ -57,19 +57,14 @@ def positions_pass(
         # what the policy's motion matching searches: these takes too (a copy of each: only when it may)
         library = library_of([(x, c.fps) for x, c in zip(view.x_in, clips)], keys, model, library)
 
-    # Windows with data go to the model; windows without any (a hole longer than a window) get
-    # Lerp instead, blended the same way, so there is no seam where the estimate meets the fallback.
     need_m = needed_frames(clips, view, mode, fps_m)
-    has_data = [np.isfinite(xm).all(-1).any(-1) for xm in view.x_m]  # (K,) per clip
-    windows = PositionWindows(fixer, view.x_m, fixer.whole_take_fills(clips, view))
+    estimates, blended = model_estimates(clips, fixer, view, need_m, options)
     whole = joints_missing_for_a_window(view.x_m, fixer.window, options.overlap)  # for the report
-    blended = blend_windows(windows, need_m, has_data, options.overlap, options.batch_size, options.progress)
 
     tally, out_clips = PassTally(model), []
     for k, c in enumerate(clips):
-        est_m = blended.tracks[k].reshape(-1, model.num_joints, 3)  # (K, Jm, 3); NaN at frames no window needed
         tally.lerped += int((~blended.by_model[k] & need_m[k]).sum())
-        est = resample_frames(est_m, fps_m, c.fps, c.num_frames)  # (T, Jm, 3)
+        est = estimates[k]
         match = MotionMatching(library, keys[k])  # this take's own data searched as it is, holes and all
         new = merge(est, view.x_in[k], view.index[k], mode, policy, c.fps, model, tally.filled_by, match)
         keep = mode == "infill" or fixer.too_short(c)  # its observed tokens kept
@@ -77,6 +72,24 @@ def positions_pass(
             clip_fixed(c, k, new, view, fixer, mode, keep, seen, fill_other_joints, tally, who(clips), source)
         )
     return out_clips, tally.report(clips, fps_m, mode, blended.windows, blended.failed, whole)
+
+
+def model_estimates(
+    clips: list[Clip], fixer: Fixer, view: ModelView, need_m: list[np.ndarray], options: FixOptions
+) -> tuple[list[np.ndarray], Blended]:
+    """The model's estimate of each clip at its own frames, (T, Jm, 3) with NaN where no window
+    was needed (need_m: (K,) bool per clip at the model's frames, needed_frames), and the blend
+    it came from. Windows with data go to the model; windows without any (a hole longer than a
+    window) get Lerp instead, blended the same way, so there is no seam where the estimate meets
+    the fallback."""
+    has_data = [np.isfinite(xm).all(-1).any(-1) for xm in view.x_m]  # (K,) per clip
+    windows = PositionWindows(fixer, view.x_m, fixer.whole_take_fills(clips, view))
+    blended = blend_windows(windows, need_m, has_data, options.overlap, options.batch_size, options.progress)
+    estimates = [
+        resample_frames(track.reshape(-1, fixer.skeleton.num_joints, 3), fixer.fps, c.fps, c.num_frames)
+        for track, c in zip(blended.tracks, clips)
+    ]
+    return estimates, blended
 
 
 def with_mode(options: FixOptions, mode: str) -> FixOptions:

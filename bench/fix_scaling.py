@@ -1,0 +1,135 @@
+"""`mocapfix fix FOLDER` against the folder's size: 4, 16 and 64 copies of the same holed takes
+(the CMU sample's takes of 8 s or more, performers the shipped model never saw, mapped onto its
+21 joints; holes of the full body, an arm or a leg of 0.3-0.9 s, 16 per take), each run a
+separate `mocapfix fix` process with --jobs 1, as a user starts it. Per run: CPU seconds (user +
+system of the process), CPU seconds per minute of motion, the marginal CPU seconds per minute
+between two sizes (the slope: what one more minute costs once the run's fixed costs are paid),
+wall seconds and peak resident memory. The policy is measured on every run (fix FOLDER does).
+
+    python bench/fix_scaling.py                     # 4, 16, 64 copies (~15 min on 2 cores)
+    python bench/fix_scaling.py --copies 1,4 --library /other/takes   # with fix --library
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from common import describe, print_table, write_result
+
+from mocapfix.core.skeleton import preset  # noqa: E402
+from mocapfix.evaluation.recording import spread_holes, with_holes  # noqa: E402
+from mocapfix.io import list_motion_files, read_motion  # noqa: E402
+from mocapfix.rig.mapping import onto_skeleton  # noqa: E402
+
+DEFAULT_CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu-sample"
+PARTS = (None, "left_arm", "left_leg")
+GAPS_S = (0.3, 0.5, 0.7, 0.9)
+
+
+def holed_takes(data: str, min_seconds: float, folder: Path) -> float:
+    """The long takes of `data` with holes, written as positions .npz into folder -> minutes."""
+    body, seconds = preset("body21"), 0.0
+    takes = [read_motion(f)[0] for f in list_motion_files(data, "bvh")]
+    for i, clip in enumerate(c for c in takes if c.duration_s >= min_seconds):
+        clip = onto_skeleton(clip, body)
+        x = clip.positions.astype(np.float64)
+        hidden = np.zeros(x.shape[:2], dtype=bool)
+        for j, gap in enumerate(GAPS_S):  # 4 holes of each length, each length a part, shifted apart
+            part = PARTS[(i + j) % len(PARTS)]
+            holes = spread_holes(len(x), x.shape[1], clip.fps, gap, body.groups.get(part) if part else None)
+            hidden |= np.roll(holes, int((j - 1.5) * 0.1 * len(x)), axis=0)
+        np.savez(
+            folder / f"take{i:03d}.npz",
+            positions=with_holes(x, hidden),
+            fps=np.float64(clip.fps),
+            joint_names=np.array(body.joint_names),
+            parents=np.array(body.parents),
+        )
+        seconds += clip.duration_s
+    return seconds / 60
+
+
+def fix(inputs: Path, out_dir: Path, extra: list[str]) -> dict:
+    """One `mocapfix fix` process -> its CPU seconds, wall seconds and peak memory."""
+    cmd = [sys.executable, "-m", "mocapfix", "fix", str(inputs), "--model", "xmae-cpu-bandai"]
+    cmd += ["--out-dir", str(out_dir), "--jobs", "1", "--progress", "never", *extra]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    err = proc.stderr.read()
+    _, status, usage = os.wait4(proc.pid, 0)  # this child's own resources, not every child's so far
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode:
+        raise SystemExit(f"fix failed ({proc.returncode}): {err[-2000:]}")
+    return {
+        "cpu_s": usage.ru_utime + usage.ru_stime,
+        "wall_s": time.perf_counter() - t0,
+        "peak_mb": usage.ru_maxrss / 1024,
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", default=str(DEFAULT_CMU))
+    ap.add_argument("--min-seconds", type=float, default=8.0)
+    ap.add_argument("--copies", default="4,16,64", help="comma-separated copies of the takes")
+    ap.add_argument("--mode", default="infill", choices=("infill", "both"))
+    ap.add_argument("--library", default=None, help="fix --library: a folder of other takes")
+    ap.add_argument("--json-out", default=None)
+    args = ap.parse_args(argv)
+    extra = ["--mode", args.mode] + (["--library", args.library] if args.library else [])
+    with tempfile.TemporaryDirectory(prefix="fix_scaling_") as tmp:
+        work = Path(tmp)
+        (work / "takes").mkdir()
+        minutes = holed_takes(args.data, args.min_seconds, work / "takes")
+        files = sorted((work / "takes").iterdir())
+        print(f"{len(files)} takes, {minutes:.2f} min of motion; copies {args.copies}", flush=True)
+        rows = []
+        for copies in [int(c) for c in args.copies.split(",")]:
+            folder = work / f"in{copies}"
+            folder.mkdir()
+            for c in range(copies):  # hard links: each a regular file of its own name
+                for f in files:
+                    os.link(f, folder / f"c{c:03d}_{f.name}")
+            run = fix(folder, work / f"out{copies}", extra)
+            row = {"copies": copies, "files": copies * len(files), "minutes": round(copies * minutes, 2)}
+            row.update({k: round(v, 1) for k, v in run.items()})
+            row["cpu_s_per_min"] = round(run["cpu_s"] / row["minutes"], 2)
+            if rows:  # what one more minute costs, between this size and the one before
+                row["marginal_cpu_s_per_min"] = round(
+                    (run["cpu_s"] - rows[-1]["cpu_s"]) / (row["minutes"] - rows[-1]["minutes"]), 2
+                )
+            rows.append(row)
+            print(row, flush=True)
+    for row in rows:
+        row["x_first_per_min"] = round(row["cpu_s_per_min"] / rows[0]["cpu_s_per_min"], 2)
+        row["x_first_peak"] = round(row["peak_mb"] / rows[0]["peak_mb"], 2)
+    result = {"env": describe(torch.device("cpu")), "data": args.data, "mode": args.mode, "library": args.library}
+    result["rows"] = rows
+    path = write_result("fix_scaling", result, args.json_out, args.mode + ("-library" if args.library else ""))
+    columns = [
+        ("copies", "copies"),
+        ("files", "files"),
+        ("minutes", "min"),
+        ("cpu_s", "CPU s"),
+        ("cpu_s_per_min", "CPU s/min"),
+        ("marginal_cpu_s_per_min", "marginal"),
+        ("x_first_per_min", "x first"),
+        ("wall_s", "wall s"),
+        ("peak_mb", "peak MB"),
+        ("x_first_peak", "x peak"),
+    ]
+    print_table(f"fix FOLDER --jobs 1 --mode {args.mode} (xmae-cpu-bandai), CMU takes copied", rows, columns)
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
