@@ -47,6 +47,11 @@ NEIGHBOURS = 16  # stretches averaged (4: 13.5 mm, 16: 10.7, 32: 11.4 at 0.5 s)
 # Starts every hole/STRIDE_PER_HOLE frames are scored (at least 1), then every start around the
 # best of them: a stretch a frame later is nearly the same stretch, and the search is the cost.
 STRIDE_PER_HOLE = 16
+# A long source (the library) is scored on the grid first by a proxy of the query (_proxy_frames:
+# 5 frames in one phase of the grid, against up to 24 in up to `step` phases), and by the whole
+# query only around the PROXY_BASINS best places the proxy finds, half a hole either side of each
+# (bench/match_search.py: what it changes).
+PROXY_BASINS = 64
 CHUNK = 16384  # starts scored at once (memory: CHUNK x 10 sums x the query's frames)
 LIBRARY_S = 600.0  # the most seconds of takes a library keeps (each hole's search scans them all)
 # Holes shorter than this keep the Hermite fill: at 0.1 s the cubic is as good (CMU strangers:
@@ -55,10 +60,11 @@ MIN_HOLE_S = 0.2
 
 
 class _Coordinates(NamedTuple):
-    """A source's frames as the search reads them, each (N, J): x, y, z metres and squared
+    """A source's frames as the search reads them, each (J, N): x, y, z metres and squared
     (x^2 + y^2 + z^2), 0 where missing (float64: the sums below subtract large numbers), and
     missing (1.0 where missing, else 0; float32, exact for counts of points). Made once per source,
-    read by every hole's search."""
+    read by every hole's search. Joints first: the search's products are (outputs, J) @ (J, N),
+    which BLAS runs several times faster than (N, J) @ (J, outputs) for a few dozen outputs."""
 
     x: np.ndarray
     y: np.ndarray
@@ -71,8 +77,8 @@ def _coordinates(frames: np.ndarray) -> _Coordinates:
     """frames: (N, J, 3) metres, NaN where missing."""
     missing = ~np.isfinite(frames).all(-1)
     c = np.where(missing[..., None], 0.0, frames).astype(np.float64)
-    x, y, z = (np.ascontiguousarray(c[..., i]) for i in range(3))
-    return _Coordinates(x, y, z, x**2 + y**2 + z**2, missing.astype(np.float32))
+    x, y, z = (np.ascontiguousarray(c[..., i].T) for i in range(3))
+    return _Coordinates(x, y, z, x**2 + y**2 + z**2, np.ascontiguousarray(missing.T, dtype=np.float32))
 
 
 # Each library take is also searched mirrored (left and right swapped: a left leg's hole finds
@@ -262,8 +268,8 @@ def _correlate(source: _Coordinates, w: _Weights, first: int, count: int, step: 
     products score every start without gathering (starts, P, 3) stretches; with step > 1 the
     offsets of one phase (offset % step) read every step-th frame, an exact score step times
     cheaper."""
-    J = source.x.shape[1]
-    sums = np.zeros((count, 9))
+    J = source.x.shape[0]
+    sums = np.zeros((9, count))
     for phase in np.unique(w.offsets % step):
         us = np.flatnonzero(w.offsets % step == phase)
         shift = w.offsets[us] // step  # (V,) rows of this phase's frames after each start's
@@ -271,56 +277,69 @@ def _correlate(source: _Coordinates, w: _Weights, first: int, count: int, step: 
             b = min(count, a + CHUNK)
             rows = slice(first + phase + step * a, first + phase + step * (b - 1 + shift[-1]) + 1, step)
             for name, weights, cols in _SUMS:
-                values = getattr(source, name)[rows]  # (rows, J)
+                values = getattr(source, name)[:, rows]  # (J, rows)
                 # in the values' precision: float32 for the missing counts (exact), else float64
                 on = getattr(w, weights)[:, us].astype(values.dtype, copy=False)  # (J, V, k)
-                per_row = (values @ on.reshape(J, -1)).reshape(-1, len(us), on.shape[-1])  # (rows, V, k)
+                per_row = (on.reshape(J, -1).T @ values).reshape(len(us), on.shape[-1], -1)  # (V, k, rows)
                 for v, sh in enumerate(shift):
-                    sums[a:b, cols] += per_row[sh : sh + b - a, v]
-    return sums
+                    sums[cols, a:b] += per_row[v, :, sh : sh + b - a]
+    return sums.T
 
 
 def _sums_at(source: _Coordinates, w: _Weights, starts: np.ndarray) -> np.ndarray:
     """_correlate's sums for any starts (M,) -> (M, 9), each offset's frames gathered: what
     refines a coarse search, a few hundred starts."""
-    sums = np.zeros((len(starts), 9))
+    sums = np.zeros((9, len(starts)))
     for u, offset in enumerate(w.offsets):
         rows = starts + offset
         for name, weights, cols in _SUMS:
-            sums[:, cols] += getattr(source, name)[rows] @ getattr(w, weights)[:, u]
-    return sums
+            sums[cols] += getattr(w, weights)[:, u].T @ getattr(source, name)[:, rows]  # (k, M)
+    return sums.T
 
 
-def _search(source: Searchable, w: _Weights, need: np.ndarray, width: int, k: int, apart: int, step: int):
+def _search(
+    source: Searchable,
+    w: _Weights,
+    need: np.ndarray,
+    width: int,
+    k: int,
+    apart: int,
+    step: int,
+    proxy: _Weights | None = None,
+):
     """The k best stretches of `source` of `width` frames, their starts more than `apart` frames
     from each other -> list of (distance, start, angle, centre): distance the mean squared
     distance (m^2) between the query and the stretch's tokens at its points after the best turn
     about z and shift in x, y (angle and the stretch's x, y centre); need (J,) the joints the
     stretch must hold in every frame. Starts `step` frames apart are scored, then every start
-    around the best of them."""
+    around the best of them. proxy: the query at a few of its frames (_proxy_frames): on a long
+    source the grid is scored by it first, and the full query scores only the grid's starts
+    near the PROXY_BASINS best places it finds."""
     N = len(source.frames) - width + 1
     if N <= 0:
         return []
-    whole = ~source.coordinates.missing[:, need].any(-1)  # (N + width - 1,)
+    whole = ~source.coordinates.missing[need].any(0)  # (N + width - 1,)
     whole[source.hidden[0] : source.hidden[1]] = False
     run = np.concatenate([[0], np.cumsum(whole)])
-    q = w.query
-    P, q_xy = len(q), q[:, :2] - q[:, :2].mean(0)
     d = np.full(N, np.inf)
     angle, centre = np.zeros(N), np.zeros((N, 2))
 
-    def score(at: np.ndarray, sums: np.ndarray) -> None:  # at: (M,) starts, sums: (M, 9) theirs
+    def score(at: np.ndarray, sums: np.ndarray, query: np.ndarray, into: np.ndarray) -> None:
+        # at: (M,) starts, sums: (M, 9) theirs for `query` (P, 3) -> distances into `into`
+        P, q_xy = len(query), query[:, :2] - query[:, :2].mean(0)
         sx, dot_x, cross_x, sy, dot_y, cross_y, zq, squared, lost = sums.T
         dot, cross = dot_x + dot_y, cross_x + cross_y
         # min over the angle of |R (c - c_mean) - q|^2 = |c - c_mean|^2 + |q|^2 - 2 |(dot, cross)|,
         # in x, y; z as it is
         dist = squared - (sx**2 + sy**2) / P + (q_xy**2).sum() - 2 * np.hypot(dot, cross)
-        dist += -2 * zq + (q[:, 2] ** 2).sum()
+        dist += -2 * zq + (query[:, 2] ** 2).sum()
         dist[(lost > 0) | (run[at + width] - run[at] < width)] = np.inf
-        d[at], angle[at], centre[at] = np.maximum(dist, 0.0) / P, np.arctan2(cross, dot), np.stack([sx, sy], -1) / P
+        into[at] = np.maximum(dist, 0.0) / P
+        if into is d:
+            angle[at], centre[at] = np.arctan2(cross, dot), np.stack([sx, sy], -1) / P
 
-    def best(n: int) -> list[int]:  # the best, then the best more than `apart` from it, ...
-        left, out = d.copy(), []
+    def best(n: int, of: np.ndarray) -> list[int]:  # the best, then the best more than `apart` from it, ...
+        left, out = of.copy(), []
         for _ in range(n):
             i = int(np.argmin(left))
             if not np.isfinite(left[i]):
@@ -330,12 +349,41 @@ def _search(source: Searchable, w: _Weights, need: np.ndarray, width: int, k: in
         return out
 
     count = (N - 1) // step + 1
-    score(step * np.arange(count), _correlate(source.coordinates, w, 0, count, step))
-    picks = best(2 * k) if step > 1 else []
+    grid = step * np.arange(count)
+    if proxy is not None and count > 4 * PROXY_BASINS * max(1, apart // step):
+        rough = np.full(N, np.inf)
+        score(grid, _correlate(source.coordinates, proxy, 0, count, step), proxy.query, rough)
+        places = np.array(best(PROXY_BASINS, rough), dtype=np.int64)  # (B,) starts
+        if not len(places):
+            return []
+        near = (places[:, None] + step * np.arange(-(apart // step), apart // step + 1)).ravel()
+        grid = np.unique(near[(near >= 0) & (near < N)])
+        score(grid, _sums_at(source.coordinates, w, grid), w.query, d)
+    else:
+        score(grid, _correlate(source.coordinates, w, 0, count, step), w.query, d)
+    picks = best(2 * k, d) if step > 1 else []
     if picks:  # every start around the best of them
         near = np.unique(np.concatenate([np.arange(max(0, i - step + 1), min(N, i + step)) for i in picks]))
-        score(near, _sums_at(source.coordinates, w, near))
-    return [(float(d[i]), i, float(angle[i]), centre[i]) for i in best(k)]
+        score(near, _sums_at(source.coordinates, w, near), w.query, d)
+    return [(float(d[i]), i, float(angle[i]), centre[i]) for i in best(k, d)]
+
+
+def _proxy_frames(width: int, start: int, end: int, step: int) -> np.ndarray:
+    """The few frames of a stretch (the hole is [start, end) of `width`) a long source's grid is
+    scored by first: each side's outermost and innermost context frame and the hole's middle one,
+    each moved to the nearest frame a whole number of steps from the last frame before the hole:
+    all in one phase of the grid, so the scoring reads the source once (_correlate), not once per
+    phase."""
+    first = start - 1
+
+    def snapped(f: int, lo: int, hi: int) -> list[int]:  # f moved onto the phase, kept in [lo, hi)
+        g = first + step * round((f - first) / step)
+        g += step * ((g < lo) - (g >= hi))
+        return [g] if lo <= g < hi else []
+
+    picked = snapped(0, 0, start) + snapped(first, 0, start) + snapped(end, end, width)
+    picked += snapped(width - 1, end, width) + snapped((start + end) // 2, start, end)
+    return np.unique(np.array(picked, dtype=np.int64))
 
 
 def match_fills(
@@ -387,11 +435,15 @@ def match_fills(
             sources += [library] if library is not None and len(library.frames) else []
         w = _weights(frames, joints, query, J)
         step = max(1, n // STRIDE_PER_HOLE)
+        at = _proxy_frames(width, s - lo, e - lo, step)
+        few = x[lo + at]  # (F, J, 3): every joint there that has data
+        f_few, j_few = np.nonzero(np.isfinite(few).all(-1))
+        proxy = _weights(at[f_few], j_few, few[f_few, j_few], J) if len(f_few) >= 3 else None
         # the best NEIGHBOURS of all sources, no two of a source within half the hole of each other
         found = [
             (d, i, start, a, c)
             for i, source in enumerate(sources)
-            for d, start, a, c in _search(source, w, missing, width, NEIGHBOURS, n // 2, step)
+            for d, start, a, c in _search(source, w, missing, width, NEIGHBOURS, n // 2, step, proxy)
         ]
         chosen = sorted(found, key=lambda f: f[0])[:NEIGHBOURS]
         if not chosen:
