@@ -837,3 +837,39 @@ def test_the_model_asked_for_some_holes_runs_their_windows_only_and_fills_them_a
     x = torch.from_numpy(holed.astype(np.float64))[None]
     np.testing.assert_allclose(some[40:55], lerp_infill(x, ~torch.isnan(x).any(-1))[0].numpy()[40:55])
     assert np.abs(every[40:55] - some[40:55]).max() > 1e-3
+
+
+def test_the_model_runs_only_for_the_holes_its_policy_gives_it():
+    """A policy that fills every hole with the limb fill: no window of the model runs and the holes
+    are the limb fill's; one that gives the model the arm's holes: its windows run for those, and
+    the leg's hole is still the limb fill's."""
+    from mocapfix.fills.classical import limb_infill
+    from mocapfix.fills.holes import PARTS
+    from mocapfix.fills.policy import FillPolicy
+    from mocapfix.pretrained import pretrained_path
+    from mocapfix.rig.mapping import onto_skeleton
+
+    body = preset("body21")
+    take = onto_skeleton(generate_clips(1, 12.0, 30.0, seed=6)[0], body)
+    holed = take.positions.copy()
+    holed[40:55, body.groups["left_arm"]] = np.nan
+    holed[250:265, body.groups["left_leg"]] = np.nan
+    clip = take.replace(positions=holed)
+    fixer = load_fixer(pretrained_path("xmae-cpu-bandai"))
+    gaps = [0.1, 0.5, 0.9]
+    x = torch.from_numpy(holed.astype(np.float64))[None]
+    limb = limb_infill(x, ~torch.isnan(x).any(-1), body.parents)[0].numpy()
+
+    def fixed(model_error: dict[str, float]):
+        tables = {p: {"limb": [10.0] * 3, "xmae": [model_error.get(p, 100.0)] * 3} for p in PARTS}
+        policy = FillPolicy(gaps, tables, None, 1, [], ("limb", 0.95))
+        (out,), report = fix_clips([clip], fixer, "infill", measured=(policy, "a policy made up"))
+        return out.positions, report
+
+    out, report = fixed({})
+    assert report.windows == 0
+    np.testing.assert_allclose(out[40:55], limb[40:55], atol=1e-5)
+    out, report = fixed({"arm": 1.0})
+    assert report.windows > 0
+    assert np.abs(out[40:55] - limb[40:55]).max() > 1e-3
+    np.testing.assert_allclose(out[250:265], limb[250:265], atol=1e-5)

@@ -13,12 +13,14 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import torch
 
 from mocapfix.core.clip import Clip
 from mocapfix.core.resample import resample_frames
+from mocapfix.fills.holes import token_choice
 from mocapfix.fills.motion_matching import FILLS as MATCH_FILLS
 from mocapfix.fills.motion_matching import MotionMatching, library_of
-from mocapfix.fills.policy import FillPolicy
+from mocapfix.fills.policy import FillPolicy, is_learned
 from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.joints import ModelView, model_view
 from mocapfix.fix.merge import merge
@@ -57,7 +59,8 @@ def positions_pass(
         # what the policy's motion matching searches: these takes too (a copy of each: only when it may)
         library = library_of([(x, c.fps) for x, c in zip(view.x_in, clips)], keys, model, library)
 
-    need_m = needed_frames(clips, view, mode, fps_m)
+    asked = learned_frames(clips, view, policy, model) if mode == "infill" and policy is not None else None
+    need_m = needed_frames(clips, view, mode, fps_m, asked)
     estimates, blended = model_estimates(clips, fixer, view, need_m, options)
     whole = joints_missing_for_a_window(view.x_m, fixer.window, options.overlap)  # for the report
 
@@ -72,6 +75,25 @@ def positions_pass(
             clip_fixed(c, k, new, view, fixer, mode, keep, seen, fill_other_joints, tally, who(clips), source)
         )
     return out_clips, tally.report(clips, fps_m, mode, blended.windows, blended.failed, whole)
+
+
+def learned_frames(clips: list[Clip], view: ModelView, policy: FillPolicy, model) -> list[np.ndarray] | None:
+    """(T,) bool per clip: the frames of the holes the policy fills with a candidate that has the
+    model in it, the only ones the model's windows need to run for in infill (on performers a
+    model never saw the recording's policy often chooses classical fills everywhere: no window
+    runs); None where every hole needs the model (a model joint the recording lacks: only the
+    model fills it)."""
+    if any((index < 0).any() for index in view.index):
+        return None
+    names = policy.chosen()
+    learned = torch.tensor([is_learned(m) for m in names])
+    table = policy.table(names)
+    frames = []
+    for x, c in zip(view.x_in, clips):
+        observed = torch.from_numpy(np.isfinite(x).all(-1))[None]  # (1, T, Jm), as merge reads it
+        choice = token_choice(observed, c.fps, model, policy.gaps_s, table)
+        frames.append((learned[choice] & ~observed)[0].any(-1).numpy())
+    return frames
 
 
 def model_estimates(
