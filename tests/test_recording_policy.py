@@ -225,3 +225,20 @@ def test_fix_library_takes_are_searched_and_the_recording_says_when_to_use_them(
     assert error > 10.0, report
     error, report = fix("--library", str(library))
     assert error < 1.0 and "full 0.5s match" in report, report
+
+
+def test_library_files_past_what_the_search_keeps_are_not_read(tmp_path, monkeypatch):
+    """fix --library reads takes until the search's budget (LIBRARY_S) is spent, in the order the
+    search keeps them, and says how many it did not read."""
+    import io
+
+    from mocapfix.apps import fix_run
+    from mocapfix.io.synthetic import generate_clips
+
+    for i, clip in enumerate(generate_clips(3, 4.0, 30.0, seed=2)):
+        write_positions(tmp_path / f"take{i}.npz", clip.positions, clip.fps, clip.skeleton)
+    monkeypatch.setattr(fix_run, "LIBRARY_S", 6.0)
+    err = io.StringIO()
+    read = fix_run._library_takes([str(tmp_path)], "auto", err, {})
+    assert [c[0].source.endswith(f"take{i}.npz") for i, c in enumerate(read)] == [True, True]
+    assert "2 files (0 min) read; 1 more not read" in err.getvalue()

@@ -19,6 +19,7 @@ from mocapfix.apps.fix_plan import RunPlan, plan_run
 from mocapfix.apps.processes import die_with_parent
 from mocapfix.core.clip import Clip, MotionFileError, shown
 from mocapfix.fills.errors import measure_take
+from mocapfix.fills.motion_matching import LIBRARY_S
 from mocapfix.fix import measure_recordings, motion_library
 from mocapfix.fix.fixer import Fixer
 from mocapfix.fix.fixers import load_fixer
@@ -273,12 +274,14 @@ POOLED_FILES = 32  # files of a run its fill policy is measured over (evenly spr
 def _library_takes(paths: list[str], source: str, err, read_options: dict) -> list[list[Clip]]:
     """The recordings of fix --library (files or folders); one that cannot be read is a warning
     line and is left out (the library is evidence, not work to do), and so is a folder that cannot
-    be listed (the file system root, too many files: list_motion_files)."""
+    be listed (the file system root, too many files: list_motion_files). Read in order until
+    LIBRARY_S seconds of takes: the search keeps no more (an hour-long library costs the reading
+    of its first 10 minutes), and a line says how many files were not read."""
 
     def left_out(e: MotionFileError) -> None:
         print(f"warning: --library: {' '.join(str(e).split())} (left out)", file=err)
 
-    recordings = []
+    recordings, seconds, unread = [], 0.0, 0
     for given in paths:
         try:
             listed = list_motion_files(given, source, on_error=left_out)
@@ -290,10 +293,22 @@ def _library_takes(paths: list[str], source: str, err, read_options: dict) -> li
             if not listed:
                 left_out(MotionFileError(given, "no motion files in this folder"))
         for path in listed:
+            if seconds >= LIBRARY_S:  # the search keeps no more (MotionLibrary): reading them is waste
+                unread += 1
+                continue
             try:
-                recordings.append(read_motion(path, source, **read_options))
+                clips = read_motion(path, source, **read_options)
             except Exception as e:  # noqa: BLE001 -- any unreadable file: said in one line, left out
                 print(f"warning: --library: {_one_line(path, e)} (left out)", file=err)
+                continue
+            recordings.append(clips)
+            seconds += sum(c.duration_s for c in clips)
+    if unread:
+        print(
+            f"--library: {len(recordings)} files ({seconds / 60:.0f} min) read; {unread} more not read: "
+            f"motion matching searches the first {LIBRARY_S / 60:g} minutes of takes",
+            file=err,
+        )
     return recordings
 
 
