@@ -55,8 +55,10 @@ def positions_pass(
     source = clips[0].source or clips[0].name
     view = view if view is not None else model_view(clips, model, fps_m, options.joint_map)
     keys, library = take_keys(clips), options.library
-    if policy is not None and any(m in MATCH_FILLS for m in policy.methods()):
-        # what the policy's motion matching searches: these takes too (a copy of each: only when it may)
+    if policy is not None and any(m in MATCH_FILLS for m in policy.methods()) and (library is None or len(clips) > 1):
+        # what the policy's motion matching searches: these takes too (a copy of each: only when it
+        # may, and only for what it adds: a take is always searched itself, mirrored where the
+        # library's are; a run's library, built once, is not built again for each file)
         library = library_of([(x, c.fps) for x, c in zip(view.x_in, clips)], keys, model, library)
 
     asked = learned_frames(clips, view, policy, model) if mode == "infill" and policy is not None else None
