@@ -85,6 +85,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
     extra = ["--mode", args.mode] + (["--library", args.library] if args.library else [])
+    variant = args.mode + ("-library" if args.library else "")
     with tempfile.TemporaryDirectory(prefix="fix_scaling_") as tmp:
         work = Path(tmp)
         (work / "takes").mkdir()
@@ -108,12 +109,15 @@ def main(argv=None) -> int:
                 )
             rows.append(row)
             print(row, flush=True)
+            # written after every size: a run stopped at a large size keeps the smaller ones
+            partial = {"env": describe(torch.device("cpu")), "data": args.data, "mode": args.mode, "rows": rows}
+            write_result("fix_scaling", {**partial, "stopped_early": True}, args.json_out, variant)
     for row in rows:
         row["x_first_per_min"] = round(row["cpu_s_per_min"] / rows[0]["cpu_s_per_min"], 2)
         row["x_first_peak"] = round(row["peak_mb"] / rows[0]["peak_mb"], 2)
     result = {"env": describe(torch.device("cpu")), "data": args.data, "mode": args.mode, "library": args.library}
     result["rows"] = rows
-    path = write_result("fix_scaling", result, args.json_out, args.mode + ("-library" if args.library else ""))
+    path = write_result("fix_scaling", result, args.json_out, variant)
     columns = [
         ("copies", "copies"),
         ("files", "files"),

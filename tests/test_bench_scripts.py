@@ -530,3 +530,22 @@ def test_fix_strangers_cmu_fills_only(tmp_path, cmu_files):
     cells = {(x["part"], x["method"]): x for x in r["rows"]}
     assert r["takes"] == 1 and {"full", "arm", "leg"} == {p for p, _ in cells}
     assert 0 < cells["full", "limb"]["0.1s"] < cells["full", "limb"]["0.9s"] < 1000
+
+
+def test_fix_scaling(tmp_path, cmu_files):
+    """One holed CMU take, copied once and twice into a folder, each folder fixed by its own
+    `mocapfix fix` process: CPU seconds, the slope between the two, peak memory."""
+    _one_take(tmp_path / "takes", cmu_files)
+    r = bench("fix_scaling", "--data", tmp_path / "takes", "--min-seconds", "0", "--copies", "1,2", tmp_path=tmp_path)
+    one, two = r["rows"]
+    assert (one["files"], two["files"]) == (1, 2) and abs(two["minutes"] - 2 * one["minutes"]) < 0.02
+    assert one["cpu_s"] > 0 and one["peak_mb"] > 50 and "marginal_cpu_s_per_min" in two
+
+
+def test_match_search(tmp_path, cmu_files):
+    """Motion matching's proxy search against the exact one on one CMU take, every cell."""
+    _one_take(tmp_path / "takes", cmu_files)
+    r = bench("match_search", "--data", tmp_path / "takes", "--min-seconds", "0", tmp_path=tmp_path)
+    assert len(r["rows"]) == 12
+    for row in r["rows"]:
+        assert 0 < row["match_delta exact"] < 1000 and row["largest difference mm"] >= 0
