@@ -15,6 +15,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_only
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 
+from mocapfix.training.fit_eta import FitETA
 from mocapfix.training.interrupt_checkpoint import CheckpointOnInterrupt
 from mocapfix.training.monitor_check import MonitorCheck
 from mocapfix.training.predictions import WritePredictions
@@ -202,6 +203,8 @@ class MocapCLI(LightningCLI):
         extra.append(RunSummary(seed=cfg.get("seed_everything")))
         if self.subcommand == "predict":
             extra.append(WritePredictions())
+        if self.subcommand == "fit":  # how long the run will take, where the progress bar is
+            extra.append(FitETA())
         configured = self.config_init[self.subcommand].trainer.get("callbacks") or []
         configured = list(configured if isinstance(configured, list) else [configured])
         if trainer_cfg.get("enable_progress_bar", True) is not False and not any(

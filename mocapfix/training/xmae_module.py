@@ -8,6 +8,7 @@ are stored as plain hyperparameters so a checkpoint alone rebuilds it (fix, load
 from __future__ import annotations
 
 import logging
+import time
 
 import lightning as L
 import torch
@@ -37,6 +38,7 @@ from mocapfix.models.xmae import XMAE, XMAEConfig, preset_sizes
 from mocapfix.models.xmae_inference import xmae_fill, xmae_reconstruct
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
+from mocapfix.training.final_policy import FinalFillPolicy
 from mocapfix.training.schedules import WarmupCosine
 from mocapfix.training.test_report import publish
 from mocapfix.training.xmae_input import xmae_training_input
@@ -86,6 +88,7 @@ class XMAEModule(L.LightningModule):
         eval_noise_sigmas_m: tuple[float, ...] = (0.02, 0.05),
         eval_seed: int = 0,
         calibration_windows: int = 256,
+        calibrate_every_n_val: int = 1,
         figure_every_n_val: int = 1,
         init_weights: str | None = None,
         skeleton: dict | None = None,
@@ -139,9 +142,18 @@ class XMAEModule(L.LightningModule):
                 XMAE against the classical fills per hole length and part (left limbs), and XMAE's
                 disagreement with clean tokens: the fill policy saved in each checkpoint
                 (fills/policy.py). 0: no policy.
+            calibrate_every_n_val: which of fit's validations measure the fill policy: every one
+                (1), every N-th, or none (0). It is a validation's largest cost (about 16 network
+                passes over those windows: minutes per validation for the paper's network on a CPU,
+                docs/training.md). Whatever the validations did, when training ends each of the
+                run's final checkpoints (best and last) whose policy was not measured for its own
+                weights gets one, measured as a validation would (training/final_policy.py);
+                checkpoints written in between carry the last policy measured (or none). `validate`
+                always measures.
             init_weights: a checkpoint file or a shipped model's name (`mocapfix models`) whose
                 network training starts from: its sizes and weights (every size setting above is
-                then the checkpoint's) and its fill policy until the first validation. For
+                then the checkpoint's) and its fill policy until a validation (or, where
+                calibrate_every_n_val skips them, the end of training) measures one. For
                 fine-tuning on your own takes (`mocapfix adapt`); the data must give the
                 checkpoint's joints and window (data.body body21 for the shipped models).
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
@@ -156,6 +168,10 @@ class XMAEModule(L.LightningModule):
                 f"got {hole_ratio} and {max_hole_s}"
             )
         BodyAugment(stature_range, limb_range, mirror_prob, joint_shift_m).check()
+        if calibrate_every_n_val < 0:
+            raise ValueError(
+                f"calibrate_every_n_val: 0 (none of fit's validations) or more, got {calibrate_every_n_val}"
+            )
         # the network's sizes (num_joints and num_frames come from the data, at setup)
         self.sizes = preset_sizes(
             preset,
@@ -184,6 +200,9 @@ class XMAEModule(L.LightningModule):
         self.save_hyperparameters()
         self.net: XMAE | None = None
         self._calibration: Calibration | None = None  # the running validation's measurements
+        self._fit_validations = 0  # fit's validations so far (sanity checks not counted)
+        self._gap_pass = (0.0, 0, 0.0)
+        self.policy_steps: set[int] = set()  # the global steps whose weights the fill policy was measured for
         if skeleton is not None and window_frames is not None:  # a checkpoint's own weights follow
             self._build()
             self._init_state = None
@@ -222,7 +241,7 @@ class XMAEModule(L.LightningModule):
         self.val_gap = nn.ModuleDict({"xmae": MPJPE(), "lerp": MPJPE(), "spline": MPJPE()})
 
     def configure_callbacks(self):
-        return [BindData()]
+        return [BindData(), FinalFillPolicy()]
 
     def bind_data(self, data: DataSpec, stage: str) -> None:
         """The network for the data's skeleton and window (BindData calls it before setup); a
@@ -311,6 +330,7 @@ class XMAEModule(L.LightningModule):
         self.val_mpjpe(pred.float(), target.float(), in_loss)
         self.log("val/mpjpe_mm", self.val_mpjpe, prog_bar=True)
 
+        start = time.perf_counter()
         task = Task("infill", "full", gap_s=self.hparams.val_gap_s)
         gap = task.corrupt(positions, self.hparams.window_fps, self.skeleton, None)
         scored = task.evaluated(gap, positions)
@@ -318,13 +338,23 @@ class XMAEModule(L.LightningModule):
         self.val_gap["xmae"](xmae.float(), positions.float(), scored)
         self.val_gap["lerp"](lerp_infill(gap.positions, gap.observed).float(), positions.float(), scored)
         self.val_gap["spline"](spline_infill(gap.positions, gap.observed).float(), positions.float(), scored)
+        seconds, windows, read = self._gap_pass
+        read += float(gap.observed.float().mean((1, 2)).sum())  # the tokens the network read, per window
+        self._gap_pass = (seconds + time.perf_counter() - start, windows + len(positions), read)
         for name, metric in self.val_gap.items():
             self.log(f"val/gap{self.hparams.val_gap_s}s_mpjpe_mm/{name}", metric)
         if batch_idx == 0:
             self._figure_sample = (positions, gap.positions, gap.observed, xmae)
-        room = self.hparams.calibration_windows - (self._calibration.windows if self._calibration else 0)
-        if self._calibration is not None and room > 0 and not self.trainer.sanity_checking:
-            hp = self.hparams
+        if self._calibration is not None:
+            self._calibrate(positions, batch_idx)
+
+    # --- the fill policy (fills/policy.py) ---
+
+    def _calibrate(self, positions: torch.Tensor, batch_idx: int) -> None:
+        """The running measurement of the fill policy, on this batch's windows up to calibration_windows."""
+        hp = self.hparams
+        room = hp.calibration_windows - self._calibration.windows
+        if room > 0:
             calibrate(
                 self._calibration,
                 self._reconstruct,
@@ -335,11 +365,51 @@ class XMAEModule(L.LightningModule):
                 self._generator(batch_idx),
             )
 
-    # --- the fill policy (fills/policy.py) ---
+    def measure_fill_policy(self, batches) -> FillPolicy | None:
+        """The fill policy of the network's present weights, measured as a validation measures it:
+        on the first calibration_windows windows of batches (the val split's, in order), with the
+        same corruption. None: no policy (calibration_windows 0, or no windows)."""
+        hp = self.hparams
+        if hp.get("calibration_windows", 0) <= 0:
+            return None
+        self._calibration = Calibration(hp.eval_gaps_s)
+        try:
+            for batch_idx, batch in enumerate(batches):
+                if self._calibration.windows >= hp.calibration_windows:
+                    break
+                self._calibrate(batch["positions"].to(self.device), batch_idx)
+            return self._calibration.compute()
+        finally:
+            self._calibration = None
+
+    def fill_policy_seconds(self, windows: int) -> float | None:
+        """About how long measure_fill_policy takes on `windows` windows: per window, it runs the
+        network on the clean window and on one hole per part and length (3 x eval_gaps_s), beside
+        the classical fills; the last validation timed such a pass over its windows (the network,
+        Lerp and the spline on its val_gap_s hole), taken here in proportion to the tokens the
+        network reads. None: no validation timed one yet. On a GPU, whose work the clock does not
+        wait for, less than it will take."""
+        seconds, seen, read = self._gap_pass
+        if not seen or read <= 0:
+            return None
+        hp, skeleton = self.hparams, self.skeleton
+        J, T = len(hp.skeleton["parents"]), hp.window_frames
+        reads = 1.0  # the clean windows, whole
+        for t in paper_tasks(skeleton, hp.eval_gaps_s, ()):
+            if t.task == "infill" and not t.part.startswith("right"):  # as calibrate
+                joints = J if t.part == "full" else len(skeleton.groups[t.part])
+                reads += 1 - joints / J * min(T, round(t.gap_s * hp.window_fps)) / T
+        return seconds / read * reads * windows
 
     def on_validation_epoch_start(self):
         hp = self.hparams
-        self._calibration = Calibration(hp.eval_gaps_s) if hp.get("calibration_windows", 0) > 0 else None
+        self._gap_pass = (0.0, 0, 0.0)  # this validation's gap pass, seconds, windows, tokens read: fill_policy_seconds
+        measure = hp.get("calibration_windows", 0) > 0 and not self.trainer.sanity_checking
+        if measure and self.trainer.state.fn == "fit":  # validate always measures
+            self._fit_validations += 1
+            every = hp.get("calibrate_every_n_val", 1)  # checkpoints from before it have none
+            measure = every > 0 and self._fit_validations % every == 0
+        self._calibration = Calibration(hp.eval_gaps_s) if measure else None
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.net is not None:
@@ -358,6 +428,7 @@ class XMAEModule(L.LightningModule):
         policy = self._calibration.compute() if self._calibration is not None else None
         if policy is not None:
             self.fill_policy = policy
+            self.policy_steps.add(self.global_step)
         if self.val_gap["spline"].update_called:  # the run's summary (training/tracking.py) keeps the best's
             ratio = self.val_gap["xmae"].compute() / self.val_gap["spline"].compute()
             self.log("val/gap_vs_spline", ratio, sync_dist=True)  # the same on every process (synced metrics)
