@@ -251,3 +251,27 @@ def test_a_hole_not_asked_for_is_not_searched_and_an_asked_one_comes_out_the_sam
         assert np.array_equal(some[name][60:81], hermite[60:81]), name
         assert not np.array_equal(every[name][60:81], hermite[60:81]), name
         assert np.array_equal(some[name][150:177], every[name][150:177]), name
+
+
+def test_a_long_library_scored_first_by_the_proxy_finds_what_the_exact_search_finds(monkeypatch):
+    """A library long enough for the proxy (PROXY_BASINS) to score its grid first, 150 s of other
+    walks with the take itself turned and moved among them: the fills of a full-body and a leg
+    hole are those of scoring every start with the whole query, and the take's own motion."""
+    import mocapfix.fills.motion_matching as mm
+
+    x = _walk(10.0, 30.0, seed=11)
+    others = [_walk(50.0, 30.0, seed=s, heading=0.3 * s) for s in (20, 21, 22)]
+    library = np.concatenate(others[:2] + [_walk(10.0, 30.0, seed=11, heading=0.7, start=(3.0, -4.0))] + others[2:])
+    holed, _ = _hole(x, slice(100, 127))
+    holed[200:221, BODY.groups["left_leg"]] = np.nan
+    observed = np.isfinite(holed).all(-1)
+    hermite = _hermite(holed, observed)
+    source = searchable(library.astype(np.float32))
+    # the grid's starts (step 1 at 30 fps) beyond what _search scores exactly, for both holes
+    assert len(library) - 40 > 4 * mm.PROXY_BASINS * (27 // 2)
+    proxied = match_fills(holed, observed, hermite, source, 30.0)
+    monkeypatch.setattr(mm, "PROXY_BASINS", 10**9)  # no source is long enough: every start scored
+    exact = match_fills(holed, observed, hermite, source, 30.0)
+    for name in exact:
+        np.testing.assert_allclose(proxied[name], exact[name], atol=1e-6)
+    assert np.abs(exact["match"][~observed] - x[~observed]).max() < 1e-4  # found the take itself
