@@ -92,7 +92,9 @@ def main(argv=None) -> int:
         minutes = holed_takes(args.data, args.min_seconds, work / "takes")
         files = sorted((work / "takes").iterdir())
         print(f"{len(files)} takes, {minutes:.2f} min of motion; copies {args.copies}", flush=True)
-        rows = []
+        rows: list[dict] = []
+        result = {"env": describe(torch.device("cpu")), "data": args.data, "mode": args.mode, "library": args.library}
+        result.update(rows=rows, stopped_early=True)
         for copies in [int(c) for c in args.copies.split(",")]:
             folder = work / f"in{copies}"
             folder.mkdir()
@@ -110,13 +112,11 @@ def main(argv=None) -> int:
             rows.append(row)
             print(row, flush=True)
             # written after every size: a run stopped at a large size keeps the smaller ones
-            partial = {"env": describe(torch.device("cpu")), "data": args.data, "mode": args.mode, "rows": rows}
-            write_result("fix_scaling", {**partial, "stopped_early": True}, args.json_out, variant)
+            write_result("fix_scaling", result, args.json_out, variant)
     for row in rows:
         row["x_first_per_min"] = round(row["cpu_s_per_min"] / rows[0]["cpu_s_per_min"], 2)
         row["x_first_peak"] = round(row["peak_mb"] / rows[0]["peak_mb"], 2)
-    result = {"env": describe(torch.device("cpu")), "data": args.data, "mode": args.mode, "library": args.library}
-    result["rows"] = rows
+    result["stopped_early"] = False
     path = write_result("fix_scaling", result, args.json_out, variant)
     columns = [
         ("copies", "copies"),
