@@ -70,6 +70,38 @@ def test_transform_runs_only_the_fills_it_chooses_and_counts_what_each_filled():
     assert torch.equal(out[0, 40:55][~obs[0, 40:55]], mean[0, 40:55][~obs[0, 40:55]])
 
 
+class Asked(Fill):
+    """Records the tokens it was asked for; answers with the Hermite fill."""
+
+    names = ("match", "match_delta")
+
+    def __init__(self):
+        self.asked = None
+
+    def fill(self, positions, observed, fps, skeleton, asked=None):
+        self.asked = asked
+        out = made(classical_fills(), positions, observed, fps, skeleton, {"hermite"})["hermite"]
+        return {name: out for name in self.names}
+
+
+def test_transform_asks_each_fill_only_for_the_holes_it_fills():
+    """The leg's 0.5-s hole takes the mean of the limb fill and match_delta, the body's 0.1-s hole
+    the limb fill: motion matching is asked for the leg hole's tokens only (it searches no other
+    hole), and the output is the one every fill asked for everything gives."""
+    x, obs = _take()
+    table = {m: [50.0] * 3 for m in ("limb", "match", "match_delta")}
+    leg = {**table, "limb+match_delta": [50.0, 10.0, 50.0]}
+    policy = FillPolicy(GAPS, {"full": dict(table, limb=[40.0] * 3), "arm": dict(table), "leg": leg})
+    spy = Asked()
+    out, counts = policy.transform(x, obs, 30.0, BODY, [*classical_fills(), spy])
+    leg_hole = torch.zeros_like(obs)
+    leg_hole[0, 40:55] = ~obs[0, 40:55]
+    assert torch.equal(spy.asked, leg_hole)
+    assert counts["limb+match_delta"] == int(leg_hole.sum())
+    candidates = made([*classical_fills(), spy], x, obs, 30.0, BODY)
+    assert torch.equal(out, apply_fill_policy(policy, x, obs, candidates, 30.0, BODY)[0])
+
+
 def test_a_shipped_checkpoints_policy_reads_as_plain_values_and_chooses_as_it_did():
     values = fill_policy_values(load_checkpoint(pretrained_path("xmae-cpu-bandai")))
     policy = FillPolicy.from_dict(values)

@@ -68,6 +68,28 @@ def made(
     return out
 
 
+def made_for_choice(
+    fills: list[Fill],
+    positions: torch.Tensor,
+    observed: torch.Tensor,
+    fps: float | None,
+    skeleton: Skeleton,
+    names: list[str],
+    choice: torch.Tensor,
+) -> dict[str, torch.Tensor]:
+    """The candidates of `names`, each Fill asked only for the missing tokens whose chosen
+    candidate (choice: (B, T, J) index into names) has one of its fills in it: a fill a hole does
+    not take may skip that hole's work (motion matching searches only the holes it fills). The
+    tokens taken from each candidate are those of made(fills, ..., names)."""
+    out: dict[str, torch.Tensor] = {}
+    for f in fills:
+        uses = [i for i, m in enumerate(names) if set(components(m)) & set(f.names)]
+        if uses:
+            asked = ~observed & torch.isin(choice, torch.tensor(uses, device=choice.device))
+            out.update(f.fill(positions, observed, fps, skeleton, asked))
+    return out
+
+
 def components(method: str) -> list[str]:
     """The single fills a candidate averages: "limb+spline" -> ["limb", "spline"]."""
     return method.split(BLEND)

@@ -27,7 +27,7 @@ import torch
 
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.fills.errors import ErrorSums, measure_on_takes
-from mocapfix.fills.fill import BLEND, Fill, made, pick
+from mocapfix.fills.fill import BLEND, Fill, made_for_choice, pick
 from mocapfix.fills.holes import PARTS, hole_kinds, token_choice
 
 LEARNED = ("xmae",)  # the candidates that are models; every other is a classical fill
@@ -134,7 +134,8 @@ class FillPolicy:
         names = self.chosen()
         table = self.table(names)
         choice = token_choice(observed, fps, skeleton, self.gaps_s, table)
-        out, chosen = pick(made(fills, positions, observed, fps, skeleton, names), names, choice, positions, observed)
+        candidates = made_for_choice(fills, positions, observed, fps, skeleton, names, choice)
+        out, chosen = pick(candidates, names, choice, positions, observed)
         chosen = chosen if counted is None else chosen[..., counted]
         counts = torch.bincount(chosen[chosen >= 0], minlength=len(names)).tolist()
         return out, {names[i]: n for i, n in enumerate(counts) if n}
