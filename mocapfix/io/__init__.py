@@ -56,7 +56,7 @@ def read_options(args, fps: bool = True) -> dict:
 _EXTENSIONS = {
     "bvh": (".bvh",),
     "positions": (".npz", ".csv"),
-    "h36m": (".npz",),
+    "h36m": (".npz", ".txt"),  # .txt: the exponential-map files of the motion-prediction papers
     "amass": (".npz",),
     "auto": (".bvh", ".csv", ".npz"),
 }
@@ -90,6 +90,8 @@ def detect_source(path) -> str:
         return "bvh"
     if suffix == ".csv":
         return "positions"
+    if suffix == ".txt":  # named alone: a folder's .txt files are listed only for --source h36m
+        return "h36m"
     if suffix == ".npz":
         from mocapfix.io.npz import listed_keys, load_npz
 
