@@ -74,12 +74,22 @@ def _reader(source: str):
 
         return read_positions
     if source == "h36m":
-        from mocapfix.io.h36m import read_h36m
-
-        return read_h36m
+        return _read_h36m
     from mocapfix.io.amass import read_amass
 
     return read_amass
+
+
+def _read_h36m(path, unit: str = "auto", groups=None) -> list[Clip]:
+    """Human3.6M either way it is published: VideoPose3D's positions (.npz, io/h36m.py) or one
+    sequence's exponential maps (.txt, io/h36m_expmap.py)."""
+    if Path(path).suffix.lower() == ".txt":
+        from mocapfix.io.h36m_expmap import read_h36m_expmap
+
+        return read_h36m_expmap(path, groups)
+    from mocapfix.io.h36m import read_h36m
+
+    return read_h36m(path, unit, groups)
 
 
 def detect_source(path) -> str:

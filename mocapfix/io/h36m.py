@@ -29,16 +29,11 @@ def _natural(s: str):
 
 
 def read_h36m(path, unit: str = "auto", groups=None) -> list[Clip]:
-    """data_3d_h36m.npz -> one Clip per (subject, action), named "S1/Walking 1", 17 joints, 50 fps;
-    a .txt file: the exponential maps of one sequence (io/h36m_expmap.py).
+    """data_3d_h36m.npz -> one Clip per (subject, action), named "S1/Walking 1", 17 joints, 50 fps.
 
     unit: the file's unit ("auto": metres, as VideoPose3D writes it; "mm" for the raw dataset's).
     groups: {group name: [joint names or indices]} replacing the preset's limb groups."""
     path = Path(path)
-    if path.suffix.lower() == ".txt":
-        from mocapfix.io.h36m_expmap import read_h36m_expmap
-
-        return read_h36m_expmap(path, groups)
     unit = parse_unit(unit, path) or parse_unit("m", path, "VideoPose3D's convention")
     # The dict is pickled: read by the restricted unpickler (io/npz.py), never by np.load's.
     obj = npz_object(path, "positions_3d")
