@@ -9,6 +9,7 @@ to "the standard split" of the work it compares with: S9 S11 (3D pose, mocapfix'
 S5 (motion prediction) are both measured here.
 
     python bench/h36m_protocol.py --data /path/to/h3.6m/dataset            # ~2 min on 2 cores
+    python bench/h36m_protocol.py --data ... --ckpt checkpoints/correction_h36m/last.ckpt   # its row too
 """
 
 from __future__ import annotations
@@ -25,6 +26,9 @@ from mocapfix.evaluation.tasks import paper_tasks
 from mocapfix.fills.classical import CLASSICAL, classical_fills
 from mocapfix.fills.fill import made
 from mocapfix.io import list_motion_files, read_motion
+from mocapfix.models.build import build_model
+from mocapfix.models.checkpoint import model_kind, network_weights, read_checkpoint, stored_config
+from mocapfix.models.correction import correction_fill
 
 GAPS_S = (0.1, 0.3, 0.5, 0.7, 0.9)
 # XMAE's Table 2 (full skeleton, Human3.6M), mm at GAPS_S
@@ -35,8 +39,19 @@ PAPER = {
 }
 
 
-def table(clips, fps: float) -> dict:
-    """-> {(part, method, "global"|"rel"): [mm per gap]} over the clips' 1-s windows."""
+def correction_net(path: str):
+    """A learned correction's network (configs/correction_h36m.yaml), ready to fill."""
+    ckpt = read_checkpoint(path)
+    if model_kind(ckpt) != "correction":
+        raise SystemExit(f"--ckpt {path}: not a learned correction (its kind: {model_kind(ckpt)})")
+    net = build_model("correction", stored_config(path, ckpt))
+    net.load_state_dict(network_weights(ckpt))
+    return net.eval()
+
+
+def table(clips, fps: float, net=None) -> dict:
+    """-> {(part, method, "global"|"rel"): [mm per gap]} over the clips' 1-s windows; net: a
+    learned correction, its row "correction" too."""
     windows = WindowDataset(clips, int(round(fps)), int(round(fps)))
     positions = windows.__getitems__(list(range(len(windows))))["positions"].double()  # (B, T, J, 3)
     skeleton = clips[0].skeleton
@@ -46,7 +61,11 @@ def table(clips, fps: float) -> dict:
             continue
         c = t.corrupt(positions, fps, skeleton, None)
         scored = t.evaluated(c, positions)
-        for method, pred in made(classical_fills(), c.positions, c.observed, fps, skeleton).items():
+        preds = made(classical_fills(), c.positions, c.observed, fps, skeleton)
+        if net is not None:
+            with torch.no_grad():
+                preds["correction"] = correction_fill(net, c.positions.float(), c.observed).double()
+        for method, pred in preds.items():
             for label, rel in (("global", False), ("rel", True)):
                 metric = MPJPE(root_relative=rel)
                 metric.update(pred, positions, scored)
@@ -60,6 +79,7 @@ def table(clips, fps: float) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", required=True, help="the folder of S*/<action>_<trial>.txt files")
+    ap.add_argument("--ckpt", default=None, help="a learned correction's checkpoint: its row beside the fills")
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
@@ -68,13 +88,16 @@ def main(argv=None) -> int:
     subjects = sorted({c.meta["subject"] for c in clips}, key=lambda s: int(s[1:]))
     counts = {s: sum(c.meta["subject"] == s for c in clips) for s in subjects}
     print(f"{len(files)} files read (" + ", ".join(f"{s} {n}" for s, n in counts.items()) + ")")
+    net = correction_net(args.ckpt) if args.ckpt else None
     result = {"env": describe(torch.device("cpu")), "data": str(args.data), "files": len(files), "splits": {}}
+    result["ckpt"] = args.ckpt
     for held_out in (("S9", "S11"), ("S5",)):
         test = [c for c in clips if c.meta["subject"] in held_out]
         if not test:
             continue
         fps = test[0].fps
-        measured = table(test, fps)
+        # the correction's row only on the subjects it was not trained on (configs/correction_h36m.yaml)
+        measured = table(test, fps, net if held_out == ("S9", "S11") else None)
         name = "+".join(held_out)
         result["splits"][name] = {
             "windows": measured["windows"],
@@ -83,7 +106,7 @@ def main(argv=None) -> int:
         print(f"\nheld out {name}: {len(test)} sequences, {measured['windows']} windows of 1 s at {fps:g} Hz")
         print(f"{'part':5s} {'method':8s} {'':7s}" + "".join(f"{g:>7g}" for g in GAPS_S) + "   <- gap (s), MPJPE mm")
         for part in ("full", "arm", "leg"):
-            for method in CLASSICAL:
+            for method in (*CLASSICAL, "correction"):
                 for label in ("global", "rel"):
                     row = measured["rows"].get((part, method, label))
                     if row:

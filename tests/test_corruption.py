@@ -152,6 +152,13 @@ def test_training_holes_take_one_part_for_one_stretch_inside_the_window():
     # a window too short for the longest hole still keeps a frame either side
     short = training_holes(500, 5, parts, 20, gen(4), x).any(dim=2)
     assert short.sum(dim=1).max() == 3 and not short[:, 0].any() and not short[:, -1].any()
+    # margin: as many observed frames either side as asked, or as the window leaves around the hole
+    wide = training_holes(3000, T, parts, T, gen(5), x, margin=6).any(dim=2)
+    n = wide.sum(dim=1)
+    before = wide.float().argmax(dim=1)
+    after = T - before - n
+    want = ((T - n) // 2).clamp(max=6)
+    assert (before >= want).all() and (after >= want).all() and n.max() == T - 2
 
 
 def test_hole_windows_observe_everything_but_the_hole():

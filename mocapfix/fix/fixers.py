@@ -369,7 +369,9 @@ FIXERS: dict[str, type] = {"xmae": XMAEFixer, "motion-dvae": DVAEFixer, "jitter"
 # encoder, trained on clean motion only, denoises badly: the denoising stage is what fix runs.
 REFUSED = {
     "motion-dvae-prior": "a Motion-DVAE prior checkpoint; fix needs the denoising stage trained from it "
-    "(configs/motion_dvae_denoise*.yaml with model.init_args.prior_ckpt set to this file)"
+    "(configs/motion_dvae_denoise*.yaml with model.init_args.prior_ckpt set to this file)",
+    "correction": "a learned correction to a classical fill; fix does not use one yet (its test tables: "
+    "python -m mocapfix test --config <its config> --ckpt_path this file)",
 }
 
 

@@ -118,7 +118,7 @@ def detect_source(path) -> str:
             f"npz with unknown keys ({listed_keys(list(keys))}); expected "
             "positions (positions file), positions_3d (Human3.6M) or poses+trans (AMASS)",
         )
-    raise MotionFileError(path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz")
+    raise MotionFileError(path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz, .txt")
 
 
 def read_motion(path, source: str = "auto", **options) -> list[Clip]:

@@ -1,10 +1,10 @@
 """build_model: a network from its kind and config.
 
-A model's config is data (XMAEConfig, DVAEConfig, JitterConfig: plain values), saved in every checkpoint as
-checkpoint["model"] = {"kind": ..., "config": {...}} (models/checkpoint.py). Training, resume, `fix`, the benchmarks and
-the tests all build networks through build_model (nanoGPT's model_args habit), so a checkpoint
-says what it holds: nothing guesses a model from the names of its weights, and renaming an
-attribute cannot break `fix`.
+A model's config is data (XMAEConfig, DVAEConfig, JitterConfig, CorrectionConfig: plain values), saved in
+every checkpoint as checkpoint["model"] = {"kind": ..., "config": {...}} (models/checkpoint.py). Training,
+resume, `fix`, the benchmarks and the tests all build networks through build_model (nanoGPT's model_args
+habit), so a checkpoint says what it holds: nothing guesses a model from the names of its weights, and
+renaming an attribute cannot break `fix`.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from dataclasses import asdict, fields
 
 import torch.nn as nn
 
+from mocapfix.models.correction import CorrectionConfig, CorrectionNet
 from mocapfix.models.dvae import DVAEConfig, MotionDVAE
 from mocapfix.models.dvae_state import state_dim, velocity_mask
 from mocapfix.models.jitter import JitterConfig, JitterNet
@@ -25,6 +26,7 @@ CONFIGS: dict[str, type] = {
     "motion-dvae-prior": DVAEConfig,
     "motion-dvae": DVAEConfig,
     "jitter": JitterConfig,
+    "correction": CorrectionConfig,
 }
 
 
@@ -51,6 +53,8 @@ def build_model(kind: str, config) -> nn.Module:
         return XMAE(**asdict(config))
     if isinstance(config, JitterConfig):
         return JitterNet(config)
+    if isinstance(config, CorrectionConfig):
+        return CorrectionNet(config)
     if isinstance(config, DVAEConfig):
         velocity = None if config.encoder_velocities else velocity_mask(config.state, config.num_joints)
         return MotionDVAE(

@@ -11,6 +11,7 @@ MODULES: dict[str, str] = {
     "motion-dvae-prior": "mocapfix.training.dvae_module.MotionDVAEModule",
     "motion-dvae": "mocapfix.training.denoise_module.DVAEDenoiseModule",
     "jitter": "mocapfix.training.jitter_module.JitterModule",
+    "correction": "mocapfix.training.correction_module.CorrectionModule",
 }
 
 

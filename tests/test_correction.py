@@ -1,0 +1,149 @@
+"""The learned correction to a classical fill (models/correction.py, training/correction_module.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from cli_utils import CONFIGS, QUIET, run_cli
+
+from mocapfix.core.clip import MotionFileError
+from mocapfix.data.corruption import training_holes
+from mocapfix.fills.classical import CLASSICAL, hermite_infill
+from mocapfix.fix.fixers import load_fixer
+from mocapfix.models.build import build_model
+from mocapfix.models.correction import CorrectionConfig, base_fill, correction_fill, longest_run
+
+
+def _config(**changes) -> CorrectionConfig:
+    values = dict(num_joints=4, fps=30.0, context_frames=5, hole_points=8, hidden=64, depth=2, heading_joints=(1, 2))
+    values.update(changes)
+    return CorrectionConfig(**values)
+
+
+def _waves(B: int, T: int, J: int, seed: int) -> torch.Tensor:
+    """(B, T, J, 3) float64: every coordinate a sinusoid of 1-2 Hz at 30 fps (random amplitude and
+    phase per window and joint): a motion whose Hermite fill errs the same way given its context."""
+    g = torch.Generator().manual_seed(seed)
+    t = torch.arange(T, dtype=torch.float64)[None, :, None, None] / 30.0
+    freq = 1 + torch.rand(B, 1, 1, 1, generator=g, dtype=torch.float64)
+    amp = 0.05 + 0.2 * torch.rand(B, 1, J, 3, generator=g, dtype=torch.float64)
+    phase = 2 * math.pi * torch.rand(B, 1, J, 3, generator=g, dtype=torch.float64)
+    return amp * torch.sin(2 * math.pi * freq * t + phase) + torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+
+
+def test_longest_run_finds_each_windows_longest_stretch_of_missing_frames():
+    hole = torch.zeros(3, 12, 2, dtype=torch.bool)
+    hole[0, 2:4, 0] = hole[0, 6:11, 1] = True  # two runs: the second is longer
+    hole[1, 0:3, :] = True
+    start, length = longest_run(hole)
+    assert start[:2].tolist() == [6, 0] and length.tolist() == [5, 3, 0]
+
+
+def test_an_untrained_network_is_its_base_fill_and_leaves_observed_tokens():
+    x = _waves(4, 30, 4, seed=0)
+    observed = torch.ones(4, 30, 4, dtype=torch.bool)
+    observed[:, 10:20, :2] = False
+    for base in ("hermite", "limb"):
+        net = build_model("correction", _config(base=base, parents=(-1, 0, 1, 2))).double()
+        out = correction_fill(net, torch.where(observed[..., None], x, torch.nan), observed)
+        assert torch.equal(out, base_fill(net.config, torch.where(observed[..., None], x, torch.nan), observed))
+        assert torch.equal(out[observed], x[observed])
+
+
+def test_the_correction_turns_and_moves_with_the_body():
+    """Turned about z and moved, a window gets its correction turned and moved the same: the
+    network reads every hole in one heading and place."""
+    torch.manual_seed(0)
+    net = build_model("correction", _config()).double()
+    for layer in (net.out, net.linear):
+        torch.nn.init.normal_(layer.weight, std=0.01)
+    x = _waves(3, 30, 4, seed=1)
+    hole = torch.zeros(3, 30, 4, dtype=torch.bool)
+    hole[:, 12:20, 3] = True
+    a = 0.7
+    turn = torch.tensor([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]], dtype=torch.float64)
+    moved = x @ turn.T + torch.tensor([2.0, -1.0, 0.0], dtype=torch.float64)
+    delta = net(x, hole) - x
+    delta_moved = net(moved, hole) - moved
+    assert delta.abs().max() > 1e-3  # a correction was made
+    assert torch.allclose(delta_moved, delta @ turn.T, atol=1e-9)
+    assert (delta[~hole] == 0).all()
+
+
+def test_a_correction_its_features_predict_is_learned():
+    """On sinusoids the Hermite fill's error over a hole follows from the motion around it: 300
+    steps take more than half of it off on windows it never saw."""
+    torch.manual_seed(0)
+    net = build_model("correction", _config())
+    parts = torch.tensor([[True] * 4, [False, False, True, True]])
+    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
+    x_test = _waves(256, 30, 4, seed=99).float()
+    hole_test = training_holes(256, 30, parts, 15, torch.Generator().manual_seed(5), x_test, margin=5)
+
+    def errors(x, hole):
+        observed = ~hole
+        base = hermite_infill(torch.where(observed[..., None], x, torch.nan), observed)
+        out = net(base, hole)
+        return ((out - x) ** 2).sum(-1)[hole].mean(), ((base - x) ** 2).sum(-1)[hole].mean()
+
+    for step in range(300):
+        x = _waves(64, 30, 4, seed=step).float()
+        loss, _ = errors(x, training_holes(64, 30, parts, 15, None, x, margin=5))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        corrected, base = errors(x_test, hole_test)
+    assert corrected < 0.5 * base
+
+
+def _expmap_folder(root, seconds: float = 6.0) -> None:
+    """S1 (train) and S9 (test) folders of exponential-map takes: the rest pose walking, its joints
+    swinging (sinusoids of 1-2 Hz on every joint's map)."""
+    rng = np.random.default_rng(0)
+    T = int(50 * seconds)
+    t = np.arange(T)[:, None] / 50.0
+    for subject, takes in (("S1", 3), ("S9", 1)):
+        for k in range(takes):
+            ch = np.zeros((T, 99))
+            ch[:, 2] = 8.0  # forward, mm a frame
+            ch[:, 6:] = 0.3 * np.sin(2 * np.pi * (1 + rng.random(93)) * t + 2 * np.pi * rng.random(93))
+            path = root / subject / f"walking_{k + 1}.txt"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text("\n".join(",".join(f"{v:.6f}" for v in row) for row in ch) + "\n")
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """configs/correction_h36m.yaml for a few steps on generated Human3.6M takes, then `test`."""
+    tmp = tmp_path_factory.mktemp("correction")
+    _expmap_folder(tmp / "h36m")
+    common = [*QUIET, "--data.path", tmp / "h36m", "--data.cache_dir", "null", "--experiment", "c"]
+    common += ["--data.batch_size", "8", "--model.init_args.hidden", "32"]
+    args = ["fit", "--config", CONFIGS / "correction_h36m.yaml", *common, "--trainer.max_steps", "3"]
+    assert run_cli([*args, "--trainer.val_check_interval", "3", "--trainer.limit_val_batches", "1"], tmp) == 0
+    ckpt = tmp / "checkpoints" / "c" / "last.ckpt"
+    assert run_cli(["test", "--config", CONFIGS / "correction_h36m.yaml", *common, "--ckpt_path", ckpt], tmp) == 0
+    return ckpt
+
+
+def test_fit_and_test_print_the_papers_infilling_table_with_every_classical_fill(trained):
+    ckpt = torch.load(trained, map_location="cpu", weights_only=True)
+    assert ckpt["model"]["kind"] == "correction" and ckpt["model"]["config"]["fps"] == 50.0
+    [table] = (trained.parents[2] / "logs" / "c").glob("version_*/eval.json")
+    rows = json.loads(table.read_text())
+    assert {r["method"] for r in rows} == {"correction", *CLASSICAL}
+    gaps = (0.1, 0.3, 0.5, 0.7, 0.9)
+    assert {(r["part"], r["gap_s"]) for r in rows} == {(p, g) for p in ("full", "arm", "leg") for g in gaps}
+    cell = {r["method"]: r["mpjpe_rel_mm"] for r in rows if (r["part"], r["gap_s"]) == ("full", 0.5)}
+    assert cell["lerp"] > cell["hermite"] > 0
+
+
+def test_fix_names_what_a_correction_checkpoint_is_in_one_line(trained):
+    with pytest.raises(MotionFileError, match="a learned correction to a classical fill") as e:
+        load_fixer(trained)
+    assert "\n" not in str(e.value)
