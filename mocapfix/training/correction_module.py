@@ -162,8 +162,8 @@ class CorrectionModule(L.LightningModule):
         after = (((out - truth) ** 2).sum(-1) * hole).sum((1, 2))  # (B,) m^2
         before = (((base - truth) ** 2).sum(-1) * hole).sum((1, 2))
         floor = hole.sum((1, 2)) * BASE_ERROR_FLOOR_M**2  # a hole the base fills exactly is not a division by 0
-        has = hole.any(-1).any(-1)
-        loss = (after / (before + floor))[has].mean()
+        has = hole.any(-1).any(-1)  # (B,) a window whose hole fell where the data is missing has none
+        loss = (after / (before + floor))[has].mean() if has.any() else 0.0 * out.sum()
         count = hole.sum().clamp_min(1)
         self.log("train/left_of_base", loss.detach(), prog_bar=True)
         self.log("train/rms_mm", 1000 * (after.sum() / count).detach().sqrt())
