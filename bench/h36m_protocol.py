@@ -10,6 +10,7 @@ S5 (motion prediction) are both measured here.
 
     python bench/h36m_protocol.py --data /path/to/h3.6m/dataset            # ~2 min on 2 cores
     python bench/h36m_protocol.py --data ... --ckpt checkpoints/correction_h36m/last.ckpt   # its row too
+    (several --ckpt: a row each, named by the fill each corrects: "correction(hermite)")
 """
 
 from __future__ import annotations
@@ -49,9 +50,9 @@ def correction_net(path: str):
     return net.eval()
 
 
-def table(clips, fps: float, net=None) -> dict:
-    """-> {(part, method, "global"|"rel"): [mm per gap]} over the clips' 1-s windows; net: a
-    learned correction, its row "correction" too."""
+def table(clips, fps: float, nets=()) -> dict:
+    """-> {(part, method, "global"|"rel"): [mm per gap]} over the clips' 1-s windows; nets:
+    learned corrections, a row each ("correction(<its base fill>)")."""
     windows = WindowDataset(clips, int(round(fps)), int(round(fps)))
     positions = windows.__getitems__(list(range(len(windows))))["positions"].double()  # (B, T, J, 3)
     skeleton = clips[0].skeleton
@@ -62,9 +63,9 @@ def table(clips, fps: float, net=None) -> dict:
         c = t.corrupt(positions, fps, skeleton, None)
         scored = t.evaluated(c, positions)
         preds = made(classical_fills(), c.positions, c.observed, fps, skeleton)
-        if net is not None:
+        for net in nets:
             with torch.no_grad():
-                preds["correction"] = correction_fill(net, c.positions.float(), c.observed).double()
+                preds[f"correction({net.config.base})"] = correction_fill(net, c.positions.float(), c.observed).double()
         for method, pred in preds.items():
             for label, rel in (("global", False), ("rel", True)):
                 metric = MPJPE(root_relative=rel)
@@ -79,7 +80,7 @@ def table(clips, fps: float, net=None) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", required=True, help="the folder of S*/<action>_<trial>.txt files")
-    ap.add_argument("--ckpt", default=None, help="a learned correction's checkpoint: its row beside the fills")
+    ap.add_argument("--ckpt", nargs="*", default=[], help="learned corrections' checkpoints: a row each")
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
@@ -88,7 +89,7 @@ def main(argv=None) -> int:
     subjects = sorted({c.meta["subject"] for c in clips}, key=lambda s: int(s[1:]))
     counts = {s: sum(c.meta["subject"] == s for c in clips) for s in subjects}
     print(f"{len(files)} files read (" + ", ".join(f"{s} {n}" for s, n in counts.items()) + ")")
-    net = correction_net(args.ckpt) if args.ckpt else None
+    nets = [correction_net(path) for path in args.ckpt]
     result = {"env": describe(torch.device("cpu")), "data": str(args.data), "files": len(files), "splits": {}}
     result["ckpt"] = args.ckpt
     for held_out in (("S9", "S11"), ("S5",)):
@@ -97,23 +98,23 @@ def main(argv=None) -> int:
             continue
         fps = test[0].fps
         # the correction's row only on the subjects it was not trained on (configs/correction_h36m.yaml)
-        measured = table(test, fps, net if held_out == ("S9", "S11") else None)
+        measured = table(test, fps, nets if held_out == ("S9", "S11") else ())
         name = "+".join(held_out)
         result["splits"][name] = {
             "windows": measured["windows"],
             "rows": {"/".join(k): v for k, v in measured["rows"].items()},
         }
         print(f"\nheld out {name}: {len(test)} sequences, {measured['windows']} windows of 1 s at {fps:g} Hz")
-        print(f"{'part':5s} {'method':8s} {'':7s}" + "".join(f"{g:>7g}" for g in GAPS_S) + "   <- gap (s), MPJPE mm")
+        print(f"{'part':5s} {'method':20s} {'':7s}" + "".join(f"{g:>7g}" for g in GAPS_S) + "   <- gap (s), MPJPE mm")
         for part in ("full", "arm", "leg"):
-            for method in (*CLASSICAL, "correction"):
+            for method in (*CLASSICAL, *(f"correction({net.config.base})" for net in nets)):
                 for label in ("global", "rel"):
                     row = measured["rows"].get((part, method, label))
                     if row:
-                        print(f"{part:5s} {method:8s} {label:7s}" + "".join(f"{v:7.1f}" for v in row))
+                        print(f"{part:5s} {method:20s} {label:7s}" + "".join(f"{v:7.1f}" for v in row))
             if part == "full":
                 for (method, label), row in PAPER.items():
-                    print(f"{part:5s} {'paper ' + method:8s} {label:7s}" + "".join(f"{v:7.1f}" for v in row))
+                    print(f"{part:5s} {'paper ' + method:20s} {label:7s}" + "".join(f"{v:7.1f}" for v in row))
         lerp = measured["rows"][("full", "lerp", "rel")]
         ratio = [m / p for m, p in zip(lerp, PAPER[("lerp", "rel")])]
         print("Lerp rel / paper's: " + " ".join(f"{r:.2f}" for r in ratio))
