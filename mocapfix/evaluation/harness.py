@@ -9,6 +9,8 @@ from __future__ import annotations
 import torch.nn as nn
 from torchmetrics import Metric
 
+from mocapfix.evaluation.metrics import MPJPE
+
 
 class TestTable(nn.Module):
     """One torchmetric per table cell (any hashable key, e.g. (task, method, "abs")). torchmetrics
@@ -30,3 +32,15 @@ class TestTable(nn.Module):
     def compute(self) -> dict[tuple, float]:
         """cell -> value, for the cells that saw data."""
         return {k: float(self.metrics[self.index[k]].compute()) for k in self.keys if self.updated(k)}
+
+
+def mpjpe_table(task_keys, methods) -> TestTable:
+    """The paper tables' cells: (task key, method, "abs" | "rel") -> MPJPE, global and root-relative."""
+    return TestTable(
+        {(k, m, rel): MPJPE(root_relative=rel == "rel") for k in task_keys for m in methods for rel in ("abs", "rel")}
+    )
+
+
+def abs_and_rel(cells: dict[tuple, float]) -> dict[tuple[str, str], tuple[float, float]]:
+    """mpjpe_table(...).compute() -> (task key, method) -> (global, root-relative), table_rows' input."""
+    return {(key, m): (cells[(key, m, "abs")], cells[(key, m, "rel")]) for key, m, rel in cells if rel == "abs"}

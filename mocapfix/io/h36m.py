@@ -28,6 +28,17 @@ def _natural(s: str):
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", s)]
 
 
+def h36m_skeleton(path, groups=None):
+    """Preset h36m17, its limb groups replaced by `groups` ({name: [joint names or indices]})."""
+    skel = PRESETS["h36m17"]
+    if groups:
+        try:
+            skel = skel.with_groups(groups)
+        except (KeyError, ValueError) as e:
+            raise MotionFileError(path, f"bad groups: {e}") from None
+    return skel
+
+
 def read_h36m(path, unit: str = "auto", groups=None) -> list[Clip]:
     """data_3d_h36m.npz -> one Clip per (subject, action), named "S1/Walking 1", 17 joints, 50 fps.
 
@@ -43,12 +54,7 @@ def read_h36m(path, unit: str = "auto", groups=None) -> list[Clip]:
         tree = None
     if not isinstance(tree, dict) or not all(isinstance(v, dict) for v in tree.values()):
         raise MotionFileError(path, "'positions_3d' must hold {subject: {action: (frames, 32, 3)}}")
-    skel = PRESETS["h36m17"]
-    if groups:
-        try:
-            skel = skel.with_groups(groups)
-        except (KeyError, ValueError) as e:
-            raise MotionFileError(path, f"bad groups: {e}") from None
+    skel = h36m_skeleton(path, groups)
     clips = []
     for subject in sorted(tree, key=_natural):
         for action in sorted(tree[subject], key=_natural):

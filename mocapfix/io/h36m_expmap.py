@@ -35,8 +35,7 @@ import roma
 import torch
 
 from mocapfix.core.clip import Clip, MotionFileError
-from mocapfix.core.skeleton import PRESETS
-from mocapfix.io.h36m import H36M_FPS, H36M_KEEP, H36M_SPLIT
+from mocapfix.io.h36m import H36M_FPS, H36M_KEEP, H36M_SPLIT, h36m_skeleton
 from mocapfix.io.untrusted import read_bytes
 
 COLUMNS = 99  # 33 triplets: root translation delta, root rotation delta, 31 more joints' maps
@@ -198,12 +197,7 @@ def read_h36m_expmap(path, groups=None) -> list[Clip]:
     pos[..., 1] -= floor  # the floor at height 0
     # y up -> z up by a turn about x (x, y, z) -> (x, -z, y): a rotation, so left stays left
     pos = np.stack([pos[..., 0], -pos[..., 2], pos[..., 1]], -1)[:, H36M_KEEP] / 1000.0
-    skel = PRESETS["h36m17"]
-    if groups:
-        try:
-            skel = skel.with_groups(groups)
-        except (KeyError, ValueError) as e:
-            raise MotionFileError(path, f"bad groups: {e}") from None
+    skel = h36m_skeleton(path, groups)
     subject = path.parent.name if re.fullmatch(r"S\d+", path.parent.name) else None
     match = re.fullmatch(r"(.*?)_(\d+)", path.stem)
     action, trial = (match.group(1), match.group(2)) if match else (path.stem, None)

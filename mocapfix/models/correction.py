@@ -153,9 +153,12 @@ def base_fill(config: CorrectionConfig, positions: torch.Tensor, observed: torch
     return hermite_infill(positions, observed)
 
 
-def correction_fill(net: CorrectionNet, positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+def correction_fill(
+    net: CorrectionNet, positions: torch.Tensor, observed: torch.Tensor, base: torch.Tensor | None = None
+) -> torch.Tensor:
     """The network's fill of windows: positions (B, T, J, 3), NaN allowed at missing tokens;
-    observed (B, T, J) -> (B, T, J, 3), observed tokens as given, holes the corrected base fill."""
-    base = base_fill(net.config, positions, observed)
+    observed (B, T, J) -> (B, T, J, 3), observed tokens as given, holes the corrected base fill.
+    base: base_fill(net.config, positions, observed) where the caller has it already."""
+    base = base_fill(net.config, positions, observed) if base is None else base
     out = net(base.to(next(net.parameters()).dtype), ~observed)
     return torch.where(observed[..., None], positions, out.to(positions.dtype))

@@ -20,7 +20,7 @@ import torch.nn as nn
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.corruption import available, infill_gap, training_holes
 from mocapfix.data.spec import DataSpec
-from mocapfix.evaluation.harness import TestTable
+from mocapfix.evaluation.harness import abs_and_rel, mpjpe_table
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.tasks import format_table, paper_tasks, table_rows
 from mocapfix.fills.classical import CLASSICAL, classical_fills
@@ -29,7 +29,7 @@ from mocapfix.models.build import build_model
 from mocapfix.models.checkpoint import name_model
 from mocapfix.models.correction import BASES, CorrectionConfig, CorrectionNet, base_fill, correction_fill
 from mocapfix.training.bind_data import BindData, require_same_window
-from mocapfix.training.schedules import WarmupCosine
+from mocapfix.training.schedules import adamw_warmup_cosine
 from mocapfix.training.test_report import publish
 
 PARTS = ("full", "arm", "leg")
@@ -135,10 +135,7 @@ class CorrectionModule(L.LightningModule):
 
     def configure_optimizers(self):
         hp = self.hparams
-        opt = torch.optim.AdamW(self.parameters(), lr=hp.lr, weight_decay=hp.weight_decay)
-        total = hp.total_steps or int(self.trainer.estimated_stepping_batches)
-        sched = torch.optim.lr_scheduler.LambdaLR(opt, WarmupCosine(hp.warmup_steps, total))
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        return adamw_warmup_cosine(self, hp.lr, hp.weight_decay, hp.warmup_steps, hp.total_steps)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.net is not None:
@@ -174,11 +171,11 @@ class CorrectionModule(L.LightningModule):
         clean = batch["positions"]
         c = infill_gap(clean, self.hparams.window_fps, self.hparams.val_gap_s)
         scored = available(clean) & ~c.observed
-        out = correction_fill(self.net, c.positions, c.observed)
-        base = made(classical_fills(), c.positions, c.observed, None, self.skeleton, {self.hparams.base})
+        base = base_fill(self.net.config, c.positions, c.observed)
+        out = correction_fill(self.net, c.positions, c.observed, base)
         truth = torch.nan_to_num(clean).float()
         self.val_mpjpe["correction"](out.float(), truth, scored)
-        self.val_mpjpe["base"](base[self.hparams.base].float(), truth, scored)
+        self.val_mpjpe["base"](base.float(), truth, scored)
         self.log("val/mpjpe_mm", self.val_mpjpe["correction"], prog_bar=True, batch_size=len(clean))
         self.log(f"val/mpjpe_mm/{self.hparams.base}", self.val_mpjpe["base"], batch_size=len(clean))
 
@@ -187,14 +184,7 @@ class CorrectionModule(L.LightningModule):
     def on_test_epoch_start(self):
         self._tasks = [t for t in paper_tasks(self.skeleton, self.hparams.eval_gaps_s, ()) if t.task == "infill"]
         self._methods = ("correction", *CLASSICAL)
-        self._table = TestTable(
-            {
-                (t.key, m, rel): MPJPE(root_relative=rel == "rel")
-                for t in self._tasks
-                for m in self._methods
-                for rel in ("abs", "rel")
-            }
-        ).to(self.device)
+        self._table = mpjpe_table([t.key for t in self._tasks], self._methods).to(self.device)
 
     def test_step(self, batch, batch_idx):
         positions = batch["positions"]
@@ -203,14 +193,14 @@ class CorrectionModule(L.LightningModule):
             c = t.corrupt(positions, fps, self.skeleton, None)
             scored = t.evaluated(c, positions)
             preds = made(classical_fills(), c.positions, c.observed, fps, self.skeleton)
-            preds["correction"] = correction_fill(self.net, c.positions, c.observed)
+            preds["correction"] = correction_fill(self.net, c.positions, c.observed, preds[self.hparams.base])
             for m, pred in preds.items():
                 for rel in ("abs", "rel"):
                     self._table.update((t.key, m, rel), pred.float(), positions.float(), scored)
 
     def on_test_epoch_end(self):
         cells = self._table.compute()
-        results = {(key, m): (cells[(key, m, "abs")], cells[(key, m, "rel")]) for key, m, rel in cells if rel == "abs"}
+        results = abs_and_rel(cells)
         rows = table_rows(results, self._tasks)
         scalars = {f"test/{r['task']}/{r['part']}/gap{r['gap_s']}s/{r['method']}_mpjpe_mm": r["mpjpe_mm"] for r in rows}
         self.eval_json_path = publish(self, rows, scalars, format_table(rows))

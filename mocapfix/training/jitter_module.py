@@ -25,7 +25,7 @@ from mocapfix.models.checkpoint import name_model
 from mocapfix.models.jitter import JitterConfig, JitterNet, lowpass, residual_noise
 from mocapfix.training.bind_data import BindData, require_same_window
 from mocapfix.training.figures import log_validation_figure
-from mocapfix.training.schedules import WarmupCosine
+from mocapfix.training.schedules import adamw_warmup_cosine
 from mocapfix.training.test_report import publish
 
 
@@ -131,10 +131,7 @@ class JitterModule(L.LightningModule):
 
     def configure_optimizers(self):
         hp = self.hparams
-        opt = torch.optim.AdamW(self.parameters(), lr=hp.lr, weight_decay=hp.weight_decay)
-        total = hp.total_steps or int(self.trainer.estimated_stepping_batches)
-        sched = torch.optim.lr_scheduler.LambdaLR(opt, WarmupCosine(hp.warmup_steps, total))
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        return adamw_warmup_cosine(self, hp.lr, hp.weight_decay, hp.warmup_steps, hp.total_steps)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.net is not None:

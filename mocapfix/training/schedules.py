@@ -25,6 +25,17 @@ class WarmupCosine:
         return warmup_cosine(step, self.warmup_steps, self.total_steps)
 
 
+def adamw_warmup_cosine(module, lr: float, weight_decay: float, warmup_steps: int, total_steps: int | None) -> dict:
+    """A LightningModule's configure_optimizers: AdamW, its lr warmed up then decayed by cosine per
+    step (total_steps None: the Trainer's estimated number of optimiser steps)."""
+    import torch
+
+    opt = torch.optim.AdamW(module.parameters(), lr=lr, weight_decay=weight_decay)
+    total = total_steps or int(module.trainer.estimated_stepping_batches)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, WarmupCosine(warmup_steps, total))
+    return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+
 def kl_anneal_weight(step: int, anneal_steps: int) -> float:
     """Linear KL annealing: 0 at step 0, 1 from anneal_steps on (1 throughout when anneal_steps <= 0)."""
     return 1.0 if anneal_steps <= 0 else min(1.0, step / anneal_steps)

@@ -18,7 +18,7 @@ from mocapfix.core.skeleton import GROUP_NAMES, Skeleton
 from mocapfix.data.augment import BodyAugment, BodyAugmenter
 from mocapfix.data.corruption import check_training_corruption, uniform_like
 from mocapfix.data.spec import DataSpec
-from mocapfix.evaluation.harness import TestTable
+from mocapfix.evaluation.harness import abs_and_rel, mpjpe_table
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.policy_fit import calibrate
 from mocapfix.evaluation.tasks import Task, format_table, paper_tasks, table_rows, window_seeds
@@ -451,14 +451,7 @@ class XMAEModule(L.LightningModule):
         # "policy": what fix outputs (the fill policy of this checkpoint's validation)
         self._methods = ("xmae", *CLASSICAL) + (("policy",) if self.fill_policy is not None else ())
         self._tasks = paper_tasks(self.skeleton, self.hparams.eval_gaps_s, self.hparams.eval_noise_sigmas_m)
-        self._table = TestTable(
-            {
-                (t.key, m, rel): MPJPE(root_relative=rel == "rel")
-                for t in self._tasks
-                for m in self._methods
-                for rel in ("abs", "rel")
-            }
-        ).to(self.device)
+        self._table = mpjpe_table([t.key for t in self._tasks], self._methods).to(self.device)
 
     def test_step(self, batch, batch_idx):
         positions = batch["positions"]
@@ -481,7 +474,7 @@ class XMAEModule(L.LightningModule):
 
     def on_test_epoch_end(self):
         cells = self._table.compute()
-        results = {(key, m): (cells[(key, m, "abs")], cells[(key, m, "rel")]) for key, m, rel in cells if rel == "abs"}
+        results = abs_and_rel(cells)
         self.eval_rows = table_rows(results, self._tasks)
         scalars = {}
         for r in self.eval_rows:
