@@ -34,12 +34,14 @@ PARTS = (None, "left_arm", "left_leg")
 GAPS_S = (0.3, 0.5, 0.7, 0.9)
 
 
-def holed_takes(data: str, min_seconds: float, folder: Path) -> float:
-    """The long takes of `data` with holes, written as positions .npz into folder -> minutes."""
+def holed_takes(data: str, min_seconds: float, folder: Path, count: int | None = None) -> float:
+    """The long takes of `data` with holes, written as positions .npz into folder -> minutes.
+    count: that many files, the takes taken in turn (each copy's holes in other parts)."""
     body, seconds = preset("body21"), 0.0
-    takes = [read_motion(f)[0] for f in list_motion_files(data, "bvh")]
-    for i, clip in enumerate(c for c in takes if c.duration_s >= min_seconds):
-        clip = onto_skeleton(clip, body)
+    takes = [read_motion(f)[0] for f in list_motion_files(data)]  # BVH or positions files
+    takes = [onto_skeleton(c, body) for c in takes if c.duration_s >= min_seconds]
+    for i in range(count or len(takes)):
+        clip = takes[i % len(takes)]
         x = clip.positions.astype(np.float64)
         hidden = np.zeros(x.shape[:2], dtype=bool)
         for j, gap in enumerate(GAPS_S):  # 4 holes of each length, each length a part, shifted apart
@@ -57,10 +59,11 @@ def holed_takes(data: str, min_seconds: float, folder: Path) -> float:
     return seconds / 60
 
 
-def fix(inputs: Path, out_dir: Path, extra: list[str]) -> dict:
-    """One `mocapfix fix` process -> its CPU seconds, wall seconds and peak memory."""
+def fix(inputs: Path, out_dir: Path, extra: list[str], jobs: int = 1) -> dict:
+    """One `mocapfix fix` process -> its CPU seconds (its workers' included), wall seconds and
+    peak memory (of the process itself)."""
     cmd = [sys.executable, "-m", "mocapfix", "fix", str(inputs), "--model", "xmae-cpu-bandai"]
-    cmd += ["--out-dir", str(out_dir), "--jobs", "1", "--progress", "never", *extra]
+    cmd += ["--out-dir", str(out_dir), "--jobs", str(jobs), "--progress", "never", *extra]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     err = proc.stderr.read()

@@ -2,6 +2,9 @@
 performer (what data.split_by folder and val_patterns hold out), mapped onto the shipped models'
 21 joints (body21) at 30 fps, written as one compact archive (positions to the millimetre, ~17 MB
 for 4.6 h of motion) that training reads with --data.source archive and that travels to a GPU.
+Human3.6M's exponential-map files (--h36m) add its training subjects (S1, S5, S6, S7, S8, the
+paper's); S9 and S11, its test subjects, are never read. Its 17 joints have no clavicles or toes:
+those are missing (NaN) in its takes, so training scores them nowhere there.
 
 The collections come from public repositories you clone yourself (docs/data.md says where, with
 their licences); nothing is downloaded here and nothing is committed. Bandai Namco takes that are
@@ -9,7 +12,8 @@ in ../shared/data/bandai-namco's val or test split (seeded hash, seed 0, 10 % / 
 out, so the Bandai test table stays a table of takes the model never saw.
 
     python scripts/build_corpus.py --bandai ~/Bandai-Namco-Research-Motiondataset \\
-        --reactidle ~/ReActIdle --cmu ~/PFNN-Project/animations --out .device_data/corpus_body21.npz
+        --reactidle ~/ReActIdle --cmu ~/PFNN-Project/animations --out .device_data/corpus_body21.npz \\
+        [--h36m ~/DMGNN/data/h3.6m/dataset]
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ from mocapfix.data.windows import save_clips, split_of
 SHARED_BANDAI = Path(__file__).resolve().parents[2] / "shared" / "data" / "bandai-namco"
 # CMU subjects kept for checks (never trained, tuned or chosen on), and the stranger benchmark's
 CMU_NEVER = {"01", "02", "03", "05", "06", "07", "08", "09"}
+# Human3.6M's training subjects (the XMAE paper's protocol tests on S9 and S11)
+H36M_TRAIN = ("S1", "S5", "S6", "S7", "S8")
 
 
 def performer_folders(args, root: Path) -> int:
@@ -54,26 +60,46 @@ def performer_folders(args, root: Path) -> int:
     return n
 
 
+def h36m_folders(h36m: str, root: Path) -> int:
+    """Links to the training subjects' exponential-map files under root/h36m_s<k>/; returns how many."""
+    n = 0
+    for subject in H36M_TRAIN:
+        files = sorted((Path(h36m) / subject).glob("*.txt"))
+        if files:
+            (root / f"h36m_{subject.lower()}").mkdir()
+        for f in files:
+            (root / f"h36m_{subject.lower()}" / f.name).symlink_to(f.resolve())
+            n += 1
+    return n
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--bandai", help="a clone of BandaiNamcoResearchInc/Bandai-Namco-Research-Motiondataset")
     ap.add_argument("--reactidle", help="a clone of Enekoassets/ReActIdle")
     ap.add_argument("--cmu", help="CMU takes named <subject>_<take>.bvh (e.g. CeciliaZ030/PFNN-Project/animations)")
+    ap.add_argument("--h36m", help="Human3.6M's exponential maps, S<k>/<action>_<trial>.txt (e.g. DMGNN's data/h3.6m/dataset)")
     ap.add_argument("--out", default=".device_data/corpus_body21.npz")
     ap.add_argument("--cache-dir", default=".cache/mocapfix")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
-        root = Path(tmp)
-        if not performer_folders(args, root):
-            raise SystemExit("no takes found: give --bandai, --reactidle and/or --cmu")
+        root, h36m_root = Path(tmp) / "bvh", Path(tmp) / "h36m"
+        root.mkdir()
+        h36m_root.mkdir()
+        found = (performer_folders(args, root), h36m_folders(args.h36m, h36m_root) if args.h36m else 0)
+        if not sum(found):
+            raise SystemExit("no takes found: give --bandai, --reactidle, --cmu and/or --h36m")
         t0 = time.perf_counter()
-        dm = MotionDataModule(
-            source="bvh", path=sorted(str(p) for p in root.iterdir()), body="body21", fps=30, cache_dir=args.cache_dir
-        )
-        clips = dm.load_clips()
-        # sources as corpus/<performer>/<file>, not the temporary path: patterns such as
-        # "*/cmu39/*" (val_patterns, source_weights) and split_by folder read them
-        clips = [c.replace(source=str("corpus" / Path(c.source).relative_to(root))) for c in clips]
+        clips = []
+        for source, folder, count in (("bvh", root, found[0]), ("h36m", h36m_root, found[1])):
+            if count:
+                path = sorted(str(p) for p in folder.iterdir())
+                dm = MotionDataModule(source=source, path=path, body="body21", fps=30, cache_dir=args.cache_dir)
+                clips += dm.load_clips()
+        # sources as corpus/<performer>/<file>, not the temporary path (nor an earlier run's, which
+        # the cache keeps): patterns such as "*/cmu39/*" (val_patterns, source_weights) and
+        # split_by folder read them
+        clips = [c.replace(source=str(Path("corpus", *Path(c.source).parts[-2:]))) for c in clips]
     out = Path(args.out)
     save_clips(out, clips, compact=True)
     frames = sum(c.num_frames for c in clips)

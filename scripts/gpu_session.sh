@@ -16,6 +16,12 @@
 #   bash scripts/gpu_session.sh many-holes     # issue 31: Hermite-correcting XMAEs trained on the fix case's holes
 #   bash scripts/gpu_session.sh many           # issue 31: XMAE across studios (configs/xmae_many.yaml), paper
 #                                            # sizes on the GPU and the cpu preset on 8 of its CPU cores at once
+#   bash scripts/gpu_session.sh corpora        # issue 50 (~8 min): the paper sizes and the cpu preset on every
+#                                            # corpus read (Human3.6M's training subjects too), both on the GPU;
+#                                            # then fix FOLDER --jobs 1..16 on the machine's cores
+#   bash scripts/gpu_session.sh throughput     # issue 50 (~2 min): training throughput at batch 512 beside ref_xmae.py
+#   bash scripts/gpu_session.sh issue50        # both, one after the other (TRAIN_TIME=00:00:04:15 ROWS=device+cudagraphs
+#                                            # fit one 10-minute call)
 #
 # A run longer than one call: the machine keeps checkpoints/ while it stays warm (~30 s between
 # calls), so back-to-back calls with RESUME=1 continue last.ckpt. MAX_TIME / PRIOR_TIME count the
@@ -28,12 +34,14 @@
 #   .whl/          wheels: roma omegaconf antlr4-python3-runtime jsonargparse docstring-parser typeshed-client,
 #                  pytest pluggy iniconfig pygments (for gpu-tests)
 #   .device_data/  bandai_pos30.npz and bandai_rot30.npz (parsed Bandai), ref_xmae.py (../shared does not travel);
-#                  corpus_body21.npz for `many`: scripts/build_corpus.py (docs/data.md), a compact archive
+#                  corpus_body21.npz for `many` and `corpora`: scripts/build_corpus.py (docs/data.md), a
+#                  compact archive (with --h36m for `corpora`); cmu_long/ for `corpora`: the CMU sample's
+#                  long takes as positions .npz (prepare writes it), which bench/fix_jobs.py cuts holes into
 # Make both here first: `PYTHON=.venv/bin/python bash scripts/gpu_session.sh prepare` (then carry [".whl", ".device_data"]).
 # STEPS / MAX_TIME (xmae), PRIOR_TIME / DENOISE_TIME (dvae) trim the runs to the call's 10 minutes.
 # Results land in $OUT (the device tool brings them back): eval tables, bench JSON, a small checkpoint.
 set -euo pipefail
-PART=${1:?usage: gpu_session.sh prepare|xmae|bench|profile|tune|gpu-tests|accuracy|dvae|dvae-prior|dvae-denoise|dvae-speed}
+PART=${1:?usage: gpu_session.sh prepare|xmae|bench|profile|tune|gpu-tests|accuracy|dvae|dvae-prior|dvae-denoise|dvae-speed|many|many-hermite|many-holes|corpora|throughput|issue50}
 if [ "$PART" = prepare ]; then  # on this machine, before the calls: what they carry
   mkdir -p .device_data .whl
   cp ../shared/bench/ref_xmae.py .device_data/
@@ -56,8 +64,8 @@ fi
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 PY=${PYTHON:-python3}
-if [ -z "${PYTHON:-}" ]; then  # the GPU image: add what it lacks
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl
+if [ -z "${PYTHON:-}" ]; then  # the GPU image: add what it lacks (once a machine)
+  [ -d /tmp/site/roma ] || python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl
   export PYTHONPATH=/tmp/site:.
 fi
 export PYTHONUNBUFFERED=1
@@ -177,6 +185,47 @@ many)
   rm -f "$OUT/xmae_many_last_full.ckpt"  # the paper-sized run's optimiser state is too large to bring back
   tar czf "$OUT/many_logs.tgz" logs/xmae_many logs/xmae_many_cpu
   ;;
+corpora)
+  # Issue 50: XMAE on every corpus the project reads (scripts/build_corpus.py --h36m: three studios
+  # and Human3.6M's training subjects), validated on performers held out (CMU 39, ReActIdle 014
+  # and 015); the paper sizes (compiled) and the cpu preset (eager) at once on the one GPU, both
+  # for TRAIN_TIME (their cosines end with it). Then fix FOLDER --jobs N on the machine's cores
+  # (nothing else running).
+  ALL=("${CORPUS[@]}" --data.source_weights '{"*/bandai*": 0.45, "*/h36m*": 0.25, "*/reactidle*": 0.19, "*/cmu*": 0.11}'
+    --trainer.max_time "${TRAIN_TIME:-00:00:05:00}" --trainer.max_steps 200000 --model.init_args.total_steps 200000
+    --trainer.val_check_interval "${VAL_EVERY:-2000}" "${EXTRA_ARGS[@]}")
+  $PY -m mocapfix fit --config configs/xmae_many.yaml --experiment xmae_all_cpu "${ALL[@]}" \
+    --model.init_args.preset cpu --model.init_args.lr 1e-3 --model.init_args.warmup_steps 300 > "$OUT/all_cpu_fit.txt" 2>&1 &
+  $PY -m mocapfix fit --config configs/xmae_many.yaml --experiment xmae_all "${ALL[@]}" "${FIT_ARGS[@]}" \
+    --model.init_args.compile_model "${COMPILE:-true}" > "$OUT/all_fit.txt" 2>&1 || echo "paper-sized run failed"
+  wait || true
+  for run in xmae_all xmae_all_cpu; do
+    grep -e "stopped" -e "Time limit" -e Error "$OUT/${run#xmae_}_fit.txt" | tail -n 3 || true
+    CK=$(ls checkpoints/$run/best-*.ckpt 2>/dev/null | head -1 || true)
+    [ -n "$CK" ] || CK=checkpoints/$run/last.ckpt
+    FP32=(); [ "$run" = xmae_all ] || FP32=(--fp32)  # the cpu preset ships in fp32
+    [ -f "$CK" ] && $PY scripts/shrink_checkpoint.py "${FP32[@]}" "$CK" "$OUT/$run.ckpt" && echo "$run: $CK"
+    [ -f checkpoints/$run/last.ckpt ] && $PY -c "import torch, sys; c = torch.load(sys.argv[1], map_location='cpu', \
+weights_only=True); print(sys.argv[1], 'step', c['global_step'])" checkpoints/$run/last.ckpt
+  done
+  tar czf "$OUT/all_logs.tgz" logs/xmae_all logs/xmae_all_cpu "$OUT"/all_*fit.txt 2>/dev/null || true
+  rm -f "$OUT"/all_*fit.txt  # in the tarball: $OUT brings back 8 files at most
+  $PY bench/fix_jobs.py --data .device_data/cmu_long --count "${TAKES:-200}" --jobs "${JOBS:-1,2,4,8,16}" \
+    --json-out "$OUT/fix_jobs-$(nproc)cores.json" 2>&1 | tail -n 9
+  ;;
+issue50)
+  # Issue 50 in one call (~9 min): the training and fix --jobs (corpora), then the throughput;
+  # a part that fails does not stop the next
+  bash "$0" corpora || echo "corpora failed: $?"
+  bash "$0" throughput || echo "throughput failed: $?"
+  ;;
+throughput)
+  # Issue 50: the product's training step at batch 512 (compiled, and with CUDA graphs) beside
+  # ref_xmae.py at the same batch, in one run
+  $PY bench/train_throughput.py --ref .device_data/ref_xmae.py --batch "${BATCH:-512}" \
+    --rows "${ROWS:-device+compile,device+cudagraphs}" --json-out "$OUT/train_throughput-cuda-b${BATCH:-512}.json" \
+    2>&1 | grep -v -e "^GPU available" -e "^TPU available" -e "LOCAL_RANK" -e "Tip:" | tail -n 10
+  ;;
 many-hermite)
   # Issue 31, the correction to the Hermite fill (fill_kind hermite): the cpu preset and the paper
   # sizes at once on the one GPU (eager: compiling would take a third of a short call), MAX_TIME each.
@@ -271,6 +320,6 @@ dvae|dvae-prior|dvae-denoise)
   fi
   ;;
 *)
-  echo "unknown part $PART (xmae | bench | profile | tune | gpu-tests | accuracy | dvae | dvae-prior | dvae-denoise | dvae-speed)" >&2; exit 2 ;;
+  echo "unknown part $PART (see the usage line at the top)" >&2; exit 2 ;;
 esac
 ls -la "$OUT"
