@@ -13,6 +13,7 @@ from mocapfix.fix.joints import map_joints
 from mocapfix.io.bvh import write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
 from mocapfix.io.files import atomic_write
+from mocapfix.io.keypoints import write_keypoints
 from mocapfix.io.npz import load_npz, npz_array
 from mocapfix.io.positions import write_clips, write_positions
 
@@ -27,7 +28,9 @@ def output_suffix(clips: list[Clip], path: Path, rotations: bool = False) -> str
     fmt = clips[0].meta.get("format", "")
     if fmt == "bvh" and (rotations or clips[0].has_rotations):
         return ".bvh"
-    return path.suffix.lower() if fmt in ("positions-npz", "positions-csv") else ".npz"
+    return (
+        path.suffix.lower() if fmt in ("positions-npz", "positions-csv", "keypoints-npy", "keypoints-npz") else ".npz"
+    )
 
 
 def output_path(
@@ -47,6 +50,10 @@ def output_path(
     if ext == ".bvh":
         why = "a BVH output needs a BVH input" if fmt != "bvh" else "the input has no joint rotations"
         raise MotionFileError(path, f"cannot write {target.name}: {why}; write .npz or .csv")
+    if fmt.startswith("keypoints-"):  # a keypoint array comes back as one, in its own file type
+        if ext != path.suffix.lower():
+            raise MotionFileError(path, f"cannot write {target.name}: a keypoint array is written as {path.suffix}")
+        return target
     if ext not in (".npz", ".csv") or (fmt == "h36m" and ext != ".npz"):
         raise MotionFileError(
             path, f"cannot write {target.name}: outputs are {'.npz' if fmt == 'h36m' else '.npz or .csv'}"
@@ -69,6 +76,9 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
             scale = metres_per_unit(c.meta)  # back to the file's unit
             tree.setdefault(c.meta["subject"], {})[c.meta["action"]] = (c.positions / scale).astype(np.float32)
         atomic_write(target, lambda f: np.savez_compressed(f, positions_3d=np.array(tree, dtype=object)))
+        return
+    if fmt in ("keypoints-npy", "keypoints-npz"):
+        write_keypoints(target, clips, inputs)
         return
     m = clips[0].meta
     if fmt == "positions-npz" and metres_per_unit(m) != 1.0:

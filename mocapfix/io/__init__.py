@@ -18,7 +18,7 @@ import numpy as np
 from mocapfix.core.clip import MAX_FPS, MIN_FPS, Clip, MotionFileError, check_frame_rate, shown
 
 log = logging.getLogger(__name__)
-SOURCES = ("auto", "bvh", "positions", "h36m", "amass")
+SOURCES = ("auto", "bvh", "positions", "keypoints", "h36m", "amass")
 
 
 def frame_rate(text: str) -> float:
@@ -45,20 +45,34 @@ def add_read_arguments(parser, fps: bool = True) -> None:
     if fps:
         parser.add_argument("--fps", type=frame_rate, default=None, help="frame rate for files that lack one")
     parser.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")
+    parser.add_argument(
+        "--layout",
+        default=None,
+        help="a keypoint array's joint order (io/layouts.py): h36m17, coco17, mediapipe33, smpl24, openpose25, "
+        "kinect20, kinect25, azure32; default: told from the joint count where one layout has it",
+    )
+    parser.add_argument(
+        "--min-confidence",
+        type=float,
+        default=0.0,
+        help="keypoints with a 4th column: a joint at or below this confidence in a frame is missing there",
+    )
 
 
 def read_options(args, fps: bool = True) -> dict:
     """What add_read_arguments parsed (--source aside), as read_motion's keyword arguments."""
     options = {"unit": args.unit, "up_axis": args.up_axis, "body_model_path": args.body_model}
+    options.update(layout=args.layout, min_confidence=args.min_confidence)
     return {**options, "fps": args.fps} if fps else options
 
 
 _EXTENSIONS = {
     "bvh": (".bvh",),
     "positions": (".npz", ".csv"),
+    "keypoints": (".npy", ".npz"),
     "h36m": (".npz", ".txt"),  # .txt: the exponential-map files of the motion-prediction papers
     "amass": (".npz",),
-    "auto": (".bvh", ".csv", ".npz"),
+    "auto": (".bvh", ".csv", ".npz", ".npy"),
 }
 # AMASS folders keep each subject's betas in shape.npz beside the motions: not a motion.
 _NOT_MOTION = {"shape.npz"}
@@ -73,6 +87,10 @@ def _reader(source: str):
         from mocapfix.io.positions import read_positions
 
         return read_positions
+    if source == "keypoints":
+        from mocapfix.io.keypoints import read_keypoints
+
+        return read_keypoints
     if source == "h36m":
         return _read_h36m
     from mocapfix.io.amass import read_amass
@@ -100,6 +118,8 @@ def detect_source(path) -> str:
         return "bvh"
     if suffix == ".csv":
         return "positions"
+    if suffix == ".npy":
+        return "keypoints"
     if suffix == ".txt":  # named alone: a folder's .txt files are listed only for --source h36m
         return "h36m"
     if suffix == ".npz":
@@ -111,22 +131,26 @@ def detect_source(path) -> str:
             return "h36m"
         if {"poses", "trans"} <= keys:
             return "amass"
-        if "positions" in keys:
+        if "positions" in keys and keys & {"joint_names", "parents"}:
             return "positions"
+        if keys & {"positions", "keypoints3d", "keypoints"}:  # no names, no tree: a published layout's
+            return "keypoints"
         raise MotionFileError(
             path,
-            f"npz with unknown keys ({listed_keys(list(keys))}); expected "
-            "positions (positions file), positions_3d (Human3.6M) or poses+trans (AMASS)",
+            f"npz with unknown keys ({listed_keys(list(keys))}); expected positions (positions file or "
+            "keypoints), positions_3d (Human3.6M) or poses+trans (AMASS)",
         )
-    raise MotionFileError(path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz, .txt")
+    raise MotionFileError(
+        path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz, .npy, .txt"
+    )
 
 
 def read_motion(path, source: str = "auto", **options) -> list[Clip]:
     """One motion file -> its clips (one per person, or per sequence for Human3.6M).
 
-    source: "auto" (by extension and npz keys), "bvh", "positions", "h36m" or "amass".
+    source: "auto" (by extension and npz keys), "bvh", "positions", "keypoints", "h36m" or "amass".
     options go to the reader when it takes them (unit, up_axis, fps, groups, body_model_path,
-    gender); the others are dropped, so one set of options serves a folder of mixed files."""
+    gender, layout, min_confidence); the others are dropped, so one set of options serves a folder of mixed files."""
     path = Path(path)
     if source not in SOURCES:
         raise MotionFileError(path, f"unknown source type {source!r}; known: {', '.join(SOURCES)}")

@@ -1,0 +1,165 @@
+"""Keypoint arrays: joint positions with no names or tree, as video lifters (VideoPose3D,
+MotionBERT: H36M-17), SMPL regressors (SMPL-24), MediaPipe, OpenPose and depth cameras (Kinect,
+Azure Kinect) hand them over.
+
+    .npy                     (T, J, 3) or (T, J, 4), or (P, T, J, 3|4) for P people
+    .npz                     the same under "positions", "keypoints3d" or "keypoints" (no joint
+                             names, no parents: a positions file with those is io/positions.py's),
+                             optionally "fps" and "unit"
+
+The joints are those of a published layout (io/layouts.py): --layout names it, or the joint
+count tells it where only one layout has that many. A 4th column is each joint's confidence or
+tracking state: a joint at or below min_confidence in a frame is missing there (a hole fix
+fills), and the column is written back as read. Unit: the option, the file's, else guessed from
+the body's size (Azure Kinect writes mm, the lifters m). fps: the file's or --fps; an array has
+none of its own, and jitter and holes are measured in seconds, so it is asked for, never assumed.
+
+Outputs (write_keypoints) keep the file type, key, shape, dtype, joint order, unit and axes; the
+tokens fix left alone are the file's own numbers, bit for bit.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.io.conventions import from_z_up, metres_per_unit
+from mocapfix.io.files import atomic_write
+from mocapfix.io.layouts import LAYOUTS, layout, layout_skeleton, layouts_for
+from mocapfix.io.npz import listed_keys, load_npz, npz_array, one_line
+from mocapfix.io.positions import _check_fps, _clips, _npz_scalar_str
+from mocapfix.io.untrusted import open_regular
+
+ARRAY_KEYS = ("positions", "keypoints3d", "keypoints")
+
+
+def _load(path: Path) -> tuple[np.ndarray, str | None, float | None, str | None]:
+    """-> (array, its npz key or None for .npy, the file's fps, the file's unit)."""
+    if path.suffix.lower() == ".npy":
+        with open_regular(path, "npy file") as f:
+            try:
+                return np.lib.format.read_array(f, allow_pickle=False), None, None, None
+            except ValueError as e:
+                if "allow_pickle" in str(e):
+                    raise MotionFileError(path, "holds Python objects (a pickle), not numbers") from None
+                raise MotionFileError(path, f"not a readable .npy array ({one_line(e)})") from None
+            except Exception as e:
+                raise MotionFileError(path, f"not a readable .npy array ({one_line(e)})") from None
+    with load_npz(path) as data:
+        key = next((k for k in ARRAY_KEYS if k in data.files), None)
+        if key is None:
+            raise MotionFileError(
+                path, f"no keypoint array ({' or '.join(ARRAY_KEYS)}; keys: {listed_keys(data.files)})"
+            )
+        raw = npz_array(path, data, key)
+        fps = None
+        if "fps" in data.files:
+            f = npz_array(path, data, "fps")
+            if f.size != 1 or f.dtype.kind not in "iuf":
+                raise MotionFileError(path, f"fps must be one number, got {f.dtype} of shape {f.shape}")
+            fps = f.reshape(()).item()
+        return raw, key, fps, _npz_scalar_str(path, data, "unit")
+
+
+def pick_layout(path: Path, name: str | None, num_joints: int):
+    """The layout an array of num_joints joints is in: the one named, else the only one of that
+    many joints; a one-line error naming the candidates otherwise."""
+    if name:
+        try:
+            lay = layout(name)
+        except ValueError as e:
+            raise MotionFileError(path, str(e)) from None
+        if len(lay.joint_names) != num_joints:
+            raise MotionFileError(path, f"layout {name} has {len(lay.joint_names)} joints, the file {num_joints}")
+        return lay
+    candidates = layouts_for(num_joints)
+    if len(candidates) == 1:
+        return candidates[0]
+    if candidates:
+        names = " or ".join(f"--layout {c.name}" for c in candidates)
+        raise MotionFileError(path, f"{num_joints} joints could be any of {len(candidates)} layouts: give {names}")
+    known = ", ".join(f"{n} ({len(lay.joint_names)})" for n, lay in LAYOUTS.items())
+    raise MotionFileError(
+        path, f"{num_joints} joints match no keypoint layout ({known}); save joint_names and parents with it"
+    )
+
+
+def read_keypoints(
+    path,
+    layout: str | None = None,
+    min_confidence: float = 0.0,
+    unit: str = "auto",
+    up_axis: str = "auto",
+    fps: float | None = None,
+    groups=None,
+) -> list[Clip]:
+    """A keypoint array -> one Clip per person (metres, z up), on the layout's skeleton (parents
+    before children: meta "joint_order" maps it back to the file's columns)."""
+    path = Path(path)
+    raw, key, file_fps, file_unit = _load(path)
+    if raw.dtype.kind not in "iuf":
+        raise MotionFileError(path, f"keypoints must be numbers, got dtype {raw.dtype}")
+    if raw.ndim not in (3, 4) or raw.shape[-1] not in (3, 4) or 0 in raw.shape:
+        raise MotionFileError(
+            path, f"keypoints must be (frames, joints, 3 or 4) or (people, frames, joints, 3 or 4), got {raw.shape}"
+        )
+    squeeze, dtype, columns = raw.ndim == 3, raw.dtype, raw.shape[-1]
+    raw = raw[None] if squeeze else raw
+    lay = pick_layout(path, layout, raw.shape[2])
+    skeleton, order = layout_skeleton(lay)
+    if groups:
+        try:
+            skeleton = skeleton.with_groups(groups)
+        except (KeyError, ValueError) as e:
+            raise MotionFileError(path, one_line(e)) from None
+    if fps is None:
+        if file_fps is None:
+            raise MotionFileError(path, "a keypoint array has no frame rate: give --fps")
+        fps = file_fps
+    fps = _check_fps(path, fps)
+    xyz = raw[..., :3].astype(np.float64)  # (P, T, J, 3)
+    confidence = raw[..., 3] if columns == 4 else None
+    if confidence is not None:
+        seen = confidence > min_confidence  # NaN confidence: not seen
+        if not seen.any():
+            raise MotionFileError(
+                path, f"no joint has a confidence above {min_confidence:g} in any frame: nothing was tracked"
+            )
+        xyz[~seen] = np.nan
+    meta = {"layout": lay.name, "joint_order": order, "squeeze": squeeze, "key": key, "dtype": dtype.str}
+    meta["columns"] = columns
+    people = [dict(meta, confidence=None if confidence is None else confidence[i]) for i in range(raw.shape[0])]
+    fmt = "keypoints-npy" if key is None else "keypoints-npz"
+    return _clips(path, xyz[:, :, order], fps, skeleton, unit, file_unit, up_axis, None, fmt, people)
+
+
+def write_keypoints(path, clips: list[Clip], inputs: list[Clip] | None = None) -> Path:
+    """The clips of one keypoint file back in its own form (clips[0].meta: key, shape, dtype,
+    joint order, unit, up axis), the confidence column as read. inputs: the clips as read, whose
+    file's numbers are kept where the clips still hold the read value."""
+    path = Path(path)
+    m = clips[0].meta
+    order = np.asarray(m["joint_order"])
+    pos = np.stack([c.positions.astype(np.float64) + c.origin for c in clips])  # (P, T, J, 3) metres z up
+    out = np.empty_like(pos)
+    out[:, :, order] = from_z_up(pos, m.get("up_axis", "z")) / metres_per_unit(m)  # file unit, axes, order
+    if inputs is not None:
+        raw, _, _, _ = _load(Path(inputs[0].source))
+        raw = raw[None] if m["squeeze"] else raw
+        old = np.stack([c.positions for c in inputs])
+        same = ((np.stack([c.positions for c in clips]) == old) & np.isfinite(old)).all(-1)  # (P, T, J) skeleton order
+        keep = np.empty_like(same)
+        keep[:, :, order] = same
+        out[keep] = raw[..., :3][keep]
+    if m["columns"] == 4:
+        out = np.concatenate([out, np.stack([c.meta["confidence"] for c in clips])[..., None]], axis=-1)
+    dtype = np.dtype(m["dtype"])  # integers (a camera's mm) cannot hold a fill's fractions or a hole
+    out = (out[0] if m["squeeze"] else out).astype(dtype if dtype.kind == "f" else np.float32)
+    if m["key"] is None:
+        atomic_write(path, lambda f: np.save(f, out))
+    else:
+        arrays = {m["key"]: out, "fps": np.float64(clips[0].fps), "unit": np.array(m["unit"])}
+        atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+    return path

@@ -1,0 +1,182 @@
+"""Keypoint arrays in the published layouts (io/layouts.py, io/keypoints.py): each layout reads,
+maps its joints onto the body part a person would name, and comes back through `fix` in its own
+joint order, unit, shape and file type."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from cli_utils import run_mocapfix
+
+from mocapfix.core.clip import MotionFileError
+from mocapfix.core.skeleton import preset
+from mocapfix.io import read_motion
+from mocapfix.io.conventions import from_z_up
+from mocapfix.io.keypoints import write_keypoints
+from mocapfix.io.layouts import LAYOUTS, layout_skeleton, layouts_for, parents_first
+from mocapfix.rig.mapping import match_joints, onto_skeleton
+
+BODY = preset("body21")
+
+# What a person names each body21 joint in each layout (every layout's joints that the models'
+# body has): written from the published orders, not from io/layouts.py's labels.
+NAMED = {
+    "h36m17": {"Hips": "Hip", "Spine": "Spine", "Chest": "Thorax", "Neck": "Neck/Nose", "Head": "Head",
+               "UpperArm_L": "LShoulder", "LowerArm_L": "LElbow", "Hand_L": "LWrist", "UpperArm_R": "RShoulder",
+               "LowerArm_R": "RElbow", "Hand_R": "RWrist", "UpperLeg_L": "LHip", "LowerLeg_L": "LKnee",
+               "Foot_L": "LFoot", "UpperLeg_R": "RHip", "LowerLeg_R": "RKnee", "Foot_R": "RFoot"},
+    "coco17": {"Head": "nose", "UpperArm_L": "left_shoulder", "LowerArm_L": "left_elbow", "Hand_L": "left_wrist",
+               "UpperArm_R": "right_shoulder", "LowerArm_R": "right_elbow", "Hand_R": "right_wrist",
+               "UpperLeg_L": "left_hip", "LowerLeg_L": "left_knee", "Foot_L": "left_ankle", "UpperLeg_R": "right_hip",
+               "LowerLeg_R": "right_knee", "Foot_R": "right_ankle"},
+    "mediapipe33": {"Head": "nose", "UpperArm_L": "left_shoulder", "LowerArm_L": "left_elbow",
+                    "Hand_L": "left_wrist", "UpperArm_R": "right_shoulder", "LowerArm_R": "right_elbow",
+                    "Hand_R": "right_wrist", "UpperLeg_L": "left_hip", "LowerLeg_L": "left_knee",
+                    "Foot_L": "left_ankle", "Toes_L": "left_foot_index", "UpperLeg_R": "right_hip",
+                    "LowerLeg_R": "right_knee", "Foot_R": "right_ankle", "Toes_R": "right_foot_index"},
+    "smpl24": {"Hips": "pelvis", "Spine": "spine1", "Chest": "spine3", "Neck": "neck", "Head": "head",
+               "Shoulder_L": "left_collar", "UpperArm_L": "left_shoulder", "LowerArm_L": "left_elbow",
+               "Hand_L": "left_wrist", "Shoulder_R": "right_collar", "UpperArm_R": "right_shoulder",
+               "LowerArm_R": "right_elbow", "Hand_R": "right_wrist", "UpperLeg_L": "left_hip",
+               "LowerLeg_L": "left_knee", "Foot_L": "left_ankle", "Toes_L": "left_foot", "UpperLeg_R": "right_hip",
+               "LowerLeg_R": "right_knee", "Foot_R": "right_ankle", "Toes_R": "right_foot"},
+    "openpose25": {"Hips": "MidHip", "Neck": "Neck", "Head": "Nose", "UpperArm_L": "LShoulder",
+                   "LowerArm_L": "LElbow", "Hand_L": "LWrist", "UpperArm_R": "RShoulder", "LowerArm_R": "RElbow",
+                   "Hand_R": "RWrist", "UpperLeg_L": "LHip", "LowerLeg_L": "LKnee", "Foot_L": "LAnkle",
+                   "Toes_L": "LBigToe", "UpperLeg_R": "RHip", "LowerLeg_R": "RKnee", "Foot_R": "RAnkle",
+                   "Toes_R": "RBigToe"},
+    "kinect20": {"Hips": "HipCenter", "Spine": "Spine", "Neck": "ShoulderCenter", "Head": "Head",
+                 "UpperArm_L": "ShoulderLeft", "LowerArm_L": "ElbowLeft", "Hand_L": "WristLeft",
+                 "UpperArm_R": "ShoulderRight", "LowerArm_R": "ElbowRight", "Hand_R": "WristRight",
+                 "UpperLeg_L": "HipLeft", "LowerLeg_L": "KneeLeft", "Foot_L": "AnkleLeft", "Toes_L": "FootLeft",
+                 "UpperLeg_R": "HipRight", "LowerLeg_R": "KneeRight", "Foot_R": "AnkleRight", "Toes_R": "FootRight"},
+    "kinect25": {"Hips": "SpineBase", "Spine": "SpineMid", "Chest": "SpineShoulder", "Neck": "Neck", "Head": "Head",
+                 "UpperArm_L": "ShoulderLeft", "LowerArm_L": "ElbowLeft", "Hand_L": "WristLeft",
+                 "UpperArm_R": "ShoulderRight", "LowerArm_R": "ElbowRight", "Hand_R": "WristRight",
+                 "UpperLeg_L": "HipLeft", "LowerLeg_L": "KneeLeft", "Foot_L": "AnkleLeft", "Toes_L": "FootLeft",
+                 "UpperLeg_R": "HipRight", "LowerLeg_R": "KneeRight", "Foot_R": "AnkleRight", "Toes_R": "FootRight"},
+    "azure32": {"Hips": "PELVIS", "Spine": "SPINE_NAVEL", "Chest": "SPINE_CHEST", "Neck": "NECK", "Head": "HEAD",
+                "Shoulder_L": "CLAVICLE_LEFT", "UpperArm_L": "SHOULDER_LEFT", "LowerArm_L": "ELBOW_LEFT",
+                "Hand_L": "WRIST_LEFT", "Shoulder_R": "CLAVICLE_RIGHT", "UpperArm_R": "SHOULDER_RIGHT",
+                "LowerArm_R": "ELBOW_RIGHT", "Hand_R": "WRIST_RIGHT", "UpperLeg_L": "HIP_LEFT",
+                "LowerLeg_L": "KNEE_LEFT", "Foot_L": "ANKLE_LEFT", "Toes_L": "FOOT_LEFT", "UpperLeg_R": "HIP_RIGHT",
+                "LowerLeg_R": "KNEE_RIGHT", "Foot_R": "ANKLE_RIGHT", "Toes_R": "FOOT_RIGHT"},
+}  # fmt: skip
+
+
+def test_every_layout_is_named_here():
+    assert set(NAMED) == set(LAYOUTS)
+
+
+@pytest.fixture(scope="module")
+def body_take(bandai_files):
+    """A 15-s Bandai take on body21: (T, 21, 3) metres, z up, 30 fps."""
+    path = next(f for f in bandai_files if f.name == "dataset-2_walk_elderly_002.bvh")
+    clip = onto_skeleton(read_motion(path)[0], BODY)
+    return clip.positions.astype(np.float64) + clip.origin
+
+
+def in_layout(name: str, body: np.ndarray) -> np.ndarray:
+    """body (T, 21, 3) -> (T, J, 3) in the layout's published order, from NAMED; the joints the
+    body lacks (eyes, finger tips, heels) 5 cm from their parent."""
+    lay = LAYOUTS[name]
+    out = np.full((len(body), len(lay.joint_names), 3), np.nan)
+    for body_name, joint in NAMED[name].items():
+        out[:, lay.joint_names.index(joint)] = body[:, BODY.index(body_name)]
+    for j in parents_first(lay.parents):
+        if np.isnan(out[:, j]).all():
+            out[:, j] = out[:, lay.parents[j]] + np.array([0.05, 0.0, 0.02])
+    return out
+
+
+@pytest.mark.parametrize("name", list(LAYOUTS))
+def test_each_layout_reads_maps_and_writes_back(tmp_path, body_take, name):
+    file = from_z_up(in_layout(name, body_take), "y").astype(np.float32)  # (T, J, 3) m, y up: a lifter's
+    path = tmp_path / f"{name}.npy"
+    np.save(path, file)
+    (clip,) = read_motion(path, fps=30, layout=name)
+    assert clip.meta["format"] == "keypoints-npy" and clip.meta["up_axis"] == "y" and clip.meta["unit"] == "m"
+    found = match_joints(clip.skeleton, BODY)
+    assert {b: clip.skeleton.joint_names[j] for b, j in found.items()} == NAMED[name]
+    for body_name, joint in NAMED[name].items():  # every mapped joint where the file has it
+        np.testing.assert_allclose(
+            clip.positions[:, clip.skeleton.index(joint)] + clip.origin,
+            body_take[:, BODY.index(body_name)],
+            atol=1e-5,
+        )
+    write_keypoints(tmp_path / "back.npy", [clip], [clip])
+    back = np.load(tmp_path / "back.npy")
+    assert back.dtype == file.dtype and back.shape == file.shape
+    assert np.array_equal(back, file)
+
+
+@pytest.mark.parametrize("joints", sorted({len(lay.joint_names) for lay in LAYOUTS.values()}))
+def test_a_layout_is_told_from_the_shape_only_where_one_has_that_many_joints(tmp_path, joints):
+    path = tmp_path / "k.npy"
+    np.save(path, np.random.default_rng(0).normal(size=(40, joints, 3)))
+    candidates = layouts_for(joints)
+    if len(candidates) == 1:
+        (clip,) = read_motion(path, fps=30)
+        assert clip.meta["layout"] == candidates[0].name
+    else:
+        with pytest.raises(MotionFileError, match="give " + " or ".join(f"--layout {c.name}" for c in candidates)):
+            read_motion(path, fps=30)
+
+
+def test_a_shape_no_layout_has_and_a_wrong_layout_are_one_line_errors(tmp_path):
+    path = tmp_path / "k.npy"
+    np.save(path, np.zeros((40, 19, 3)))
+    with pytest.raises(MotionFileError, match="19 joints match no keypoint layout"):
+        read_motion(path, fps=30)
+    with pytest.raises(MotionFileError, match="layout coco17 has 17 joints, the file 19"):
+        read_motion(path, fps=30, layout="coco17")
+    with pytest.raises(MotionFileError, match="unknown keypoint layout 'coco'"):
+        read_motion(path, fps=30, layout="coco")
+    np.save(path, np.zeros((40, 17, 3)))
+    with pytest.raises(MotionFileError, match="no frame rate: give --fps"):
+        read_motion(path, layout="coco17")
+
+
+def test_kinect_v2_whose_tree_is_not_in_file_order_reads_in_a_parents_first_order():
+    skeleton, order = layout_skeleton(LAYOUTS["kinect25"])
+    assert order != list(range(25)) and sorted(order) == list(range(25))
+    assert skeleton.joint_names[skeleton.parents[skeleton.index("Neck")]] == "SpineShoulder"
+    assert skeleton.joint_names[skeleton.parents[skeleton.index("ShoulderLeft")]] == "SpineShoulder"
+
+
+def test_a_depth_camera_take_with_confidence_comes_back_through_fix(tmp_path, body_take, capsys):
+    """Azure Kinect: mm, y up, (T, 32, 4) with its confidence level; NONE (0) is a hole fix
+    fills, LOW (1) stays observed; the column, the observed tokens and the shape come back as read."""
+    truth = from_z_up(in_layout("azure32", body_take), "y") * 1000.0
+    confidence = np.full(truth.shape[:2], 3.0)
+    confidence[40:55, 5:9] = 0  # the left arm out of view for half a second
+    confidence[80:84, 18:22] = 1  # the left leg predicted
+    file = np.concatenate([truth, confidence[..., None]], axis=-1).astype(np.float32)
+    file[confidence == 0, :3] = 0.0  # the tracker's numbers where it saw nothing
+    np.save(tmp_path / "azure.npy", file)
+    rc, out, err = run_mocapfix(["fix", tmp_path / "azure.npy", "--fps", "30", "--model", "xmae-cpu-bandai"], capsys)
+    assert rc == 0, err
+    assert "60 tokens filled" in out
+    back = np.load(tmp_path / "azure.fixed.npy")
+    assert back.shape == file.shape and back.dtype == file.dtype
+    assert np.array_equal(back[..., 3], file[..., 3])
+    seen = confidence > 0
+    assert np.array_equal(back[seen], file[seen])  # observed tokens bit for bit
+    error_mm = np.linalg.norm(back[~seen][:, :3] - truth[~seen], axis=-1)
+    assert error_mm.mean() < 20.0  # filled near where the arm was, not left at the tracker's 0
+
+
+def test_a_take_with_no_confident_joint_is_refused(tmp_path):
+    np.save(tmp_path / "k.npy", np.zeros((40, 32, 4)))
+    with pytest.raises(MotionFileError, match="nothing was tracked"):
+        read_motion(tmp_path / "k.npy", fps=30)
+
+
+def test_an_npz_without_names_is_a_keypoint_array_with_its_key_fps_and_unit_kept(tmp_path, body_take):
+    file = (from_z_up(in_layout("smpl24", body_take), "y") * 100.0).astype(np.float64)  # cm
+    np.savez(tmp_path / "smpl.npz", keypoints3d=file, fps=np.float64(30.0))
+    (clip,) = read_motion(tmp_path / "smpl.npz")
+    assert clip.meta["format"] == "keypoints-npz" and clip.meta["unit"] == "cm" and clip.fps == 30.0
+    write_keypoints(tmp_path / "back.npz", [clip], [clip])
+    with np.load(tmp_path / "back.npz") as back:
+        assert np.array_equal(back["keypoints3d"], file) and back["fps"] == 30.0 and str(back["unit"]) == "cm"
