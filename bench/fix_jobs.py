@@ -5,14 +5,15 @@ process and its workers, user + system) per file, and whether every output is by
 to --jobs 1's. The fill policy is measured over the folder's files on every run (fix FOLDER
 does), in the workers when there are some.
 
-The takes: CMU sample takes of 8 s or more (performers the shipped model never saw) mapped onto
-its 21 joints, taken in turn to make --count files, each with 16 holes of the full body, an arm
-or a leg of 0.3-0.9 s (bench/fix_scaling.py). --takes reads a folder made before instead (how
-they travel to a machine without ../shared: `--make-only`).
+The takes: those of --data (BVH or positions files) of --min-seconds or more, taken in turn to
+make --count files, each with 16 holes of the full body, an arm or a leg of 0.3-0.9 s
+(bench/fix_scaling.py). By default the CMU sample's takes of 8 s or more (120 fps, ~13 s each:
+~4.5 CPU-s a file here); on a machine without ../shared, Bandai takes written by
+`scripts/gpu_session.sh prepare` (30 fps, ~5 s each). --takes reads a folder of holed takes made
+before (`--make-only`).
 
-    python bench/fix_jobs.py                                  # 200 takes, --jobs 1,2 here
-    python bench/fix_jobs.py --make-only .device_data/takes200
-    python bench/fix_jobs.py --takes .device_data/takes200 --jobs 1,2,4,8,16
+    python bench/fix_jobs.py                                  # 200 CMU takes, --jobs 1,2 here (~25 min)
+    python bench/fix_jobs.py --data .device_data/bandai_takes --min-seconds 0 --jobs 1,16,8,4,2
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ def identical(a: Path, b: Path) -> bool:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", default=str(DEFAULT_CMU), help="BVH takes to cut holes into")
+    ap.add_argument("--min-seconds", type=float, default=8.0, help="the takes of --data used: this long or more")
     ap.add_argument("--count", type=int, default=200, help="files made from --data")
     ap.add_argument("--takes", default=None, help="a folder of holed takes made before (--make-only)")
     ap.add_argument("--make-only", default=None, metavar="FOLDER", help="write the holed takes there and stop")
@@ -48,7 +50,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.make_only:
         Path(args.make_only).mkdir(parents=True, exist_ok=True)
-        minutes = holed_takes(args.data, 8.0, Path(args.make_only), args.count)
+        minutes = holed_takes(args.data, args.min_seconds, Path(args.make_only), args.count)
         print(f"{args.count} takes, {minutes:.1f} min of motion -> {args.make_only}")
         return 0
     jobs = [int(n) for n in args.jobs.split(",")]
@@ -59,7 +61,7 @@ def main(argv=None) -> int:
         takes = Path(args.takes) if args.takes else work / "takes"
         if not args.takes:
             takes.mkdir()
-            holed_takes(args.data, 8.0, takes, args.count)
+            holed_takes(args.data, args.min_seconds, takes, args.count)
         files = len(list(takes.iterdir()))
         result.update(files=files, takes=str(args.takes or f"{args.count} from {args.data}"))
         print(f"{files} takes; --jobs {args.jobs} on {result['cores']} cores", flush=True)

@@ -16,12 +16,12 @@
 #   bash scripts/gpu_session.sh many-holes     # issue 31: Hermite-correcting XMAEs trained on the fix case's holes
 #   bash scripts/gpu_session.sh many           # issue 31: XMAE across studios (configs/xmae_many.yaml), paper
 #                                            # sizes on the GPU and the cpu preset on 8 of its CPU cores at once
-#   bash scripts/gpu_session.sh corpora        # issue 50 (~8 min): the paper sizes and the cpu preset on every
-#                                            # corpus read (Human3.6M's training subjects too), both on the GPU;
-#                                            # then fix FOLDER --jobs 1..16 on the machine's cores
+#   bash scripts/gpu_session.sh corpora        # issue 50 (TRAIN_TIME + ~1 min): the paper sizes and the cpu preset on
+#                                            # every corpus read (Human3.6M's training subjects too), both on the GPU
+#   bash scripts/gpu_session.sh jobs           # issue 50 (~2 min): fix FOLDER --jobs 1..16 on the machine's cores
 #   bash scripts/gpu_session.sh throughput     # issue 50 (~2 min): training throughput at batch 512 beside ref_xmae.py
-#   bash scripts/gpu_session.sh issue50        # both, one after the other (TRAIN_TIME=00:00:04:15 ROWS=device+cudagraphs
-#                                            # fit one 10-minute call)
+#   bash scripts/gpu_session.sh issue50        # the three: jobs, throughput, then corpora (ROWS=device+cudagraphs
+#                                            # TRAIN_TIME=00:00:04:00 fit one 10-minute call)
 #
 # A run longer than one call: the machine keeps checkpoints/ while it stays warm (~30 s between
 # calls), so back-to-back calls with RESUME=1 continue last.ckpt. MAX_TIME / PRIOR_TIME count the
@@ -35,9 +35,11 @@
 #                  pytest pluggy iniconfig pygments (for gpu-tests)
 #   .device_data/  bandai_pos30.npz and bandai_rot30.npz (parsed Bandai), ref_xmae.py (../shared does not travel);
 #                  corpus_body21.npz for `many` and `corpora`: scripts/build_corpus.py (docs/data.md), a
-#                  compact archive (with --h36m for `corpora`); cmu_long/ for `corpora`: the CMU sample's
-#                  long takes as positions .npz (prepare writes it), which bench/fix_jobs.py cuts holes into
+#                  compact archive (with --h36m for `corpora`); bandai_takes/ for `jobs`: 200 Bandai takes
+#                  as positions .npz (prepare writes it, ~8 MB), which bench/fix_jobs.py cuts holes into
 # Make both here first: `PYTHON=.venv/bin/python bash scripts/gpu_session.sh prepare` (then carry [".whl", ".device_data"]).
+# .device_data with every part's files is over a call's 64 MiB: carry the files a part reads, e.g. for
+# issue50: [".whl", ".device_data/corpus_body21.npz", ".device_data/bandai_takes", ".device_data/ref_xmae.py"]
 # STEPS / MAX_TIME (xmae), PRIOR_TIME / DENOISE_TIME (dvae) trim the runs to the call's 10 minutes.
 # Results land in $OUT (the device tool brings them back): eval tables, bench JSON, a small checkpoint.
 set -euo pipefail
@@ -57,6 +59,11 @@ clips = MotionDataModule(source="bvh", path="../shared/data/bandai-namco", drop_
 save_clips(Path(".device_data/bandai_rot30.npz"), clips)
 save_clips(Path(".device_data/bandai_pos30.npz"),
            [c.replace(rotations=None, root_translation=None, offsets=None) for c in clips])
+from mocapfix.io.positions import write_positions
+Path(".device_data/bandai_takes").mkdir(exist_ok=True)
+for clip in clips[:200]:  # bench/fix_jobs.py's takes (gpu_session.sh jobs)
+    name = Path(clip.source).stem + ".npz"
+    write_positions(Path(".device_data/bandai_takes", name), clip.positions.astype("float32"), clip.fps, clip.skeleton)
 PY
   ls -la .device_data .whl
   exit 0
@@ -189,8 +196,7 @@ corpora)
   # Issue 50: XMAE on every corpus the project reads (scripts/build_corpus.py --h36m: three studios
   # and Human3.6M's training subjects), validated on performers held out (CMU 39, ReActIdle 014
   # and 015); the paper sizes (compiled) and the cpu preset (eager) at once on the one GPU, both
-  # for TRAIN_TIME (their cosines end with it). Then fix FOLDER --jobs N on the machine's cores
-  # (nothing else running).
+  # for TRAIN_TIME (their cosines end with it). Session 26 (H100, 4:15): 4,581 and 9,073 steps.
   ALL=("${CORPUS[@]}" --data.source_weights '{"*/bandai*": 0.45, "*/h36m*": 0.25, "*/reactidle*": 0.19, "*/cmu*": 0.11}'
     --trainer.max_time "${TRAIN_TIME:-00:00:05:00}" --trainer.max_steps 200000 --model.init_args.total_steps 200000
     --trainer.val_check_interval "${VAL_EVERY:-2000}" "${EXTRA_ARGS[@]}")
@@ -201,7 +207,7 @@ corpora)
   wait || true
   for run in xmae_all xmae_all_cpu; do
     grep -e "stopped" -e "Time limit" -e Error "$OUT/${run#xmae_}_fit.txt" | tail -n 3 || true
-    CK=$(ls checkpoints/$run/best-*.ckpt 2>/dev/null | head -1 || true)
+    CK=$(ls checkpoints/$run/version_*/best-*.ckpt 2>/dev/null | tail -n 1 || true)
     [ -n "$CK" ] || CK=checkpoints/$run/last.ckpt
     FP32=(); [ "$run" = xmae_all ] || FP32=(--fp32)  # the cpu preset ships in fp32
     [ -f "$CK" ] && $PY scripts/shrink_checkpoint.py "${FP32[@]}" "$CK" "$OUT/$run.ckpt" && echo "$run: $CK"
@@ -210,14 +216,22 @@ weights_only=True); print(sys.argv[1], 'step', c['global_step'])" checkpoints/$r
   done
   tar czf "$OUT/all_logs.tgz" logs/xmae_all logs/xmae_all_cpu "$OUT"/all_*fit.txt 2>/dev/null || true
   rm -f "$OUT"/all_*fit.txt  # in the tarball: $OUT brings back 8 files at most
-  $PY bench/fix_jobs.py --data .device_data/cmu_long --count "${TAKES:-200}" --jobs "${JOBS:-1,2,4,8,16}" \
-    --json-out "$OUT/fix_jobs-$(nproc)cores.json" 2>&1 | tail -n 9
+  ;;
+jobs)
+  # Issue 50: fix FOLDER --jobs N on the machine's cores, nothing else running: 200 Bandai takes
+  # (30 fps, ~5 s each: ~38 CPU-s for --jobs 1 on the 2-core CPU). Not the CMU sample's long
+  # takes: at 120 fps and ~13 s each, 200 of them took over 200 s for --jobs 1 on the H100
+  # machine's cores (session 26: the call was cut before --jobs 2).
+  $PY bench/fix_jobs.py --data .device_data/bandai_takes --min-seconds 0 --count "${TAKES:-200}" \
+    --jobs "${JOBS:-1,16,8,4,2}" --json-out "$OUT/fix_jobs-$(nproc)cores.json" 2>&1 | tail -n 9
   ;;
 issue50)
-  # Issue 50 in one call (~9 min): the training and fix --jobs (corpora), then the throughput;
-  # a part that fails does not stop the next
-  bash "$0" corpora || echo "corpora failed: $?"
+  # Issue 50 in one call: fix --jobs (~2 min), the throughput (~2 min), then the training for
+  # TRAIN_TIME, so a call cut at its limit loses training time, not a benchmark; a part that fails
+  # does not stop the next. TRAIN_TIME=00:00:04:00 fits a 10-minute call.
+  bash "$0" jobs || echo "jobs failed: $?"
   bash "$0" throughput || echo "throughput failed: $?"
+  bash "$0" corpora || echo "corpora failed: $?"
   ;;
 throughput)
   # Issue 50: the product's training step at batch 512 (compiled, and with CUDA graphs) beside

@@ -337,14 +337,16 @@ def test_nothing_observed_in_a_window_falls_back_to_lerp_and_says_so(ckpt, motio
     clip = Clip(pos, 30.0, SMPL, name="h", source="h")
     out, report = fix_clips([clip], load_fixer(ckpt), "both")
     y = out[0].positions
-    assert np.isfinite(y).all()
+    # the joint never seen is left missing, not a body's guess written as data; the rest is filled
+    assert np.isnan(y[:, 20]).all() and np.isfinite(np.delete(y, 20, axis=1)).all()
     lerp = lerp_infill(torch.from_numpy(pos)[None], torch.from_numpy(~np.isnan(pos).any(-1))[None])[0].numpy()
     np.testing.assert_allclose(y[100:140, :20], lerp[100:140, :20], atol=1e-5)  # deep inside the hole
-    infill = fix_clips([clip], load_fixer(ckpt), "infill")[0][0].positions
-    assert np.isfinite(infill).all()
+    infill, infill_report = fix_clips([clip], load_fixer(ckpt), "infill")
+    assert np.isnan(infill[0].positions[:, 20]).all() and np.isfinite(np.delete(infill[0].positions, 20, axis=1)).all()
+    assert infill_report.filled == int(np.isnan(np.delete(pos, 20, axis=1)).any(-1).sum())  # not the lost joint's
     text = " ".join(report.notes)
     assert "no data within a window: linear interpolation" in text
-    assert "never observed: left_wrist" in text
+    assert "never observed: left_wrist (left missing" in text
 
 
 def test_bvh_input_writes_a_bvh_or_positions_npz(tmp_path, ckpt, capsys):

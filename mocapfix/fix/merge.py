@@ -48,8 +48,10 @@ def merge(
         absent = index < 0
         model_fill = new[:, absent]
         fills = [Made("xmae", torch.from_numpy(new)[None]), *classical_fills(), match]
-        # counted: the joints the recording has (the fill of one it lacks is not written)
-        xt, ot, counted = torch.from_numpy(x)[None], torch.from_numpy(obs)[None], torch.from_numpy(~absent)
+        # counted: the joints the recording has and shows (the fill of one it lacks, or never
+        # shows, is not written: write_back.py)
+        xt, ot = torch.from_numpy(x)[None], torch.from_numpy(obs)[None]
+        counted = torch.from_numpy(~absent & obs.any(0))
         out, counts = policy.transform(xt, ot, fps, model, fills, counted)
         for method, n in counts.items():
             filled_by[method] = filled_by.get(method, 0) + n

@@ -116,12 +116,12 @@ class PassTally:
             notes.append(f"{self.lerped} frames at {fps_m:g} fps had no data within a window: linear interpolation")
         if failed:
             notes.append(f"{failed} windows gave non-finite estimates: linear interpolation there")
-        fate = "left missing" if mode == "denoise" else "estimated from the rest of the body"
         for person, joints in self.never.items():
-            notes.append(f"{person}joints never observed: {', '.join(joints)} ({fate})")
+            notes.append(f"{person}joints never observed: {', '.join(joints)} (left missing: never shown)")
         for person, joints in self.absent.items():
             notes.append(f"{person}model joints not in the recording: {', '.join(joints)} (estimated, not written)")
         if whole:
+            fate = "left missing" if mode == "denoise" else "estimated from the rest of the body"
             notes.append(f"{whole} windows had a joint missing throughout ({fate})")
         frames, people = frames_and_people(clips)
         before, after = self.limbs.values()

@@ -52,15 +52,19 @@ def clip_fixed(
     tally.replaced += int(obs.sum()) if not keep else 0
     present = index >= 0
     observed = obs if seen is None else seen[k]
-    lost = [model.joint_names[j] for j in np.nonzero(~observed.any(0) & present)[0]]
-    if lost:
-        tally.never[name(k) or ""] = lost
+    never = ~observed.any(0) & present  # (Jm,) joints the take has and never shows
+    if never.any():
+        tally.never[name(k) or ""] = [model.joint_names[j] for j in np.nonzero(never)[0]]
     if not present.all():
         tally.absent[name(k) or ""] = [model.joint_names[j] for j in np.nonzero(~present)[0]]
-        tally.filled -= int((~obs[:, ~present]).sum()) if mode != "denoise" else 0  # estimated, not written
+    # Estimated to fix the rest, not written: a joint the take lacks, or one it never shows (a
+    # limb out of a camera's view all take long): nothing in the take says where it was, and a
+    # body's guess written as data would be silently wrong.
+    written = present & ~never
+    tally.filled -= int((~obs[:, ~written]).sum()) if mode != "denoise" else 0
 
     positions = c.positions.copy()
-    positions[:, index[present]] = new[:, present]
+    positions[:, index[written]] = new[:, written]
     if fill_other_joints and mode != "denoise":
         positions, n = fill_other_joints_of(positions, index, c.skeleton)
         tally.other_filled += n
@@ -79,6 +83,7 @@ def fill_other_joints_of(positions: np.ndarray, model_joints: np.ndarray, skelet
         return positions, 0
     x = torch.from_numpy(positions.astype(np.float64))[None]
     filled = limb_infill(x, ~torch.isnan(x).any(-1), skeleton.parents)[0].numpy()  # (T, J, 3)
+    holes &= (~holes).any(0)  # the limb fill gives a joint never seen the body's mean: not written
     out = positions.copy()
     out[:, other] = np.where(holes[..., None], filled[:, other], positions[:, other])
     return out, int(np.isfinite(out[:, other]).all(-1)[holes].sum())
