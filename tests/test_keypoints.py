@@ -180,3 +180,21 @@ def test_an_npz_without_names_is_a_keypoint_array_with_its_key_fps_and_unit_kept
     write_keypoints(tmp_path / "back.npz", [clip], [clip])
     with np.load(tmp_path / "back.npz") as back:
         assert np.array_equal(back["keypoints3d"], file) and back["fps"] == 30.0 and str(back["unit"]) == "cm"
+
+
+def test_a_limb_never_seen_is_left_missing_and_said_so(tmp_path, body_take, capsys):
+    """An arm out of the camera's view all take long: nothing says where it was, so it is not
+    filled with a body's guess (the rest of the take is fixed as usual)."""
+    truth = from_z_up(in_layout("azure32", body_take), "y") * 1000.0
+    confidence = np.full(truth.shape[:2], 3.0)
+    arm = [LAYOUTS["azure32"].joint_names.index(n) for n in ("SHOULDER_LEFT", "ELBOW_LEFT", "WRIST_LEFT", "HAND_LEFT")]
+    confidence[:, arm] = 0
+    confidence[100:110, 19] = 0  # and a short hole in the left knee
+    np.save(tmp_path / "azure.npy", np.concatenate([truth, confidence[..., None]], axis=-1).astype(np.float32))
+    rc, out, err = run_mocapfix(["fix", tmp_path / "azure.npy", "--fps", "30", "--model", "xmae-cpu-bandai"], capsys)
+    assert rc == 0, err
+    assert "10 tokens filled" in out
+    assert "joints never observed: UpperArm_L, LowerArm_L, Hand_L (left missing" in out
+    back = np.load(tmp_path / "azure.fixed.npy")
+    assert np.isnan(back[:, arm, :3]).all()
+    assert np.isfinite(back[100:110, 19, :3]).all()
