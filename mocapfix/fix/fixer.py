@@ -78,11 +78,14 @@ class Fixer:
         and only fill its holes. (A 1-frame take once had its feet moved 0.8 m.)"""
         return model_frames(clip.num_frames, clip.fps, self.fps) < self.window
 
-    def model_joints(self, clip: Clip, source, joint_map: dict[str, str] | None = None) -> np.ndarray:
+    def model_joints(
+        self, clip: Clip, source, joint_map: dict[str, str] | None = None, allow_missing: bool = False
+    ) -> np.ndarray:
         """(Jm,) the clip's joint that plays each model joint, for a model that needs every one of
-        them; a MotionFileError naming those the clip lacks and the shipped model that takes it."""
+        them (allow_missing: -1 for those the clip lacks, as long as it has half of them); a
+        MotionFileError naming those the clip lacks and the shipped model that takes it."""
         try:
-            return map_joints(clip.skeleton, self.skeleton, source, joint_map)
+            return map_joints(clip.skeleton, self.skeleton, source, joint_map, allow_missing)
         except MotionFileError as e:
             raise MotionFileError(e.path, f"{e.problem}; {FOR_A_RIG_LACKING_JOINTS}") from None
 

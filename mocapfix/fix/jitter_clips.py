@@ -1,7 +1,9 @@
 """`fix --mode denoise` with the jitter remover (models/jitter.py): whole takes of any rig that maps.
 
 Each take at the model's joints (found by structure and names, as for every model) is low-passed
-and corrected at its own frame rate (fixers.JitterFixer.denoise). The rig's other joints (fingers,
+and corrected at its own frame rate (fixers.JitterFixer.denoise). The model's joints a rig lacks
+(a keypoint layout's: COCO has no spine, Human3.6M no clavicles) are placed from the rest for the
+network (rig/stand_ins.py) and not written. The rig's other joints (fingers,
 toes, extra spine and twist joints) get the same low-pass and move with the nearest model joint
 above them by its correction, so a hand brings its fingers along. Holes stay holes: jitter is
 taken out of what was recorded and nothing is invented (an XMAE fills holes). A take shorter
@@ -19,6 +21,7 @@ from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.fills.classical import lerp_infill
 from mocapfix.fix.report import NOT_JUDGED, FixReport, LimbSpread, frames_and_people, who
 from mocapfix.models.jitter import lowpass
+from mocapfix.rig.stand_ins import with_stand_ins
 
 MIN_TAKE_S = 1.0  # shorter takes are kept as recorded
 
@@ -41,11 +44,18 @@ def denoise_clips(
     name = who(clips)
     out, replaced, passengers, notes = [], 0, 0, []
     spread = LimbSpread(model)
+    absent_notes: list[str] = []
     for k, c in enumerate(clips):
-        index = fixer.model_joints(c, source, joint_map)  # (Jm,) every model joint, or a MotionFileError
+        index = fixer.model_joints(c, source, joint_map, allow_missing=True)  # (Jm,) -1: the rig lacks it
+        present = index >= 0
+        if not present.all():
+            absent = ", ".join(model.joint_names[m] for m in np.nonzero(~present)[0])
+            absent_notes.append(
+                f"{name(k)}model joints not in the recording: {absent} (placed from the rest, not written)"
+            )
         x = torch.from_numpy(c.positions.astype(np.float64))[None]  # (1, T, J, 3)
         observed = ~torch.isnan(x).any(-1)  # (1, T, J)
-        never = [model.joint_names[m] for m, j in enumerate(index) if not observed[0, :, j].any()]
+        never = [model.joint_names[m] for m, j in enumerate(index) if j >= 0 and not observed[0, :, j].any()]
         if never:
             raise MotionFileError(
                 source, f"{name(k)}joints never observed: {', '.join(never)}; nothing to denoise them from"
@@ -58,9 +68,14 @@ def denoise_clips(
         filled = lerp_infill(x, observed)
         try:
             positions = lowpass(filled, c.fps, fixer.net.cutoff_hz)[0].numpy()  # (T, J, 3) every joint
-            denoised = fixer.denoise(filled[0, :, index].numpy(), c.fps, positions[:, index])  # (T, Jm, 3)
-        except ValueError as e:  # a frame rate too low for the model's cutoff
+            at_model = np.zeros((c.num_frames, len(index), 3))  # (T, Jm, 3), absent joints placed from the rest
+            at_model[:, present] = filled[0][:, index[present]].numpy()
+            at_model = with_stand_ins(at_model, present, model)
+            base = with_stand_ins(np.where(present[:, None], positions[:, np.maximum(index, 0)], 0.0), present, model)
+            denoised = fixer.denoise(at_model, c.fps, base)[:, present]  # (T, Jp, 3)
+        except ValueError as e:  # a frame rate too low for the model's cutoff, a rig too sparse to stand in for
             raise MotionFileError(source, f"{name(k)}{e}") from None
+        model_index, index = index, index[present]
         correction = denoised - positions[:, index]
         positions[:, index] = denoised
         column = {int(j): m for m, j in enumerate(index)}
@@ -74,12 +89,14 @@ def denoise_clips(
                 passengers += 1
         positions = np.where(observed[0, ..., None].numpy(), positions, np.nan).astype(np.float32)
         replaced += int(observed[0][:, index].sum())
-        spread.add(c.positions[:, index], positions[:, index])
+        at = np.maximum(model_index, 0)
+        spread.add(c.positions[:, at], positions[:, at], model_index)
         out.append(c.replace(positions=positions, rotations=None, root_translation=None, offsets=None))
         if progress is not None:
             progress(k + 1, len(clips))
 
     notes[:0] = [f"jitter taken out: a {fixer.net.cutoff_hz:g}-Hz zero-phase low-pass and the model's correction to it"]
+    notes += absent_notes
     if passengers:
         notes.insert(
             1, f"{passengers} joints the model does not use low-passed and moved with the model joint above them"
