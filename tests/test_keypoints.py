@@ -198,3 +198,30 @@ def test_a_limb_never_seen_is_left_missing_and_said_so(tmp_path, body_take, caps
     back = np.load(tmp_path / "azure.fixed.npy")
     assert np.isnan(back[:, arm, :3]).all()
     assert np.isfinite(back[100:110, 19, :3]).all()
+
+
+def test_the_jitter_remover_serves_a_layout_without_pelvis_or_spine(tmp_path, body_take, capsys):
+    """COCO lacks the body's pelvis, spine, neck and clavicles: the jitter remover places them from
+    the rest for its network, writes none of them, and takes most of the jitter out."""
+    clean = in_layout("coco17", body_take)  # metres, z up
+    noisy = clean + np.random.default_rng(0).normal(scale=0.01, size=clean.shape)
+    np.save(tmp_path / "coco.npy", noisy.astype(np.float32))
+    args = [
+        "fix",
+        tmp_path / "coco.npy",
+        "--layout",
+        "coco17",
+        "--fps",
+        "30",
+        "--model",
+        "jitter-many",
+        "--mode",
+        "denoise",
+    ]
+    rc, out, err = run_mocapfix(args, capsys)
+    assert rc == 0, err
+    assert "model joints not in the recording: Hips, Spine, Chest, Neck, Shoulder_L, Shoulder_R" in out
+    back = np.load(tmp_path / "coco.fixed.npy")
+    assert back.shape == noisy.shape
+    error = lambda x: np.linalg.norm(x - clean, axis=-1).mean()  # noqa: E731
+    assert error(back) < 0.7 * error(noisy)
