@@ -4,7 +4,8 @@
     denoise  observed tokens get the estimate; missing tokens stay missing.
     both     every token gets the estimate (denoised and filled).
 
-How a model fixes clips is its Fixer's own (fixers.py): a positions model through windows of
+In denoise and both, left and right limbs exchanged for a few frames (a tracker's slip) are put
+back first (exchanges.py). How a model fixes clips is its Fixer's own (fixers.py): a positions model through windows of
 joint positions (position_fixer.py), a rotations model through windows of joint rotations
 (rotations.py), the jitter remover on whole takes (jitter_clips.py).
 """
@@ -16,6 +17,7 @@ from collections.abc import Callable
 from mocapfix.core.clip import Clip, check_human_scale
 from mocapfix.fills.motion_matching import MotionLibrary
 from mocapfix.fills.policy import FillPolicy
+from mocapfix.fix.exchanges import put_back_exchanges
 from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.report import FixReport
 
@@ -40,4 +42,24 @@ def fix_clips(
     if not clips:
         raise ValueError("fix_clips needs at least one clip")
     check_human_scale(clips, clips[0].source or clips[0].name)
-    return fixer.fix_clips(clips, options)
+    runs = frames = 0
+    if options.mode != "infill":  # infill leaves observed tokens as they are, labels too
+        clips, runs, frames = _exchanges_put_back(clips)
+    fixed, report = fixer.fix_clips(clips, options)
+    if runs:
+        report.notes.insert(0, f"left and right limbs exchanged in {frames} frames ({runs} runs): put back")
+    return fixed, report
+
+
+def _exchanges_put_back(clips: list[Clip]) -> tuple[list[Clip], int, int]:
+    """Positions clips with their short left/right limb exchanges put back (exchanges.py); a
+    clip with rotations keeps its own (its hierarchy says which side is which)."""
+    out, runs, frames = [], 0, 0
+    for c in clips:
+        if c.has_rotations:
+            out.append(c)
+            continue
+        x, r, f = put_back_exchanges(c.positions, c.skeleton, c.fps)
+        out.append(c.replace(positions=x.astype(c.positions.dtype)) if r else c)
+        runs, frames = runs + r, frames + f
+    return out, runs, frames
