@@ -64,12 +64,12 @@ def in_layout(name: str, body: np.ndarray) -> tuple[np.ndarray, list[int]]:
     lay = LAYOUTS[name]
     skeleton, order = layout_skeleton(lay)
     found = match_joints(skeleton, BODY)  # body joint -> layout skeleton index
-    out = np.full((len(body), len(lay.joint_names), 3), np.nan)
+    out, placed = np.zeros((len(body), len(lay.joint_names), 3)), np.zeros(len(lay.joint_names), dtype=bool)
     for body_name, k in found.items():
-        out[:, order[k]] = body[:, BODY.index(body_name)]
+        out[:, order[k]], placed[order[k]] = body[:, BODY.index(body_name)], True
     for j in parents_first(lay.parents):  # joints the body lacks: 5 cm from their parent
-        if np.isnan(out[:, j]).all():
-            out[:, j] = out[:, lay.parents[j]] + np.array([0.05, 0.0, 0.02])
+        if not placed[j]:
+            out[:, j], placed[j] = out[:, lay.parents[j]] + np.array([0.05, 0.0, 0.02]), True
     return out, sorted(order[k] for k in found.values())
 
 
