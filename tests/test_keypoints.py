@@ -133,7 +133,7 @@ def test_a_shape_no_layout_has_and_a_wrong_layout_are_one_line_errors(tmp_path):
     with pytest.raises(MotionFileError, match="unknown keypoint layout 'coco'"):
         read_motion(path, fps=30, layout="coco")
     np.save(path, np.zeros((40, 17, 3)))
-    with pytest.raises(MotionFileError, match="no frame rate: give --fps"):
+    with pytest.raises(MotionFileError, match="no frame rate: give it"):
         read_motion(path, layout="coco17")
 
 
@@ -225,3 +225,12 @@ def test_the_jitter_remover_serves_a_layout_without_pelvis_or_spine(tmp_path, bo
     assert back.shape == noisy.shape
     error = lambda x: np.linalg.norm(x - clean, axis=-1).mean()  # noqa: E731
     assert error(back) < 0.7 * error(noisy)
+
+
+def test_render_draws_a_keypoint_take_beside_its_fixed_one(tmp_path, body_take, capsys):
+    np.save(tmp_path / "k.npy", in_layout("kinect20", body_take)[:60].astype(np.float32))
+    rc, _, err = run_mocapfix(["render", tmp_path / "k.npy", "-o", tmp_path / "k.png"], capsys)
+    assert rc == 1 and "no frame rate: give it (--fps; render: --take-fps)" in err
+    rc, out, err = run_mocapfix(["render", tmp_path / "k.npy", "--take-fps", "30", "-o", tmp_path / "k.png"], capsys)
+    assert rc == 0, err
+    assert (tmp_path / "k.png").stat().st_size > 10_000

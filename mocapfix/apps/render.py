@@ -27,10 +27,14 @@ def render_files(
     duration_s: float | None = None,
     fps: float | None = None,
     person: int = 0,
+    take_fps: float | None = None,
     **read_options,
 ) -> Path:
     """Read, match and draw; MotionFileError (one line) for what a user can mend, an error
-    writing the output (OSError) included."""
+    writing the output (OSError) included. fps: the animation's; take_fps: the recordings' where a
+    file has none of its own (a keypoint array)."""
+    if take_fps is not None:
+        read_options["fps"] = take_fps
     clips = read_motion(input_path, **read_options)
     if not 0 <= person < len(clips):
         raise MotionFileError(input_path, f"--person {person}: the file has {len(clips)} clip(s)")
@@ -69,6 +73,9 @@ def main(argv: list[str] | None = None) -> int:
         "--fps", type=frame_rate, default=None, help="the animation's frame rate (default: the recording's, <= 30)"
     )
     ap.add_argument("--person", type=int, default=0, help="which clip of a multi-person file")
+    ap.add_argument(
+        "--take-fps", type=frame_rate, default=None, help="the recording's frame rate, for a file without one"
+    )
     add_read_arguments(ap, fps=False)
     args = ap.parse_args(argv)
     if not (math.isfinite(args.start) and args.start >= 0):
@@ -85,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
             args.fps,
             args.person,
             source=args.source,
+            take_fps=args.take_fps,
             **read_options(args, fps=False),
         )
     except (ValueError, OSError) as e:  # MotionFileError is a ValueError: "path: problem"

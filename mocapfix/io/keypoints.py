@@ -116,7 +116,7 @@ def read_keypoints(
             raise MotionFileError(path, one_line(e)) from None
     if fps is None:
         if file_fps is None:
-            raise MotionFileError(path, "a keypoint array has no frame rate: give --fps")
+            raise MotionFileError(path, "a keypoint array has no frame rate: give it (--fps; render: --take-fps)")
         fps = file_fps
     fps = _check_fps(path, fps)
     xyz = raw[..., :3].astype(np.float64)  # (P, T, J, 3)
