@@ -234,3 +234,24 @@ def test_render_draws_a_keypoint_take_beside_its_fixed_one(tmp_path, body_take, 
     rc, out, err = run_mocapfix(["render", tmp_path / "k.npy", "--take-fps", "30", "-o", tmp_path / "k.png"], capsys)
     assert rc == 0, err
     assert (tmp_path / "k.png").stat().st_size > 10_000
+
+
+def test_dropped_and_repeated_frames_go_on_a_regular_clock_and_come_back_as_read(tmp_path, body_take, capsys):
+    """A depth camera's take with its times: two frames dropped (a hole fix fills, not a jump
+    squeezed out of the clock) and one row repeated (read once); the output has the file's rows."""
+    clean = from_z_up(in_layout("kinect20", body_take), "y")[:120]  # metres, y up, 30 fps
+    rows = [t for t in range(120) if t not in (50, 51)]
+    rows.insert(rows.index(79) + 1, 79)  # frame 79 twice
+    times = np.array(rows) / 30.0 + 1700000000.0  # a unix clock, as cameras write it
+    file = clean[rows].astype(np.float32)
+    np.savez(tmp_path / "k.npz", positions=file, times=times)
+    (clip,) = read_motion(tmp_path / "k.npz")
+    assert clip.fps == 30.0 and clip.num_frames == 120
+    assert np.isnan(clip.positions[50:52]).all() and np.isfinite(np.delete(clip.positions, [50, 51], 0)).all()
+    rc, out, err = run_mocapfix(["fix", tmp_path / "k.npz", "--model", "xmae-cpu-bandai"], capsys)
+    assert rc == 0, err
+    with np.load(tmp_path / "k.fixed.npz") as back:
+        assert np.array_equal(back["positions"], file) and np.array_equal(back["times"], times)
+    with pytest.raises(MotionFileError, match="times go back at row 3"):
+        np.savez(tmp_path / "bad.npz", positions=file[:5], times=np.array([0.0, 0.1, 0.2, 0.1, 0.3]))
+        read_motion(tmp_path / "bad.npz", fps=10)

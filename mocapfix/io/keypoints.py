@@ -5,7 +5,7 @@ Azure Kinect) hand them over.
     .npy                     (T, J, 3) or (T, J, 4), or (P, T, J, 3|4) for P people
     .npz                     the same under "positions", "keypoints3d" or "keypoints" (no joint
                              names, no parents: a positions file with those is io/positions.py's),
-                             optionally "fps" and "unit"
+                             optionally "fps", "unit" and "times" (T,) seconds of each row
 
 The joints are those of a published layout (io/layouts.py): --layout names it, or the joint
 count tells it where only one layout has that many. A 4th column is each joint's confidence or
@@ -14,13 +14,19 @@ fills), and the column is written back as read. Unit: the option, the file's, el
 the body's size (Azure Kinect writes mm, the lifters m). fps: the file's or --fps; an array has
 none of its own, and jitter and holes are measured in seconds, so it is asked for, never assumed.
 
+Rows with times are put on a regular clock at the fps (given, the file's, or told from the
+times): a dropped frame is a hole fix fills, a row that repeats a frame's time is read once
+(the first); the output has the file's rows and times again. Without times each row is a frame.
+
 Outputs (write_keypoints) keep the file type, key, shape, dtype, joint order, unit and axes; the
 tokens fix left alone are the file's own numbers, bit for bit.
 """
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -29,18 +35,26 @@ from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
 from mocapfix.io.layouts import LAYOUTS, layout, layout_skeleton, layouts_for
 from mocapfix.io.npz import listed_keys, load_npz, npz_array, one_line
-from mocapfix.io.positions import _check_fps, _clips, _npz_scalar_str
+from mocapfix.io.positions import _check_fps, _clips, _fps_from_times, _npz_scalar_str
 from mocapfix.io.untrusted import open_regular
 
+log = logging.getLogger(__name__)
 ARRAY_KEYS = ("positions", "keypoints3d", "keypoints")
 
 
-def _load(path: Path) -> tuple[np.ndarray, str | None, float | None, str | None]:
-    """-> (array, its npz key or None for .npy, the file's fps, the file's unit)."""
+class KeypointFile(NamedTuple):
+    raw: np.ndarray  # (T, J, C) or (P, T, J, C) as stored
+    key: str | None  # its npz key; None for .npy
+    fps: float | None
+    unit: str | None
+    times: np.ndarray | None  # (T,) seconds of each row
+
+
+def _load(path: Path) -> KeypointFile:
     if path.suffix.lower() == ".npy":
         with open_regular(path, "npy file") as f:
             try:
-                return np.lib.format.read_array(f, allow_pickle=False), None, None, None
+                return KeypointFile(np.lib.format.read_array(f, allow_pickle=False), None, None, None, None)
             except ValueError as e:
                 if "allow_pickle" in str(e):
                     raise MotionFileError(path, "holds Python objects (a pickle), not numbers") from None
@@ -60,7 +74,34 @@ def _load(path: Path) -> tuple[np.ndarray, str | None, float | None, str | None]
             if f.size != 1 or f.dtype.kind not in "iuf":
                 raise MotionFileError(path, f"fps must be one number, got {f.dtype} of shape {f.shape}")
             fps = f.reshape(()).item()
-        return raw, key, fps, _npz_scalar_str(path, data, "unit")
+        times = None
+        if "times" in data.files:
+            times = npz_array(path, data, "times")
+            if times.ndim != 1 or times.dtype.kind not in "iuf" or not np.isfinite(times).all():
+                raise MotionFileError(
+                    path, f"times must be finite seconds, one per row, got {times.dtype} {times.shape}"
+                )
+        return KeypointFile(raw, key, fps, _npz_scalar_str(path, data, "unit"), times)
+
+
+MAX_CLOCK_GROWTH = 20  # a clock this many times the rows is a wrong time unit, not dropped frames
+
+
+def frame_slots(path: Path, times: np.ndarray | None, rows: int, fps: float) -> np.ndarray:
+    """(T,) the frame of the regular clock each row falls on (rows without times: 0..T-1)."""
+    if times is None:
+        return np.arange(rows)
+    if len(times) != rows:
+        raise MotionFileError(path, f"{len(times)} times for {rows} rows")
+    slots = np.round((times.astype(np.float64) - times[0]) * fps).astype(np.int64)
+    back = np.nonzero(np.diff(slots) < 0)[0]
+    if back.size:
+        raise MotionFileError(path, f"times go back at row {back[0] + 1}")
+    if slots[-1] + 1 > MAX_CLOCK_GROWTH * rows + 100:
+        raise MotionFileError(
+            path, f"times span {slots[-1] + 1} frames at {fps:g} fps for {rows} rows: seconds expected"
+        )
+    return slots
 
 
 def pick_layout(path: Path, name: str | None, num_joints: int):
@@ -98,7 +139,7 @@ def read_keypoints(
     """A keypoint array -> one Clip per person (metres, z up), on the layout's skeleton (parents
     before children: meta "joint_order" maps it back to the file's columns)."""
     path = Path(path)
-    raw, key, file_fps, file_unit = _load(path)
+    raw, key, file_fps, file_unit, times = _load(path)
     if raw.dtype.kind not in "iuf":
         raise MotionFileError(path, f"keypoints must be numbers, got dtype {raw.dtype}")
     if raw.ndim not in (3, 4) or raw.shape[-1] not in (3, 4) or 0 in raw.shape:
@@ -114,11 +155,15 @@ def read_keypoints(
             skeleton = skeleton.with_groups(groups)
         except (KeyError, ValueError) as e:
             raise MotionFileError(path, one_line(e)) from None
+    rows = raw.shape[1]
     if fps is None:
-        if file_fps is None:
-            raise MotionFileError(path, "a keypoint array has no frame rate: give it (--fps; render: --take-fps)")
         fps = file_fps
+    if fps is None and times is not None and rows > 1:
+        fps = _fps_from_times(path, times.astype(np.float64), np.arange(rows), np.zeros(rows))
+    if fps is None:
+        raise MotionFileError(path, "a keypoint array has no frame rate: give it (--fps; render: --take-fps)")
     fps = _check_fps(path, fps)
+    slots = frame_slots(path, times, rows, fps)
     xyz = raw[..., :3].astype(np.float64)  # (P, T, J, 3)
     confidence = raw[..., 3] if columns == 4 else None
     if confidence is not None:
@@ -128,11 +173,20 @@ def read_keypoints(
                 path, f"no joint has a confidence above {min_confidence:g} in any frame: nothing was tracked"
             )
         xyz[~seen] = np.nan
+    first = np.concatenate([[True], slots[1:] != slots[:-1]])  # a row repeating a frame: read once
+    clock = np.full((raw.shape[0], int(slots[-1]) + 1) + xyz.shape[2:], np.nan)  # (P, N, J, 3)
+    clock[:, slots[first]] = xyz[:, first]
+    dropped, repeated = clock.shape[1] - int(first.sum()), int((~first).sum())
+    if dropped or repeated:
+        log.warning(
+            "warning: %s: %d frames missing from the %g-fps clock (holes), %d rows repeating a frame (read once)",
+            path.name, dropped, fps, repeated,
+        )  # fmt: skip
     meta = {"layout": lay.name, "joint_order": order, "squeeze": squeeze, "key": key, "dtype": dtype.str}
-    meta["columns"] = columns
+    meta.update(columns=columns, slots=slots, times=times)
     people = [dict(meta, confidence=None if confidence is None else confidence[i]) for i in range(raw.shape[0])]
     fmt = "keypoints-npy" if key is None else "keypoints-npz"
-    return _clips(path, xyz[:, :, order], fps, skeleton, unit, file_unit, up_axis, None, fmt, people)
+    return _clips(path, clock[:, :, order], fps, skeleton, unit, file_unit, up_axis, None, fmt, people)
 
 
 def write_keypoints(path, clips: list[Clip], inputs: list[Clip] | None = None) -> Path:
@@ -142,16 +196,19 @@ def write_keypoints(path, clips: list[Clip], inputs: list[Clip] | None = None) -
     path = Path(path)
     m = clips[0].meta
     order = np.asarray(m["joint_order"])
-    pos = np.stack([c.positions.astype(np.float64) + c.origin for c in clips])  # (P, T, J, 3) metres z up
+    slots = np.asarray(m["slots"])  # the clock's frame of each of the file's rows
+    pos = np.stack([c.positions.astype(np.float64) + c.origin for c in clips])  # (P, N, J, 3) metres z up
     out = np.empty_like(pos)
     out[:, :, order] = from_z_up(pos, m.get("up_axis", "z")) / metres_per_unit(m)  # file unit, axes, order
+    out = out[:, slots]  # (P, T, J, 3) the file's rows
     if inputs is not None:
-        raw, _, _, _ = _load(Path(inputs[0].source))
+        raw = _load(Path(inputs[0].source)).raw
         raw = raw[None] if m["squeeze"] else raw
         old = np.stack([c.positions for c in inputs])
-        same = ((np.stack([c.positions for c in clips]) == old) & np.isfinite(old)).all(-1)  # (P, T, J) skeleton order
+        same = ((np.stack([c.positions for c in clips]) == old) & np.isfinite(old)).all(-1)  # (P, N, J) skeleton order
         keep = np.empty_like(same)
         keep[:, :, order] = same
+        keep = keep[:, slots]  # a row repeating a frame keeps its own numbers where fix left the frame alone
         out[keep] = raw[..., :3][keep]
     if m["columns"] == 4:
         out = np.concatenate([out, np.stack([c.meta["confidence"] for c in clips])[..., None]], axis=-1)
@@ -161,5 +218,7 @@ def write_keypoints(path, clips: list[Clip], inputs: list[Clip] | None = None) -
         atomic_write(path, lambda f: np.save(f, out))
     else:
         arrays = {m["key"]: out, "fps": np.float64(clips[0].fps), "unit": np.array(m["unit"])}
+        if m["times"] is not None:
+            arrays["times"] = m["times"]
         atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
     return path
