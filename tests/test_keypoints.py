@@ -255,3 +255,17 @@ def test_dropped_and_repeated_frames_go_on_a_regular_clock_and_come_back_as_read
     with pytest.raises(MotionFileError, match="times go back at row 3"):
         np.savez(tmp_path / "bad.npz", positions=file[:5], times=np.array([0.0, 0.1, 0.2, 0.1, 0.3]))
         read_motion(tmp_path / "bad.npz", fps=10)
+
+
+def test_the_jitter_remover_leaves_a_limb_never_seen_missing(tmp_path, body_take, capsys):
+    truth = from_z_up(in_layout("azure32", body_take), "y") * 1000.0
+    confidence = np.full(truth.shape[:2], 3.0)
+    arm = [LAYOUTS["azure32"].joint_names.index(n) for n in ("SHOULDER_LEFT", "ELBOW_LEFT", "WRIST_LEFT")]
+    confidence[:, arm] = 0
+    np.save(tmp_path / "azure.npy", np.concatenate([truth, confidence[..., None]], axis=-1).astype(np.float32))
+    args = ["fix", tmp_path / "azure.npy", "--fps", "30", "--model", "jitter-many", "--mode", "denoise"]
+    rc, out, err = run_mocapfix(args, capsys)
+    assert rc == 0, err
+    assert "joints never observed: UpperArm_L, LowerArm_L, Hand_L (left missing" in out
+    back = np.load(tmp_path / "azure.fixed.npy")
+    assert np.isnan(back[:, arm, :3]).all() and np.isfinite(np.delete(back, arm, axis=1)).all()

@@ -5,9 +5,9 @@
     both     every token gets the estimate (denoised and filled).
 
 In denoise and both, left and right limbs exchanged for a few frames (a tracker's slip) are put
-back first (exchanges.py). How a model fixes clips is its Fixer's own (fixers.py): a positions model through windows of
-joint positions (position_fixer.py), a rotations model through windows of joint rotations
-(rotations.py), the jitter remover on whole takes (jitter_clips.py).
+back first (exchanges.py). How a model fixes clips is its Fixer's own (fixers.py): a positions
+model through windows of joint positions (position_fixer.py), a rotations model through windows
+of joint rotations (rotations.py), the jitter remover on whole takes (jitter_clips.py).
 """
 
 from __future__ import annotations

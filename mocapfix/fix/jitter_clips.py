@@ -2,8 +2,8 @@
 
 Each take at the model's joints (found by structure and names, as for every model) is low-passed
 and corrected at its own frame rate (fixers.JitterFixer.denoise). The model's joints a rig lacks
-(a keypoint layout's: COCO has no spine, Human3.6M no clavicles) are placed from the rest for the
-network (rig/stand_ins.py) and not written. The rig's other joints (fingers,
+(a keypoint layout's: COCO has no spine, Human3.6M no clavicles) or never shows are placed from
+the rest for the network (rig/stand_ins.py) and not written. The rig's other joints (fingers,
 toes, extra spine and twist joints) get the same low-pass and move with the nearest model joint
 above them by its correction, so a hand brings its fingers along. Holes stay holes: jitter is
 taken out of what was recorded and nothing is invented (an XMAE fills holes). A take shorter
@@ -47,19 +47,20 @@ def denoise_clips(
     absent_notes: list[str] = []
     for k, c in enumerate(clips):
         index = fixer.model_joints(c, source, joint_map, allow_missing=True)  # (Jm,) -1: the rig lacks it
-        present = index >= 0
-        if not present.all():
-            absent = ", ".join(model.joint_names[m] for m in np.nonzero(~present)[0])
+        x = torch.from_numpy(c.positions.astype(np.float64))[None]  # (1, T, J, 3)
+        observed = ~torch.isnan(x).any(-1)  # (1, T, J)
+        if not (index >= 0).all():
+            absent = ", ".join(model.joint_names[m] for m in np.nonzero(index < 0)[0])
             absent_notes.append(
                 f"{name(k)}model joints not in the recording: {absent} (placed from the rest, not written)"
             )
-        x = torch.from_numpy(c.positions.astype(np.float64))[None]  # (1, T, J, 3)
-        observed = ~torch.isnan(x).any(-1)  # (1, T, J)
-        never = [model.joint_names[m] for m, j in enumerate(index) if j >= 0 and not observed[0, :, j].any()]
-        if never:
-            raise MotionFileError(
-                source, f"{name(k)}joints never observed: {', '.join(never)}; nothing to denoise them from"
-            )
+        never = [m for m, j in enumerate(index) if j >= 0 and not observed[0, :, j].any()]
+        if never:  # placed from the rest like a joint the rig lacks; nothing to denoise, left missing
+            shown = ", ".join(model.joint_names[m] for m in never)
+            absent_notes.append(f"{name(k)}joints never observed: {shown} (left missing: never shown)")
+            index = index.copy()
+            index[never] = -1
+        present = index >= 0
         if c.duration_s < MIN_TAKE_S:  # too little motion to tell jitter from it
             notes.append(f"{name(k)}{c.num_frames} frames, shorter than {MIN_TAKE_S:g} s: {NOT_JUDGED}")
             out.append(c.replace(rotations=None, root_translation=None, offsets=None))
