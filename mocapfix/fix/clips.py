@@ -5,7 +5,8 @@
     both     every token gets the estimate (denoised and filled).
 
 In denoise and both, left and right limbs exchanged for a few frames (a tracker's slip) are put
-back first (exchanges.py). How a model fixes clips is its Fixer's own (fixers.py): a positions
+back first (exchanges.py); in both, a limb held in a flipped pose for a moment (an IK solver's
+flip) is made a hole for the fill (flips.py). How a model fixes clips is its Fixer's own (fixers.py): a positions
 model through windows of joint positions (position_fixer.py), a rotations model through windows
 of joint rotations (rotations.py), the jitter remover on whole takes (jitter_clips.py).
 """
@@ -19,6 +20,7 @@ from mocapfix.fills.motion_matching import MotionLibrary
 from mocapfix.fills.policy import FillPolicy
 from mocapfix.fix.exchanges import put_back_exchanges
 from mocapfix.fix.fixer import Fixer, FixOptions
+from mocapfix.fix.flips import flips_as_holes
 from mocapfix.fix.report import FixReport
 
 
@@ -42,12 +44,17 @@ def fix_clips(
     if not clips:
         raise ValueError("fix_clips needs at least one clip")
     check_human_scale(clips, clips[0].source or clips[0].name)
-    runs = frames = 0
+    notes = []
     if options.mode != "infill":  # infill leaves observed tokens as they are, labels too
         clips, runs, frames = _exchanges_put_back(clips)
+        if runs:
+            notes.append(f"left and right limbs exchanged in {frames} frames ({runs} runs): put back")
+    if options.mode == "both":  # the one mode that fills what it finds wrong
+        clips, runs, tokens = _flips_as_holes(clips)
+        if runs:
+            notes.append(f"{runs} limbs held in a flipped pose for a moment: {tokens} tokens filled again")
     fixed, report = fixer.fix_clips(clips, options)
-    if runs:
-        report.notes.insert(0, f"left and right limbs exchanged in {frames} frames ({runs} runs): put back")
+    report.notes[:0] = notes
     return fixed, report
 
 
@@ -63,3 +70,14 @@ def _exchanges_put_back(clips: list[Clip]) -> tuple[list[Clip], int, int]:
         out.append(c.replace(positions=x.astype(c.positions.dtype)) if r else c)
         runs, frames = runs + r, frames + f
     return out, runs, frames
+
+
+def _flips_as_holes(clips: list[Clip]) -> tuple[list[Clip], int, int]:
+    """Clips with each limb held in a flipped pose for a moment made missing there (flips.py),
+    for the fill to fill again; a clip with rotations too (its positions are what is fixed)."""
+    out, runs, tokens = [], 0, 0
+    for c in clips:
+        x, r, n = flips_as_holes(c.positions, c.skeleton, c.fps)
+        out.append(c.replace(positions=x) if r else c)
+        runs, tokens = runs + r, tokens + n
+    return out, runs, tokens
