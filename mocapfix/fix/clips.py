@@ -5,10 +5,11 @@
     both     every token gets the estimate (denoised and filled).
 
 In denoise and both, left and right limbs exchanged for a few frames (a tracker's slip) are put
-back first (exchanges.py); in both, a limb held in a flipped pose for a moment (an IK solver's
-flip) is made a hole for the fill (flips.py). How a model fixes clips is its Fixer's own (fixers.py): a positions
-model through windows of joint positions (position_fixer.py), a rotations model through windows
-of joint rotations (rotations.py), the jitter remover on whole takes (jitter_clips.py).
+back first (exchanges.py); in both with an XMAE, a limb held in a flipped pose for a moment (an
+IK solver's flip) is made a hole for the fill policy (flips.py). How a model fixes clips is its
+Fixer's own (fixers.py): a positions model through windows of joint positions
+(position_fixer.py), a rotations model through windows of joint rotations (rotations.py), the
+jitter remover on whole takes (jitter_clips.py).
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ def fix_clips(
         clips, runs, frames = _exchanges_put_back(clips)
         if runs:
             notes.append(f"left and right limbs exchanged in {frames} frames ({runs} runs): put back")
-    if options.mode == "both":  # the one mode that fills what it finds wrong
+    if options.mode == "both" and fixer.kind == "xmae":  # its fill policy fills them (a Motion-DVAE has no holes)
         clips, runs, tokens = _flips_as_holes(clips)
         if runs:
             notes.append(f"{runs} limbs held in a flipped pose for a moment: {tokens} tokens filled again")
