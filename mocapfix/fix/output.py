@@ -14,6 +14,7 @@ from mocapfix.io.bvh import write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
 from mocapfix.io.files import atomic_write
 from mocapfix.io.keypoints import write_keypoints
+from mocapfix.io.kinect_skeleton import write_kinect_skeleton
 from mocapfix.io.npz import load_npz, npz_array
 from mocapfix.io.positions import write_clips, write_positions
 
@@ -21,16 +22,15 @@ FIXED = ".fixed"  # default output: <stem>.fixed<ext> beside the input
 
 
 def output_suffix(clips: list[Clip], path: Path, rotations: bool = False) -> str:
-    """Positions files keep their extension; BVH stays BVH (a rotation model's rotations, or a
+    """Positions and keypoint files keep their extension; BVH stays BVH (a rotation model's rotations, or a
     positions model's positions put back on the input's hierarchy by inverse kinematics);
     AMASS (rotations in, positions out) and Human3.6M become .npz. rotations: the output has
     rotations to write (a rotation model, or a reference pose for inverse kinematics)."""
     fmt = clips[0].meta.get("format", "")
     if fmt == "bvh" and (rotations or clips[0].has_rotations):
         return ".bvh"
-    return (
-        path.suffix.lower() if fmt in ("positions-npz", "positions-csv", "keypoints-npy", "keypoints-npz") else ".npz"
-    )
+    own_form = fmt in ("positions-npz", "positions-csv") or fmt.startswith("keypoints-")  # their own kind back
+    return path.suffix.lower() if own_form else ".npz"
 
 
 def output_path(
@@ -79,6 +79,9 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
         return
     if fmt in ("keypoints-npy", "keypoints-npz"):
         write_keypoints(target, clips, inputs)
+        return
+    if fmt == "keypoints-skeleton":
+        write_kinect_skeleton(target, clips, inputs)
         return
     m = clips[0].meta
     if fmt == "positions-npz" and metres_per_unit(m) != 1.0:

@@ -69,10 +69,10 @@ def read_options(args, fps: bool = True) -> dict:
 _EXTENSIONS = {
     "bvh": (".bvh",),
     "positions": (".npz", ".csv"),
-    "keypoints": (".npy", ".npz"),
+    "keypoints": (".npy", ".npz", ".skeleton"),
     "h36m": (".npz", ".txt"),  # .txt: the exponential-map files of the motion-prediction papers
     "amass": (".npz",),
-    "auto": (".bvh", ".csv", ".npz", ".npy"),
+    "auto": (".bvh", ".csv", ".npz", ".npy", ".skeleton"),
 }
 # AMASS folders keep each subject's betas in shape.npz beside the motions: not a motion.
 _NOT_MOTION = {"shape.npz"}
@@ -118,7 +118,7 @@ def detect_source(path) -> str:
         return "bvh"
     if suffix == ".csv":
         return "positions"
-    if suffix == ".npy":
+    if suffix in (".npy", ".skeleton"):  # a keypoint array; Kinect v2's skeleton text
         return "keypoints"
     if suffix == ".txt":  # named alone: a folder's .txt files are listed only for --source h36m
         return "h36m"
@@ -141,7 +141,7 @@ def detect_source(path) -> str:
             "keypoints), positions_3d (Human3.6M) or poses+trans (AMASS)",
         )
     raise MotionFileError(
-        path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz, .npy, .txt"
+        path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz, .npy, .skeleton, .txt"
     )
 
 
