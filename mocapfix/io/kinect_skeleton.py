@@ -32,6 +32,7 @@ from mocapfix.io.untrusted import read_bytes
 
 KINECT_FPS = 30.0
 BODY_FIELDS, JOINT_FIELDS = 10, 12
+MAX_BODY_FRAMES = 1_000_000  # people x frames read (6 bodies over 46 min); a file past it is not one take
 
 
 def _parse(path: Path, lines: list[str]):
@@ -91,6 +92,8 @@ def read_kinect_skeleton(
         except (KeyError, ValueError) as e:
             raise MotionFileError(path, str(e)) from None
     J = len(lay.joint_names)
+    if len(bodies) * frames > MAX_BODY_FRAMES:
+        raise MotionFileError(path, f"{len(bodies)} body IDs over {frames} frames: more than one take holds")
     xyz = np.full((len(bodies), frames, J, 3), np.nan)
     state = np.zeros((len(bodies), frames, J))
     where = np.full((len(bodies), frames, J), -1, dtype=np.int64)  # the line of each joint, -1: none
