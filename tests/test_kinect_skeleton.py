@@ -64,3 +64,13 @@ def test_a_broken_skeleton_file_is_one_line_naming_where(tmp_path):
     path.write_text("2\n0\n0\n")
     with pytest.raises(MotionFileError, match="2 frames and no body in any"):
         read_motion(path)
+
+
+def test_a_body_id_in_every_frame_is_refused_before_it_takes_the_memory(tmp_path):
+    """2,000 frames with another body ID in each would be 2,000 people over 2,000 frames."""
+    lines = ["2000"]
+    for t in range(2000):
+        lines += ["1", f"{t} 0 1 1 1 1 0 0.01 -0.2 2", "25"] + ["0.1 0.2 3.0 1 1 1 1 0 0 0 1 2"] * 25
+    (tmp_path / "many.skeleton").write_text("\n".join(lines) + "\n")
+    with pytest.raises(MotionFileError, match="2000 body IDs over 2000 frames"):
+        read_motion(tmp_path / "many.skeleton")
