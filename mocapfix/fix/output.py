@@ -10,6 +10,7 @@ import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.fix.joints import map_joints
+from mocapfix.io.azure_kinect import write_azure_kinect
 from mocapfix.io.bvh import write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
 from mocapfix.io.files import atomic_write
@@ -82,6 +83,9 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
         return
     if fmt == "keypoints-skeleton":
         write_kinect_skeleton(target, clips, inputs)
+        return
+    if fmt == "keypoints-azure-json":
+        write_azure_kinect(target, clips, inputs)
         return
     m = clips[0].meta
     if fmt == "positions-npz" and metres_per_unit(m) != 1.0:

@@ -69,7 +69,7 @@ def read_options(args, fps: bool = True) -> dict:
 _EXTENSIONS = {
     "bvh": (".bvh",),
     "positions": (".npz", ".csv"),
-    "keypoints": (".npy", ".npz", ".skeleton"),
+    "keypoints": (".npy", ".npz", ".skeleton", ".json"),  # .json: Azure Kinect's; not in auto's walks
     "h36m": (".npz", ".txt"),  # .txt: the exponential-map files of the motion-prediction papers
     "amass": (".npz",),
     "auto": (".bvh", ".csv", ".npz", ".npy", ".skeleton"),
@@ -118,7 +118,7 @@ def detect_source(path) -> str:
         return "bvh"
     if suffix == ".csv":
         return "positions"
-    if suffix in (".npy", ".skeleton"):  # a keypoint array; Kinect v2's skeleton text
+    if suffix in (".npy", ".skeleton", ".json"):  # a keypoint array; Kinect v2's text; Azure Kinect's JSON
         return "keypoints"
     if suffix == ".txt":  # named alone: a folder's .txt files are listed only for --source h36m
         return "h36m"
@@ -141,7 +141,7 @@ def detect_source(path) -> str:
             "keypoints), positions_3d (Human3.6M) or poses+trans (AMASS)",
         )
     raise MotionFileError(
-        path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz, .npy, .skeleton, .txt"
+        path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz, .npy, .skeleton, .json, .txt"
     )
 
 

@@ -1,0 +1,120 @@
+"""Azure Kinect body tracking as its SDK's offline processor writes it (`.json`).
+
+    {"joint_names": [...32...], "bone_list": [...],
+     "frames": [{"frame_id": 0, "timestamp_usec": 33366, "num_bodies": 1,
+                 "bodies": [{"body_id": 1, "joint_positions": [[x, y, z] * 32],
+                             "joint_orientations": [[w, x, y, z] * 32]}]}, ...]}
+
+Depth-camera space: millimetres, x right, y down, z away from the camera; read as y up (x, -y,
+-z: a half turn about x) and put back as it was. Each body ID is one person over the take's
+frames. The frames' timestamps put them on the camera's clock (fps given, else told from the
+steps: 30, 15 or 5): a frame the processor dropped is a hole fix fills. The layout is azure32
+(io/layouts.py). The offline processor writes no confidence per joint.
+
+The writer puts fix's positions into the file's own structure, everything else as read.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.io.conventions import from_z_up, metres_per_unit
+from mocapfix.io.files import atomic_write
+from mocapfix.io.layouts import layout, layout_skeleton
+from mocapfix.io.positions import _check_fps, _clips, _fps_from_times
+from mocapfix.io.untrusted import read_bytes
+
+MAX_BODY_FRAMES = 1_000_000  # people x frames read; past it, a file is not one take
+CAMERA_TO_Y_UP = np.diag([1.0, -1.0, -1.0])  # y down, z away -> y up (its own inverse)
+
+
+def _bodies(path: Path, data) -> tuple[list[dict], dict]:
+    """-> (the frames, {body id: [(frame index, (32, 3) positions)]})."""
+    frames = data.get("frames") if isinstance(data, dict) else None
+    if not isinstance(frames, list):
+        raise MotionFileError(path, "not an Azure Kinect body-tracking file: no 'frames' list")
+    J = len(layout("azure32").joint_names)
+    bodies: dict = {}
+    for i, frame in enumerate(frames):
+        for body in (frame.get("bodies") or []) if isinstance(frame, dict) else []:
+            try:
+                xyz = np.asarray(body["joint_positions"], dtype=np.float64)
+                key = body["body_id"]
+            except (KeyError, TypeError, ValueError):
+                raise MotionFileError(path, f"frame {i}: a body without body_id and 32 joint_positions") from None
+            if xyz.shape != (J, 3):
+                raise MotionFileError(path, f"frame {i}: joint_positions of shape {xyz.shape}, not ({J}, 3)")
+            bodies.setdefault(str(key), []).append((i, xyz))
+    return frames, bodies
+
+
+def read_azure_kinect(path, unit: str = "auto", fps: float | None = None, groups=None) -> list[Clip]:
+    path = Path(path)
+    try:
+        data = json.loads(read_bytes(path, "body-tracking JSON").decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise MotionFileError(path, f"not readable JSON ({type(e).__name__})") from None
+    frames, bodies = _bodies(path, data)
+    if not bodies:
+        raise MotionFileError(path, f"{len(frames)} frames and no body in any: nothing was tracked")
+    if len(bodies) * len(frames) > MAX_BODY_FRAMES:
+        raise MotionFileError(path, f"{len(bodies)} body IDs over {len(frames)} frames: more than one take holds")
+    try:
+        times = np.array([float(f["timestamp_usec"]) for f in frames]) / 1e6
+    except (KeyError, TypeError, ValueError):
+        times = None  # no clock: each frame one step
+    if fps is None:
+        if times is None or len(frames) < 2:
+            raise MotionFileError(path, "no timestamps to tell the frame rate: give --fps")
+        fps = _fps_from_times(path, times, np.arange(len(frames)), np.zeros(len(frames)))
+    fps = _check_fps(path, fps)
+    slots = np.arange(len(frames)) if times is None else np.round((times - times[0]) * fps).astype(np.int64)
+    if (np.diff(slots) <= 0).any():
+        raise MotionFileError(
+            path, f"timestamps that do not increase (frame {int(np.argmax(np.diff(slots) <= 0)) + 1})"
+        )
+    if slots[-1] + 1 > 20 * len(frames) + 100:
+        raise MotionFileError(path, f"timestamps span {slots[-1] + 1} frames at {fps:g} fps for {len(frames)} frames")
+    lay = layout("azure32")
+    skeleton, order = layout_skeleton(lay)
+    if groups:
+        try:
+            skeleton = skeleton.with_groups(groups)
+        except (KeyError, ValueError) as e:
+            raise MotionFileError(path, str(e)) from None
+    xyz = np.full((len(bodies), int(slots[-1]) + 1, len(lay.joint_names), 3), np.nan)  # (P, N, J, 3)
+    for p, appearances in enumerate(bodies.values()):
+        for i, positions in appearances:
+            xyz[p, slots[i]] = positions @ CAMERA_TO_Y_UP
+    people = [
+        {"layout": lay.name, "joint_order": order, "person_id": body_id, "slots": slots, "frames_of": [i for i, _ in a]}
+        for body_id, a in bodies.items()
+    ]
+    clips = _clips(path, xyz[:, :, order], fps, skeleton, unit, "mm", "y", "y", "keypoints-azure-json", people)
+    for c in clips:
+        c.meta["document"] = data  # one object for the file's people: the writer edits a copy
+    return clips
+
+
+def write_azure_kinect(path, clips: list[Clip], inputs: list[Clip]) -> Path:
+    """fix's positions into the file's own structure (inputs: the clips as read): a joint whose
+    position fix changed gets the new one, everything else as read."""
+    data = json.loads(json.dumps(clips[0].meta["document"]))  # a copy to edit
+    for c, before in zip(clips, inputs):
+        m = c.meta
+        order = np.asarray(m["joint_order"])
+        now, was = np.empty(c.positions.shape), np.empty(c.positions.shape)
+        now[:, order], was[:, order] = c.positions, before.positions
+        out = (from_z_up(now + c.origin, "y") / metres_per_unit(m)) @ CAMERA_TO_Y_UP  # file order, mm, camera axes
+        for i in m["frames_of"]:
+            t = m["slots"][i]
+            body = next(b for b in data["frames"][i]["bodies"] if str(b["body_id"]) == m["person_id"])
+            changed = np.isfinite(now[t]).all(-1) & ~(now[t] == was[t]).all(-1)
+            for j in np.nonzero(changed)[0]:
+                body["joint_positions"][j] = [float(v) for v in out[t, j]]
+    atomic_write(path, lambda f: f.write(json.dumps(data, indent=1).encode("utf-8")))
+    return Path(path)
