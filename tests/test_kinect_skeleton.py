@@ -74,3 +74,17 @@ def test_a_body_id_in_every_frame_is_refused_before_it_takes_the_memory(tmp_path
     (tmp_path / "many.skeleton").write_text("\n".join(lines) + "\n")
     with pytest.raises(MotionFileError, match="2000 body IDs over 2000 frames"):
         read_motion(tmp_path / "many.skeleton")
+
+
+def test_a_person_found_again_under_a_new_body_id_is_one_person(tmp_path, body_take):  # noqa: F811
+    x = from_z_up(in_layout("kinect25", body_take), "y")[:90]
+    state = np.full((90, 25), 2)
+    a, b = x[:50], x[55:]  # tracking lost for 5 frames, found again under another ID
+    text = skeleton_text([("11", 0, a, state[:50]), ("12", 55, b, state[55:])], 90)
+    (tmp_path / "t.skeleton").write_text(text)
+    (clip,) = read_motion(tmp_path / "t.skeleton")
+    assert clip.meta["person_id"] == "11+12"
+    assert np.isnan(clip.positions[50:55]).all() and np.isfinite(np.delete(clip.positions, range(50, 55), 0)).all()
+    far = x[55:] + np.array([2.0, 0.0, 0.0])  # someone else, 2 m away, a moment later: two people
+    (tmp_path / "two.skeleton").write_text(skeleton_text([("11", 0, a, state[:50]), ("12", 55, far, state[55:])], 90))
+    assert [c.meta["person_id"] for c in read_motion(tmp_path / "two.skeleton")] == ["11", "12"]

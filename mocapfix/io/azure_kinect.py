@@ -6,8 +6,9 @@
                              "joint_orientations": [[w, x, y, z] * 32]}]}, ...]}
 
 Depth-camera space: millimetres, x right, y down, z away from the camera; read as y up (x, -y,
--z: a half turn about x) and put back as it was. Each body ID is one person over the take's
-frames. The frames' timestamps put them on the camera's clock (fps given, else told from the
+-z: a half turn about x) and put back as it was. Each person is one clip over the take's frames:
+a body ID that starts where another ended is the same person found again (io/body_ids.py). The
+frames' timestamps put them on the camera's clock (fps given, else told from the
 steps: 30, 15 or 5): a frame the processor dropped is a hole fix fills. The layout is azure32
 (io/layouts.py). The offline processor writes no confidence per joint.
 
@@ -22,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.io.body_ids import merged, one_person_chains
 from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
 from mocapfix.io.layouts import layout, layout_skeleton
@@ -90,9 +92,19 @@ def read_azure_kinect(path, unit: str = "auto", fps: float | None = None, groups
     for p, appearances in enumerate(bodies.values()):
         for i, positions in appearances:
             xyz[p, slots[i]] = positions @ CAMERA_TO_Y_UP
+    present = np.isfinite(xyz).all(-1).all(-1)  # (P, N)
+    chains = one_person_chains(xyz[:, :, 0] / 1000.0, fps)  # by the pelvis, mm -> m
+    xyz = merged(xyz, chains, present)
+    ids, appearances = list(bodies), list(bodies.values())
     people = [
-        {"layout": lay.name, "joint_order": order, "person_id": body_id, "slots": slots, "frames_of": [i for i, _ in a]}
-        for body_id, a in bodies.items()
+        {
+            "layout": lay.name,
+            "joint_order": order,
+            "person_id": "+".join(ids[p] for p in chain),
+            "slots": slots,
+            "bodies_at": [(i, ids[p]) for p in chain for i, _ in appearances[p]],  # (frame, its body ID)
+        }
+        for chain in chains
     ]
     clips = _clips(path, xyz[:, :, order], fps, skeleton, unit, "mm", "y", "y", "keypoints-azure-json", people)
     for c in clips:
@@ -110,9 +122,9 @@ def write_azure_kinect(path, clips: list[Clip], inputs: list[Clip]) -> Path:
         now, was = np.empty(c.positions.shape), np.empty(c.positions.shape)
         now[:, order], was[:, order] = c.positions, before.positions
         out = (from_z_up(now + c.origin, "y") / metres_per_unit(m)) @ CAMERA_TO_Y_UP  # file order, mm, camera axes
-        for i in m["frames_of"]:
+        for i, body_id in m["bodies_at"]:
             t = m["slots"][i]
-            body = next(b for b in data["frames"][i]["bodies"] if str(b["body_id"]) == m["person_id"])
+            body = next(b for b in data["frames"][i]["bodies"] if str(b["body_id"]) == body_id)
             changed = np.isfinite(now[t]).all(-1) & ~(now[t] == was[t]).all(-1)
             for j in np.nonzero(changed)[0]:
                 body["joint_positions"][j] = [float(v) for v in out[t, j]]

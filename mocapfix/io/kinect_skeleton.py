@@ -7,11 +7,12 @@
                 <joints>   (25)
                 per joint: <x y z depthX depthY colorX colorY orientW orientX orientY orientZ trackingState>
 
-Camera space: metres, y up. Each body ID is one person over the file's frames (missing where
-the camera does not see it), so two people, or one person whose ID the tracker changed, read as
-what they are. A joint's tracking state (0 not tracked, 1 inferred, 2 tracked) is its confidence:
-at or below min_confidence (default 0: not tracked) it is missing in that frame. The SDK runs at
-30 fps, which is the frame rate unless --fps says otherwise.
+Camera space: metres, y up. Each person is one clip over the file's frames (missing where the
+camera does not see them): two bodies seen at once are two people, a body ID that starts where
+another ended is the same person found again (io/body_ids.py; person_id "id1+id2"). A joint's
+tracking state (0 not tracked, 1 inferred, 2 tracked) is its confidence: at or below
+min_confidence (default 0: not tracked) it is missing in that frame. The SDK runs at 30 fps,
+which is the frame rate unless --fps says otherwise.
 
 The writer puts fix's positions back into the file's own lines: every other number, and every
 position fix left alone, is the file's text as it was.
@@ -24,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
+from mocapfix.io.body_ids import merged, one_person_chains
 from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
 from mocapfix.io.layouts import layout, layout_skeleton
@@ -32,7 +34,7 @@ from mocapfix.io.untrusted import read_bytes
 
 KINECT_FPS = 30.0
 BODY_FIELDS, JOINT_FIELDS = 10, 12
-MAX_BODY_FRAMES = 1_000_000  # people x frames read (6 bodies over 46 min); a file past it is not one take
+MAX_BODY_FRAMES = 1_000_000  # people x frames read (6 bodies over 46 min); past it, not one take
 
 
 def _parse(path: Path, lines: list[str]):
@@ -106,14 +108,18 @@ def read_kinect_skeleton(
             except ValueError:
                 raise MotionFileError(path, f"frame {frame}: a joint's line that is not numbers") from None
             xyz[p, frame], state[p, frame], where[p, frame] = values[:, :3], values[:, -1], rows
+    fps = _check_fps(path, KINECT_FPS if fps is None else fps)
+    present = (where >= 0).all(-1)  # (P, T) the body in the frame
+    chains = one_person_chains(np.where(present[..., None], xyz[:, :, 0], np.nan), fps)  # by the pelvis (m)
+    xyz, state, where = (merged(a, chains, present) for a in (xyz, state, where))
     seen = (where >= 0) & (state > min_confidence)
     if not seen.any():
         raise MotionFileError(path, f"no joint tracked above state {min_confidence:g} in any frame")
     xyz[~seen] = np.nan
-    fps = _check_fps(path, KINECT_FPS if fps is None else fps)
+    ids = list(bodies)
     people = [
-        {"layout": lay.name, "joint_order": order, "person_id": body_id, "lines": where[p]}
-        for p, body_id in enumerate(bodies)
+        {"layout": lay.name, "joint_order": order, "person_id": "+".join(ids[p] for p in chain), "lines": where[k]}
+        for k, chain in enumerate(chains)
     ]
     clips = _clips(path, xyz[:, :, order], fps, skeleton, unit, "m", up_axis, "y", "keypoints-skeleton", people)
     for c in clips:
