@@ -48,6 +48,24 @@ def cmu_files() -> list[Path]:
     return files
 
 
+@pytest.fixture(scope="session")
+def body21_takes(bandai_files) -> list:
+    """Every 8th Bandai take of 2 s or more on the models' 21 joints: (T, 21, 3) float64 metres,
+    z up, 30 fps."""
+    import numpy as np
+
+    from mocapfix.core.skeleton import preset
+    from mocapfix.io import read_motion
+    from mocapfix.rig.mapping import onto_skeleton
+
+    takes = []
+    for f in bandai_files[::8]:
+        clip = read_motion(f)[0]
+        if clip.duration_s >= 2.0:
+            takes.append(onto_skeleton(clip, preset("body21")).positions.astype(np.float64))
+    return takes
+
+
 REPO = Path(__file__).resolve().parents[1]
 # What runs write in the folder they run in; a test writes them under tmp_path (monkeypatch.chdir
 # or explicit paths), never into the checkout

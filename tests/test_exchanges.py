@@ -4,27 +4,13 @@ none is invented in a clean take."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from cli_utils import run_mocapfix
 
 from mocapfix.core.skeleton import preset
 from mocapfix.fix.exchanges import put_back_exchanges
-from mocapfix.io import read_motion
 from mocapfix.io.conventions import from_z_up
-from mocapfix.rig.mapping import onto_skeleton
 
 BODY = preset("body21")
-
-
-@pytest.fixture(scope="module")
-def takes(bandai_files):
-    """Every 8th Bandai take of 2 s or more on body21 (metres, z up, 30 fps)."""
-    out = []
-    for f in bandai_files[::8]:
-        clip = read_motion(f)[0]
-        if clip.duration_s >= 2.0:
-            out.append(onto_skeleton(clip, BODY).positions.astype(np.float64))
-    return out
 
 
 def exchange(x: np.ndarray, pair: tuple[str, str], start: int, frames: int) -> np.ndarray:
@@ -34,18 +20,18 @@ def exchange(x: np.ndarray, pair: tuple[str, str], start: int, frames: int) -> n
     return out
 
 
-def test_clean_takes_keep_their_labels(takes):
-    for x in takes:
+def test_clean_takes_keep_their_labels(body21_takes):
+    for x in body21_takes:
         noisy = x + np.random.default_rng(0).normal(scale=0.01, size=x.shape)  # a tracker's jitter too
         for take in (x, noisy):
             y, runs, frames = put_back_exchanges(take, BODY, 30.0)
             assert runs == 0 and np.array_equal(y, take)
 
 
-def test_exchanges_of_3_to_30_frames_are_put_back(takes):
+def test_exchanges_of_3_to_30_frames_are_put_back(body21_takes):
     rng = np.random.default_rng(1)
     put_back = tried = 0
-    for i, x in enumerate(takes):
+    for i, x in enumerate(body21_takes):
         pair = (("left_arm", "right_arm"), ("left_leg", "right_leg"))[i % 2]
         frames = int(rng.integers(3, 31))
         if len(x) < frames + 20:
@@ -57,16 +43,16 @@ def test_exchanges_of_3_to_30_frames_are_put_back(takes):
     assert tried >= 30 and put_back >= 0.95 * tried
 
 
-def test_an_exchange_longer_than_the_limit_is_the_takes_own_labelling(takes):
-    x = max(takes, key=len)
+def test_an_exchange_longer_than_the_limit_is_the_takes_own_labelling(body21_takes):
+    x = max(body21_takes, key=len)
     swapped = exchange(x, ("left_leg", "right_leg"), 10, len(x) - 10)  # exchanged from frame 10 on
     y, runs, _ = put_back_exchanges(swapped, BODY, 30.0)
     assert runs == 0 and np.array_equal(y, swapped)
 
 
-def test_fix_both_puts_a_lifters_exchange_back_and_infill_leaves_it(tmp_path, takes, capsys):
+def test_fix_both_puts_a_lifters_exchange_back_and_infill_leaves_it(tmp_path, body21_takes, capsys):
     """A Human3.6M-17 array (what video lifters write) with its arms exchanged for 8 frames."""
-    x = max(takes, key=len)
+    x = max(body21_takes, key=len)
     h36m = [BODY.index(n) for n in ("Hips", "UpperLeg_R", "LowerLeg_R", "Foot_R", "UpperLeg_L", "LowerLeg_L",
                                      "Foot_L", "Spine", "Chest", "Neck", "Head", "UpperArm_L", "LowerArm_L",
                                      "Hand_L", "UpperArm_R", "LowerArm_R", "Hand_R")]  # fmt: skip

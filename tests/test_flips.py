@@ -10,22 +10,9 @@ from scipy.spatial.transform import Rotation
 
 from mocapfix.core.skeleton import preset
 from mocapfix.fix.flips import LIMBS, flipped_segments
-from mocapfix.io import read_motion
 from mocapfix.io.positions import write_positions
-from mocapfix.rig.mapping import onto_skeleton
 
 BODY = preset("body21")
-
-
-@pytest.fixture(scope="module")
-def takes(bandai_files):
-    """Every 8th Bandai take of 2 s or more on body21 (metres, z up, 30 fps)."""
-    out = []
-    for f in bandai_files[::8]:
-        clip = read_motion(f)[0]
-        if clip.duration_s >= 2.0:
-            out.append(onto_skeleton(clip, BODY).positions.astype(np.float64))
-    return out
 
 
 def flip(x: np.ndarray, limb: str, start: int, frames: int, degrees: float, axis=(0.3, -0.5, 0.8)) -> np.ndarray:
@@ -38,18 +25,18 @@ def flip(x: np.ndarray, limb: str, start: int, frames: int, degrees: float, axis
     return out
 
 
-def test_clean_takes_have_no_flip(takes):
-    assert sum(len(flipped_segments(x, list(BODY.groups[g]), 30.0)) for x in takes for g in LIMBS) == 0
+def test_clean_takes_have_no_flip(body21_takes):
+    assert sum(len(flipped_segments(x, list(BODY.groups[g]), 30.0)) for x in body21_takes for g in LIMBS) == 0
 
 
 @pytest.mark.parametrize("limb", ["left_arm", "right_leg"])
-def test_a_limb_turned_for_0_2_to_0_6_s_is_found_where_it_is(takes, limb):
+def test_a_limb_turned_for_0_2_to_0_6_s_is_found_where_it_is(body21_takes, limb):
     """Flips that move the limb by 10 cm or more on average (a turn about the limb's own line
     moves it little: a twist, which positions cannot show)."""
     rng = np.random.default_rng(3)
     joints = list(BODY.groups[limb])
     found = tried = 0
-    for x in takes:
+    for x in body21_takes:
         frames = int(rng.integers(6, 19))
         start = int(rng.integers(15, len(x) - frames - 15))
         bad = flip(x, limb, start, frames, rng.uniform(45, 90), rng.normal(size=3))
@@ -61,8 +48,8 @@ def test_a_limb_turned_for_0_2_to_0_6_s_is_found_where_it_is(takes, limb):
     assert tried >= 20 and found >= 0.9 * tried
 
 
-def test_fix_both_fills_a_flipped_arm_again_and_infill_leaves_it(tmp_path, takes, capsys):
-    x = max(takes, key=len)
+def test_fix_both_fills_a_flipped_arm_again_and_infill_leaves_it(tmp_path, body21_takes, capsys):
+    x = max(body21_takes, key=len)
     bad = flip(x, "left_arm", 60, 12, 60.0)  # 60 degrees for 0.4 s, the hand 0.2-0.4 m away
     write_positions(tmp_path / "take.npz", bad, 30.0, BODY)
     base = ["fix", tmp_path / "take.npz", "--model", "xmae-cpu-bandai"]

@@ -104,6 +104,18 @@ def frame_slots(path: Path, times: np.ndarray | None, rows: int, fps: float) -> 
     return slots
 
 
+def layout_skeleton_of(path: Path, lay, groups=None):
+    """The layout's skeleton and order (layouts.layout_skeleton) with a user's limb groups; a
+    group naming a joint the layout lacks is the file's one-line error."""
+    skeleton, order = layout_skeleton(lay)
+    if groups:
+        try:
+            skeleton = skeleton.with_groups(groups)
+        except (KeyError, ValueError) as e:
+            raise MotionFileError(path, one_line(e)) from None
+    return skeleton, order
+
+
 def pick_layout(path: Path, name: str | None, num_joints: int):
     """The layout an array of num_joints joints is in: the one named, else the only one of that
     many joints; a one-line error naming the candidates otherwise."""
@@ -159,12 +171,7 @@ def read_keypoints(
     squeeze, dtype, columns = raw.ndim == 3, raw.dtype, raw.shape[-1]
     raw = raw[None] if squeeze else raw
     lay = pick_layout(path, layout, raw.shape[2])
-    skeleton, order = layout_skeleton(lay)
-    if groups:
-        try:
-            skeleton = skeleton.with_groups(groups)
-        except (KeyError, ValueError) as e:
-            raise MotionFileError(path, one_line(e)) from None
+    skeleton, order = layout_skeleton_of(path, lay, groups)
     rows = raw.shape[1]
     if fps is None:
         fps = file_fps

@@ -28,7 +28,8 @@ from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.io.body_ids import merged, one_person_chains
 from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
-from mocapfix.io.layouts import layout, layout_skeleton
+from mocapfix.io.keypoints import layout_skeleton_of
+from mocapfix.io.layouts import layout
 from mocapfix.io.positions import _check_fps, _clips
 from mocapfix.io.untrusted import read_bytes
 
@@ -87,12 +88,7 @@ def read_kinect_skeleton(
     if not bodies:
         raise MotionFileError(path, f"{frames} frames and no body in any: nothing was tracked")
     lay = layout("kinect25")
-    skeleton, order = layout_skeleton(lay)
-    if groups:
-        try:
-            skeleton = skeleton.with_groups(groups)
-        except (KeyError, ValueError) as e:
-            raise MotionFileError(path, str(e)) from None
+    skeleton, order = layout_skeleton_of(path, lay, groups)
     J = len(lay.joint_names)
     if len(bodies) * frames > MAX_BODY_FRAMES:
         raise MotionFileError(path, f"{len(bodies)} body IDs over {frames} frames: more than one take holds")

@@ -4,6 +4,7 @@ Lightning runs the data module's setup, then the callbacks', then the module's: 
 callback calls module.bind_data(spec, stage), where the module builds its network for the data's
 skeleton and window (or checks that a loaded one fits). The modules return it from
 configure_callbacks(), so any Trainer (the CLI's, a test's, a script's) binds the data the same way.
+BuiltFromData is that contract for a module whose network is built from the data alone.
 """
 
 from __future__ import annotations
@@ -30,3 +31,26 @@ def require_same_window(hparams, data: DataSpec, built: str) -> None:
             f"{built} {len(parents)} joints, {frames} frames at {fps} fps; the data gives "
             f"{data.skeleton.num_joints} joints, {data.window_frames} frames at {data.fps} fps"
         )
+
+
+class BuiltFromData:
+    """The binding of a LightningModule (mixed in before L.LightningModule) whose network is made
+    by its _build() from the data's skeleton and window (hparams skeleton, window_fps,
+    window_frames), or comes from a checkpoint (self.net set) and must fit the data. (No class
+    attribute `net` here: nn.Module keeps submodules where a class attribute would shadow them.)"""
+
+    def configure_callbacks(self):
+        return [BindData()]
+
+    def bind_data(self, data: DataSpec, stage: str) -> None:
+        if self.net is None:
+            self.hparams.update(skeleton=data.skeleton.to_dict(), window_fps=data.fps, window_frames=data.window_frames)
+            self._build()
+        else:
+            require_same_window(self.hparams, data, "this model was built for")
+
+    def setup(self, stage: str) -> None:
+        if self.net is None:
+            raise RuntimeError(
+                f"{type(self).__name__} needs a data module (or a checkpoint) to know the skeleton and window"
+            )

@@ -19,7 +19,6 @@ import torch.nn as nn
 
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.corruption import available, infill_gap, training_holes
-from mocapfix.data.spec import DataSpec
 from mocapfix.evaluation.harness import abs_and_rel, mpjpe_table
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.evaluation.tasks import format_table, paper_tasks, table_rows
@@ -28,7 +27,7 @@ from mocapfix.fills.fill import made
 from mocapfix.models.build import build_model
 from mocapfix.models.checkpoint import name_model
 from mocapfix.models.correction import BASES, CorrectionConfig, CorrectionNet, base_fill, correction_fill
-from mocapfix.training.bind_data import BindData, require_same_window
+from mocapfix.training.bind_data import BuiltFromData
 from mocapfix.training.schedules import adamw_warmup_cosine
 from mocapfix.training.test_report import publish
 
@@ -36,7 +35,7 @@ PARTS = ("full", "arm", "leg")
 BASE_ERROR_FLOOR_M = 0.002  # per hole token, added to the base fill's error the loss divides by
 
 
-class CorrectionModule(L.LightningModule):
+class CorrectionModule(BuiltFromData, L.LightningModule):
     def __init__(
         self,
         base: str = "hermite",
@@ -118,20 +117,6 @@ class CorrectionModule(L.LightningModule):
             raise ValueError(f"hole_parts {list(hp.hole_parts)}: the skeleton has no such group")
         self.register_buffer("part_joints", torch.tensor(rows), persistent=False)
         self.val_mpjpe = nn.ModuleDict({"correction": MPJPE(), "base": MPJPE()})
-
-    def configure_callbacks(self):
-        return [BindData()]
-
-    def bind_data(self, data: DataSpec, stage: str) -> None:
-        if self.net is None:
-            self.hparams.update(skeleton=data.skeleton.to_dict(), window_fps=data.fps, window_frames=data.window_frames)
-            self._build()
-        else:
-            require_same_window(self.hparams, data, "this model was built for")
-
-    def setup(self, stage: str) -> None:
-        if self.net is None:
-            raise RuntimeError("CorrectionModule needs a data module (or a checkpoint) to know the skeleton and window")
 
     def configure_optimizers(self):
         hp = self.hparams

@@ -17,13 +17,12 @@ import torch.nn as nn
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.augment import BodyAugment, BodyAugmenter
 from mocapfix.data.corruption import available, jitter, random_z_rotation, uniform_like
-from mocapfix.data.spec import DataSpec
 from mocapfix.evaluation.metrics import MPJPE
 from mocapfix.fills.classical import lerp_infill
 from mocapfix.models.build import build_model
 from mocapfix.models.checkpoint import name_model
 from mocapfix.models.jitter import JitterConfig, JitterNet, lowpass, residual_noise
-from mocapfix.training.bind_data import BindData, require_same_window
+from mocapfix.training.bind_data import BuiltFromData
 from mocapfix.training.figures import log_validation_figure
 from mocapfix.training.schedules import adamw_warmup_cosine
 from mocapfix.training.test_report import publish
@@ -35,7 +34,7 @@ def denoise(net: JitterNet, noisy: torch.Tensor, fps: float) -> tuple[torch.Tens
     return net(base, residual_noise(noisy, base, fps, net.cutoff_hz)), base
 
 
-class JitterModule(L.LightningModule):
+class JitterModule(BuiltFromData, L.LightningModule):
     def __init__(
         self,
         cutoff_hz: float = 6.0,
@@ -114,20 +113,6 @@ class JitterModule(L.LightningModule):
         augment = BodyAugment(hp.stature_range, hp.limb_range, hp.mirror_prob, hp.joint_shift_m)
         self.body_augment = BodyAugmenter(self.skeleton, augment) if augment.active else None
         self.val_mpjpe = nn.ModuleDict({"jitter": MPJPE(), "lowpass": MPJPE(), "noisy": MPJPE()})
-
-    def configure_callbacks(self):
-        return [BindData()]
-
-    def bind_data(self, data: DataSpec, stage: str) -> None:
-        if self.net is None:
-            self.hparams.update(skeleton=data.skeleton.to_dict(), window_fps=data.fps, window_frames=data.window_frames)
-            self._build()
-        else:
-            require_same_window(self.hparams, data, "this model was built for")
-
-    def setup(self, stage: str) -> None:
-        if self.net is None:
-            raise RuntimeError("JitterModule needs a data module (or a checkpoint) to know the skeleton and window")
 
     def configure_optimizers(self):
         hp = self.hparams
