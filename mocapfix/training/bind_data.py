@@ -12,6 +12,7 @@ from __future__ import annotations
 import lightning as L
 from lightning.pytorch.callbacks import Callback
 
+from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.spec import DataSpec
 
 
@@ -36,8 +37,13 @@ def require_same_window(hparams, data: DataSpec, built: str) -> None:
 class BuiltFromData:
     """The binding of a LightningModule (mixed in before L.LightningModule) whose network is made
     by its _build() from the data's skeleton and window (hparams skeleton, window_fps,
-    window_frames), or comes from a checkpoint (self.net set) and must fit the data. (No class
+    window_frames), or comes from a checkpoint (self.net set) and must fit the data; its skeleton
+    is the one in its hyperparameters. (No class
     attribute `net` here: nn.Module keeps submodules where a class attribute would shadow them.)"""
+
+    @property
+    def skeleton(self) -> Skeleton:
+        return Skeleton.from_dict(self.hparams.skeleton)
 
     def configure_callbacks(self):
         return [BindData()]

@@ -17,7 +17,6 @@ import lightning as L
 import torch
 import torch.nn as nn
 
-from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.corruption import available, infill_gap, training_holes
 from mocapfix.evaluation.harness import abs_and_rel, mpjpe_table
 from mocapfix.evaluation.metrics import MPJPE
@@ -84,10 +83,6 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
         self.net: CorrectionNet | None = None
         if skeleton is not None and window_frames is not None:  # a checkpoint's own weights follow
             self._build()
-
-    @property
-    def skeleton(self) -> Skeleton:
-        return Skeleton.from_dict(self.hparams.skeleton)
 
     def _build(self) -> None:
         hp, skeleton = self.hparams, self.skeleton

@@ -14,7 +14,6 @@ import lightning as L
 import torch
 import torch.nn as nn
 
-from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.augment import BodyAugment, BodyAugmenter
 from mocapfix.data.corruption import available, jitter, random_z_rotation, uniform_like
 from mocapfix.evaluation.metrics import MPJPE
@@ -99,10 +98,6 @@ class JitterModule(BuiltFromData, L.LightningModule):
         self.net: JitterNet | None = None
         if skeleton is not None and window_frames is not None:  # a checkpoint's own weights follow
             self._build()
-
-    @property
-    def skeleton(self) -> Skeleton:
-        return Skeleton.from_dict(self.hparams.skeleton)
 
     def _build(self) -> None:
         hp = self.hparams
