@@ -38,8 +38,8 @@ class BuiltFromData:
     """The binding of a LightningModule (mixed in before L.LightningModule) whose network is made
     by its _build() from the data's skeleton and window (hparams skeleton, window_fps,
     window_frames), or comes from a checkpoint (self.net set) and must fit the data; its skeleton
-    is the one in its hyperparameters. (No class
-    attribute `net` here: nn.Module keeps submodules where a class attribute would shadow them.)"""
+    is the one in its hyperparameters. (No class attribute `net` here: nn.Module keeps submodules
+    where a class attribute would shadow them.)"""
 
     @property
     def skeleton(self) -> Skeleton:
