@@ -88,14 +88,32 @@ def _reader(source: str):
 
         return read_positions
     if source == "keypoints":
-        from mocapfix.io.keypoints import read_keypoints
-
-        return read_keypoints
+        return _read_keypoints
     if source == "h36m":
         return _read_h36m
     from mocapfix.io.amass import read_amass
 
     return read_amass
+
+
+def _read_keypoints(
+    path, layout=None, min_confidence: float = 0.0, unit="auto", up_axis="auto", fps=None, groups=None
+) -> list[Clip]:
+    """Keypoints as trackers hand them over: an array in a published layout (.npy/.npz,
+    io/keypoints.py), Kinect v2 skeleton text (.skeleton, io/kinect_skeleton.py) or Azure
+    Kinect body tracking (.json, io/azure_kinect.py)."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".skeleton":
+        from mocapfix.io.kinect_skeleton import read_kinect_skeleton
+
+        return read_kinect_skeleton(path, min_confidence, unit, up_axis, fps, groups)
+    if suffix == ".json":
+        from mocapfix.io.azure_kinect import read_azure_kinect
+
+        return read_azure_kinect(path, unit, fps, groups)
+    from mocapfix.io.keypoints import read_keypoints
+
+    return read_keypoints(path, layout, min_confidence, unit, up_axis, fps, groups)
 
 
 def _read_h36m(path, unit: str = "auto", groups=None) -> list[Clip]:

@@ -149,18 +149,8 @@ def read_keypoints(
     groups=None,
 ) -> list[Clip]:
     """A keypoint array -> one Clip per person (metres, z up), on the layout's skeleton (parents
-    before children: meta "joint_order" maps it back to the file's columns). A Kinect v2
-    `.skeleton` text file goes to io/kinect_skeleton.py, an Azure Kinect body-tracking `.json` to
-    io/azure_kinect.py."""
+    before children: meta "joint_order" maps it back to the file's columns)."""
     path = Path(path)
-    if path.suffix.lower() == ".skeleton":
-        from mocapfix.io.kinect_skeleton import read_kinect_skeleton
-
-        return read_kinect_skeleton(path, min_confidence, unit, up_axis, fps, groups)
-    if path.suffix.lower() == ".json":
-        from mocapfix.io.azure_kinect import read_azure_kinect
-
-        return read_azure_kinect(path, unit, fps, groups)
     raw, key, file_fps, file_unit, times = _load(path)
     if raw.dtype.kind not in "iuf":
         raise MotionFileError(path, f"keypoints must be numbers, got dtype {raw.dtype}")
