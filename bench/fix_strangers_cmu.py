@@ -5,10 +5,15 @@ outputs (its fill policy measured over the folder's takes, as `fix FOLDER` does;
 file alone, as `fix FILE` does), beside every classical fill on the same whole take (Lerp, cubic spline, PCHIP, the
 limb fill, the cubic Hermite) and the motion-matching fills (fills/motion_matching.py; searching the
 folder's holed takes, as `fix FOLDER` does, and the take alone, as `fix FILE` does), on the
-shipped model's 21 joints (each take mapped onto them, rig/structure.py).
+model's joints (each take mapped onto them, rig/structure.py).
+
+Any folder and checkpoint: new performers of the capture a checkpoint was trained on (--data the
+test split's files, --source h36m for Human3.6M's exponential-map takes, --max-takes a subset
+evenly spread), --name names the result file.
 
     python bench/fix_strangers_cmu.py --model xmae-cpu-bandai
     python bench/fix_strangers_cmu.py --model-only --library /other/takes/of/the/same/people
+    python bench/fix_strangers_cmu.py --ckpt correction.ckpt --data bandai_test/ --min-seconds 4 --name bandai
 """
 
 from __future__ import annotations
@@ -21,7 +26,6 @@ import numpy as np
 import torch
 from common import describe, pick_device, print_table, write_result
 
-from mocapfix.core.skeleton import preset  # noqa: E402
 from mocapfix.evaluation.recording import spread_holes, with_holes  # noqa: E402
 from mocapfix.fills.classical import CLASSICAL  # noqa: E402
 from mocapfix.fills.motion_matching import FILLS as MATCH_FILLS  # noqa: E402
@@ -50,6 +54,9 @@ def main(argv=None) -> int:
     which.add_argument("--ckpt", default=None)
     ap.add_argument("--data", default=str(DEFAULT_CMU))
     ap.add_argument("--min-seconds", type=float, default=8.0)
+    ap.add_argument("--max-takes", type=int, default=None, help="at most this many takes, evenly spread")
+    ap.add_argument("--source", default="bvh", help="the files' format (fix --source)")
+    ap.add_argument("--name", default=None, help="the result file's suffix")
     ap.add_argument("--device", default="cpu")
     ap.add_argument(
         "--model-only",
@@ -67,12 +74,14 @@ def main(argv=None) -> int:
     device = pick_device(args.device)
     ckpt = args.ckpt or str(pretrained_path(args.model))
     fixer = load_fixer(ckpt, str(device))
-    body = preset("body21")
+    body = fixer.skeleton
     takes = []
-    for f in list_motion_files(args.data, "bvh"):
-        clip = read_motion(f)[0]
+    for f in list_motion_files(args.data, args.source):
+        clip = read_motion(f, args.source)[0]
         if clip.duration_s >= args.min_seconds:
             takes.append(onto_skeleton(clip, body))
+    if args.max_takes and len(takes) > args.max_takes:
+        takes = [takes[i] for i in np.linspace(0, len(takes) - 1, args.max_takes).round().astype(int)]
     extra = (
         [[onto_skeleton(read_motion(f)[0], body)] for f in list_motion_files(args.library, "bvh")]
         if args.library
@@ -145,9 +154,11 @@ def main(argv=None) -> int:
         "seconds": round(time.perf_counter() - t0, 1),
         "rows": rows,
     }
-    path = write_result("fix_strangers_cmu", result, args.json_out, "model_only" if args.model_only else None)
+    suffix = "-".join(filter(None, [args.name, "model_only" if args.model_only else None])) or None
+    path = write_result("fix_strangers_cmu", result, args.json_out, suffix)
     columns = [("part", "part"), ("method", "method")] + [(f"{g:g}s", f"{g:g} s") for g in GAPS_S]
-    print_table(f"fix on CMU takes >= {args.min_seconds:g} s ({len(takes)}), MPJPE mm over the holes", rows, columns)
+    title = f"fix on {args.data}: takes >= {args.min_seconds:g} s ({len(takes)}), MPJPE mm over the holes"
+    print_table(title, rows, columns)
     print(f"wrote {path}")
     return 0
 

@@ -10,10 +10,11 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, run_cli
 
-from mocapfix.core.clip import MotionFileError
 from mocapfix.data.corruption import training_holes
 from mocapfix.fills.classical import CLASSICAL, hermite_infill
-from mocapfix.fix.fixers import load_fixer
+from mocapfix.fix.fixer import FixOptions
+from mocapfix.fix.fixers import CorrectionFixer, load_fixer
+from mocapfix.io import read_motion
 from mocapfix.models.build import build_model
 from mocapfix.models.correction import CorrectionConfig, base_fill, correction_fill, longest_run
 
@@ -143,7 +144,17 @@ def test_fit_and_test_print_the_papers_infilling_table_with_every_classical_fill
     assert cell["lerp"] > cell["hermite"] > 0
 
 
-def test_fix_names_what_a_correction_checkpoint_is_in_one_line(trained):
-    with pytest.raises(MotionFileError, match="a learned correction to a classical fill") as e:
-        load_fixer(trained)
-    assert "\n" not in str(e.value)
+def test_fix_fills_holes_with_a_trained_correction_checkpoint(trained, tmp_path):
+    """The checkpoint `fit` writes is what `fix --ckpt` loads: its skeleton, rate, longest hole
+    and gaps; a take's holes come back filled, its observed tokens as read."""
+    fixer = load_fixer(trained)
+    assert isinstance(fixer, CorrectionFixer) and fixer.fps == 50.0 and fixer.max_hole_s == 1.0
+    assert fixer.policy.gaps_s == [0.1, 0.3, 0.5, 0.7, 0.9]
+    (take,) = read_motion(trained.parents[2] / "h36m" / "S9" / "walking_1.txt")
+    x = take.positions.copy()
+    x[100:125, :] = np.nan
+    x[200:210, 11:14] = np.nan
+    holed = take.replace(positions=x)
+    (out,), report = fixer.fix_clips([holed], FixOptions("infill"))
+    assert np.isfinite(out.positions).all() and report.filled == int(np.isnan(x).any(-1).sum())
+    assert np.array_equal(out.positions[~np.isnan(x)], x[~np.isnan(x)])

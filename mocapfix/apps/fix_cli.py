@@ -42,7 +42,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("paths", nargs="+", metavar="INPUT", help="motion files or folders")
     which = ap.add_mutually_exclusive_group(required=True)
-    which.add_argument("--ckpt", help="a mocapfix checkpoint (XMAE, Motion-DVAE's denoising stage, a jitter remover)")
+    which.add_argument(
+        "--ckpt",
+        help="a mocapfix checkpoint (XMAE, Motion-DVAE's denoising stage, a jitter remover, a learned correction)",
+    )
     which.add_argument("--model", help="a model shipped with mocapfix (`mocapfix models` lists them)")
     where = ap.add_mutually_exclusive_group()
     where.add_argument("-o", "--out", default=None, help="output file (one input file only)")

@@ -30,7 +30,7 @@ from mocapfix.fills.errors import ErrorSums, measure_on_takes
 from mocapfix.fills.fill import BLEND, Fill, made_for_choice, pick
 from mocapfix.fills.holes import PARTS, hole_kinds, token_choice
 
-LEARNED = ("xmae",)  # the candidates that are models; every other is a classical fill
+LEARNED = ("xmae", "correction")  # the candidates that are models; every other is a classical fill
 CLEAN_QUANTILE = 0.995  # of the model's disagreement with clean observed tokens: above it, a token is suspect
 MODEL_MARGIN = 0.98  # a model fills a hole only where its val error is 2 % below the best classical fill's
 BLEND_MARGIN = 0.99  # a blend of classical fills only where 1 % below the best single one (in doubt, the simpler)
@@ -82,6 +82,15 @@ class FillPolicy:
     # (method, margin): this classical fill unless another classical candidate's error is below
     # margin x its error (near-ties rank differently on other holes); None: the lowest error
     preferred: tuple[str, float] | None = None
+
+    @classmethod
+    def preferred_only(cls, gaps_s) -> FillPolicy:
+        """A policy with nothing measured yet: the preferred classical fill for every hole until
+        holes cut into the recording say otherwise (fit). A model without a val-split policy
+        (a learned correction) has earned no hole before the recording measures it."""
+        gaps = sorted(float(g) for g in gaps_s)
+        tables = {part: {PREFERRED: [float("inf")] * len(gaps)} for part in PARTS}
+        return cls(gaps, tables, None, 0, ["nothing measured"], (PREFERRED, PREFERRED_MARGIN))
 
     def choose(self, part: str, gap_s: float) -> str:
         """The method with the lowest error for holes of this part, at the measured length nearest

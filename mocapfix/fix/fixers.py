@@ -18,11 +18,13 @@ from mocapfix.core.resample import hold_last_frame, model_frames, resample_frame
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.fills.classical import lerp_infill
 from mocapfix.fills.policy import FillPolicy
+from mocapfix.fix.correction import corrected_take
 from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.jitter_clips import denoise_clips
 from mocapfix.fix.joints import ModelView
 from mocapfix.fix.position_fixer import PositionFixer
 from mocapfix.fix.position_windows import hermite_take_fills
+from mocapfix.fix.positions import Estimates
 from mocapfix.fix.report import FixReport
 from mocapfix.fix.rotations import RotationFixer
 from mocapfix.models.body import build_body_model
@@ -37,6 +39,7 @@ from mocapfix.models.checkpoint import (
     window_settings,
     xmae_config,
 )
+from mocapfix.models.correction import CorrectionNet
 from mocapfix.models.dvae import DVAEConfig, InitialStatePredictor, MotionDVAE, NoisePredictor
 from mocapfix.models.dvae_inference import (
     FIRST_FRAMES,
@@ -306,6 +309,69 @@ class DVAERotationFixer(RotationFixer, DVAEFixer):
     (rotations.py; estimate_rotations), and a BVH comes back with them."""
 
 
+class CorrectionFixer(PositionFixer):
+    """A learned correction to a classical fill (models/correction.py), trained on a capture's
+    archive, applied to each hole of a take (correction.py). It fills holes (infill); which holes
+    it takes is measured on holes cut into the recording, as for XMAE: where it beats every
+    classical fill there, and nowhere before (FillPolicy.preferred_only)."""
+
+    kind = "correction"
+    candidate = "correction"
+    measures_policy = True
+
+    def __init__(
+        self,
+        net: CorrectionNet,
+        skeleton: Skeleton,
+        fps: float,
+        window: int,
+        max_hole_s: float,
+        gaps_s,
+        device: str | torch.device = "cpu",
+    ):
+        self.net = net.to(device).eval()
+        self.skeleton, self.fps, self.window = skeleton, float(fps), int(window)
+        self.max_hole_s, self.device = float(max_hole_s), torch.device(device)
+        self.policy = FillPolicy.preferred_only(gaps_s)
+
+    @classmethod
+    def from_checkpoint(cls, path, ckpt: dict, device="cpu", precision: str = "fp32", policy=None) -> CorrectionFixer:
+        """precision: fp32 (auto included): an MLP per hole costs little, and bf16 would round
+        the millimetres it adds."""
+        if precision == "bf16":
+            raise ValueError("--precision bf16 is for XMAE checkpoints; a learned correction runs in fp32")
+        hparams = hyperparameters(ckpt)
+        skeleton, fps, frames = window_settings(path, hparams)
+        try:
+            net = build_model("correction", stored_config(path, ckpt))
+            max_hole_s = float(hparams.get("max_hole_s", 1.0))
+            gaps = [float(g) for g in hparams.get("eval_gaps_s", (0.1, 0.3, 0.5, 0.7, 0.9))]
+        except (TypeError, ValueError) as e:
+            raise MotionFileError(path, f"bad correction sizes in the checkpoint ({e})") from None
+        load_weights(path, net, network_weights(ckpt), "its config describes")
+        return cls(net, skeleton, fps, frames, max_hole_s, gaps, device)
+
+    def fix_clips(self, clips: list[Clip], options: FixOptions) -> tuple[list[Clip], FixReport]:
+        if options.mode != "infill":
+            raise MotionFileError(
+                clips[0].source or clips[0].name,
+                f"a learned correction fills holes (--mode infill), it does not judge observed tokens "
+                f"(--mode {options.mode}): an XMAE does",
+            )
+        return super().fix_clips(clips, options)
+
+    def estimates(self, clips: list[Clip], view: ModelView, need_m: list[np.ndarray], options: FixOptions) -> Estimates:
+        # each clip at its own frames: every hole the base fill's, corrected where need_m asks
+        out, runs = [], 0
+        for c, x, need in zip(clips, view.x_in, need_m):
+            at_model = np.round(np.arange(c.num_frames) * self.fps / c.fps).astype(np.int64)
+            asked = need[np.minimum(at_model, len(need) - 1)]
+            est, n = corrected_take(self.net, x, c.fps, self.fps, self.max_hole_s, asked)
+            out.append(est)
+            runs += n
+        return Estimates(out, [np.zeros(len(n), dtype=bool) for n in need_m], runs, 0)
+
+
 class JitterFixer(Fixer):
     """The jitter remover (models/jitter.py) on whole takes: the low-pass and the noise measure at
     the recording's own frame rate, the network's correction at its own (window_fps), brought back
@@ -363,20 +429,24 @@ class JitterFixer(Fixer):
 
 
 # kind -> class with from_checkpoint(path, ckpt, device, precision, policy)
-FIXERS: dict[str, type] = {"xmae": XMAEFixer, "motion-dvae": DVAEFixer, "jitter": JitterFixer}
+FIXERS: dict[str, type] = {
+    "xmae": XMAEFixer,
+    "motion-dvae": DVAEFixer,
+    "jitter": JitterFixer,
+    "correction": CorrectionFixer,
+}
 # Checkpoints fix recognises but cannot use, and why. A prior alone has no initial-state
 # predictor, and the paper's "No noisy train" ablation (appendix, Tab. 2) shows that its
 # encoder, trained on clean motion only, denoises badly: the denoising stage is what fix runs.
 REFUSED = {
     "motion-dvae-prior": "a Motion-DVAE prior checkpoint; fix needs the denoising stage trained from it "
     "(configs/motion_dvae_denoise*.yaml with model.init_args.prior_ckpt set to this file)",
-    "correction": "a learned correction to a classical fill; fix does not use one yet (its test tables: "
-    "python -m mocapfix test --config <its config> --ckpt_path this file)",
 }
 
 
 def load_fixer(path, device: str | torch.device = "cpu", precision: str = "fp32") -> Fixer:
-    """The Fixer for a checkpoint file (FIXERS: XMAE, the Motion-DVAE denoising stage).
+    """The Fixer for a checkpoint file (FIXERS: XMAE, the Motion-DVAE denoising stage, the jitter
+    remover, a learned correction).
     precision: fp32, bf16 or auto (resolve_precision; XMAE only)."""
     ckpt = read_checkpoint(path)
     stored_config(path, ckpt)  # a malformed model entry is said before anything is built from it

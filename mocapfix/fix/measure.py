@@ -16,27 +16,27 @@ from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.joints import ModelView, model_view
 from mocapfix.fix.merge import merge
 from mocapfix.fix.position_windows import needed_frames
-from mocapfix.fix.positions import model_estimates, take_keys
+from mocapfix.fix.positions import take_keys
 
 
 class TakeFill(Fill):
-    """A positions model's fill of whole takes as fix makes it (windows, blending, anchoring on
-    the data; no policy): fill(x (T, J, 3) at the model's joints, the take's fps; NaN =
+    """A positions model's fill of whole takes as fix makes it (its estimates: windows blended,
+    or a learned correction's holes; anchored on the data; no policy), named as the fixer's
+    candidate: fill(x (T, J, 3) at the model's joints, the take's fps; NaN =
     missing) -> (T, J, 3), and the same over a batch of takes as a Fill. Asked for some holes
     (the ones a policy is measured on), it runs the windows those need and no others: a hole of
     the take's own keeps the Lerp fill there."""
 
-    names = ("xmae",)
-
     def __init__(self, fixer: Fixer, overlap: float, batch_size: int):
         self.fixer, self.options = fixer, FixOptions("infill", overlap, batch_size)
+        self.names = (fixer.candidate,)
 
     def __call__(self, x: np.ndarray, fps: float, asked: np.ndarray | None = None) -> np.ndarray:
         """x: (T, J, 3); asked: (T,) bool, the frames whose holes are wanted (None: all)."""
         take = Clip(x.astype(np.float32), fps, self.fixer.skeleton)
         view = model_view([take], self.fixer.skeleton, self.fixer.fps, None)
         need_m = needed_frames([take], view, "infill", self.fixer.fps, None if asked is None else [asked])
-        (est,), _ = model_estimates([take], self.fixer, view, need_m, self.options)
+        (est,) = self.fixer.estimates([take], view, need_m, self.options).clips
         skeleton = self.fixer.skeleton
         new = merge(est, view.x_in[0], view.index[0], "infill", None, fps, skeleton, {}, MotionMatching(None))
         if asked is None:

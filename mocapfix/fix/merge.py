@@ -28,11 +28,13 @@ def merge(
     model: Skeleton,
     filled_by: dict[str, int],
     match: MotionMatching,
+    candidate: str = "xmae",
 ) -> np.ndarray:
     """est: (T, Jm, 3) the model's estimate at a clip's frames, x_in (T, Jm, 3) the clip at the
     model's joints, index (Jm,) the clip's joint of each model joint (-1: none) -> (T, Jm, 3)
     float64, the two merged as the mode says. filled_by counts the policy's fills by method;
-    match: the motion-matching fill of this take, should the policy choose it."""
+    match: the motion-matching fill of this take, should the policy choose it; candidate: the
+    estimate's name among the policy's candidates (the fixer's)."""
     x = x_in.astype(np.float64)
     obs = np.isfinite(x).all(-1)  # (T, Jm)
     if mode == "denoise":
@@ -47,7 +49,7 @@ def merge(
     if policy is not None:
         absent = index < 0
         model_fill = new[:, absent]
-        fills = [Made("xmae", torch.from_numpy(new)[None]), *classical_fills(), match]
+        fills = [Made(candidate, torch.from_numpy(new)[None]), *classical_fills(), match]
         # counted: the joints the recording has and shows (the fill of one it lacks, or never
         # shows, is not written: write_back.py)
         xt, ot = torch.from_numpy(x)[None], torch.from_numpy(obs)[None]

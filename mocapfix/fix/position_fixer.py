@@ -12,7 +12,7 @@ from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.joints import ModelView, model_view
 from mocapfix.fix.measure import measure_views
 from mocapfix.fix.pieces import fix_in_pieces, is_long
-from mocapfix.fix.positions import positions_pass
+from mocapfix.fix.positions import Estimates, model_estimates, positions_pass
 from mocapfix.fix.replace import replace_jumps
 from mocapfix.fix.report import FixReport
 
@@ -24,6 +24,13 @@ class PositionFixer(Fixer):
     filled by the method that was best for holes of its length and part, and in denoise / both
     an observed token is replaced only where its joint jumped away from the model's estimate and
     back (replace.py). Without a policy the model's estimate is used everywhere the mode says."""
+
+    candidate = "xmae"  # its fill's name among a fill policy's candidates (fills/policy.py LEARNED)
+
+    def estimates(self, clips: list[Clip], view: ModelView, need_m: list[np.ndarray], options: FixOptions) -> Estimates:
+        """The model's estimate of each clip at the frames need_m ((K,) bool per clip at the
+        model's frames) asks for: windows of the model's length, blended (positions.model_estimates)."""
+        return model_estimates(clips, self, view, need_m, options)
 
     def fix_clips(self, clips: list[Clip], options: FixOptions) -> tuple[list[Clip], FixReport]:
         if any(is_long(c) for c in clips):

@@ -11,6 +11,7 @@ position_fixer.py decides which passes a fix makes (the fill policy, jumps repla
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -26,7 +27,7 @@ from mocapfix.fix.joints import ModelView, model_view
 from mocapfix.fix.merge import merge
 from mocapfix.fix.position_windows import PositionWindows, joints_missing_for_a_window, needed_frames
 from mocapfix.fix.report import FixReport, PassTally, who
-from mocapfix.fix.windowing import Blended, blend_windows
+from mocapfix.fix.windowing import blend_windows
 from mocapfix.fix.write_back import clip_fixed
 
 
@@ -63,20 +64,22 @@ def positions_pass(
 
     asked = learned_frames(clips, view, policy, model) if mode == "infill" and policy is not None else None
     need_m = needed_frames(clips, view, mode, fps_m, asked)
-    estimates, blended = model_estimates(clips, fixer, view, need_m, options)
+    made = fixer.estimates(clips, view, need_m, options)
     whole = joints_missing_for_a_window(view.x_m, fixer.window, options.overlap)  # for the report
 
     tally, out_clips = PassTally(model), []
     for k, c in enumerate(clips):
-        tally.lerped += int((~blended.by_model[k] & need_m[k]).sum())
-        est = estimates[k]
+        tally.lerped += int(made.unserved[k].sum())
+        est = made.clips[k]
         match = MotionMatching(library, keys[k])  # this take's own data searched as it is, holes and all
-        new = merge(est, view.x_in[k], view.index[k], mode, policy, c.fps, model, tally.filled_by, match)
+        new = merge(
+            est, view.x_in[k], view.index[k], mode, policy, c.fps, model, tally.filled_by, match, fixer.candidate
+        )
         keep = mode == "infill" or fixer.too_short(c)  # its observed tokens kept
         out_clips.append(
             clip_fixed(c, k, new, view, fixer, mode, keep, seen, fill_other_joints, tally, who(clips), source)
         )
-    return out_clips, tally.report(clips, fps_m, mode, blended.windows, blended.failed, whole)
+    return out_clips, tally.report(clips, fps_m, mode, made.runs, made.failed, whole)
 
 
 def learned_frames(clips: list[Clip], view: ModelView, policy: FillPolicy, model) -> list[np.ndarray] | None:
@@ -98,14 +101,22 @@ def learned_frames(clips: list[Clip], view: ModelView, policy: FillPolicy, model
     return frames
 
 
+class Estimates(NamedTuple):
+    """A model's estimate of each clip of a file at the clip's own frames, and how it was made."""
+
+    clips: list[np.ndarray]  # (T, Jm, 3) per clip, NaN where none was needed
+    unserved: list[np.ndarray]  # (K,) bool per clip: needed model frames the model did not serve (Lerp there)
+    runs: int  # the network's runs (windows; a correction's holes)
+    failed: int  # of those, runs whose estimate was not finite
+
+
 def model_estimates(
     clips: list[Clip], fixer: Fixer, view: ModelView, need_m: list[np.ndarray], options: FixOptions
-) -> tuple[list[np.ndarray], Blended]:
+) -> Estimates:
     """The model's estimate of each clip at its own frames, (T, Jm, 3) with NaN where no window
-    was needed (need_m: (K,) bool per clip at the model's frames, needed_frames), and the blend
-    it came from. Windows with data go to the model; windows without any (a hole longer than a
-    window) get Lerp instead, blended the same way, so there is no seam where the estimate meets
-    the fallback."""
+    was needed (need_m: (K,) bool per clip at the model's frames, needed_frames). Windows with
+    data go to the model; windows without any (a hole longer than a window) get Lerp instead,
+    blended the same way, so there is no seam where the estimate meets the fallback."""
     has_data = [np.isfinite(xm).all(-1).any(-1) for xm in view.x_m]  # (K,) per clip
     windows = PositionWindows(fixer, view.x_m, fixer.whole_take_fills(clips, view))
     blended = blend_windows(windows, need_m, has_data, options.overlap, options.batch_size, options.progress)
@@ -113,7 +124,8 @@ def model_estimates(
         resample_frames(track.reshape(-1, fixer.skeleton.num_joints, 3), fixer.fps, c.fps, c.num_frames)
         for track, c in zip(blended.tracks, clips)
     ]
-    return estimates, blended
+    unserved = [~served & need for served, need in zip(blended.by_model, need_m)]
+    return Estimates(estimates, unserved, blended.windows, blended.failed)
 
 
 def with_mode(options: FixOptions, mode: str) -> FixOptions:
