@@ -38,8 +38,8 @@ def test_break_take_removes_holes_and_moves_one_arm(take):
 def test_score_table_measures_against_the_unbroken_take(take):
     truth, broken, damage = break_take(take)
     x, y = truth.positions, broken.positions
-    perfect = score_table(x, y, x, damage)
-    rows = {line.split()[0]: line for line in perfect.splitlines()[2:]}
+    perfect = score_table(x, y, x, damage, take.skeleton.parents, {"limb": 10})
+    rows = {line.split()[0]: line for line in perfect.splitlines()[2:-1]}
     assert rows["input"].split()[1] == "missing"
     assert float(rows["input"].split()[2]) == pytest.approx(1000 * JUMP_M, rel=1e-3)
     assert rows["mocapfix"].split()[1:3] == ["0.0", "0.0"]
@@ -50,8 +50,23 @@ def test_score_table_measures_against_the_unbroken_take(take):
     # an output that moved clean tokens says how many
     moved = x.copy()
     moved[: take.num_frames // 10, 0] += 0.01
-    line = score_table(x, y, moved, damage).splitlines()[-1]
-    assert f"{int(damage.clean[: take.num_frames // 10, 0].sum())} of" in line
+    line = score_table(x, y, moved, damage, take.skeleton.parents).splitlines()[-2]
+    assert line.startswith("mocapfix") and f"{int(damage.clean[: take.num_frames // 10, 0].sum())} of" in line
+    # the last line names the best classical fill over the holes and which fill filled them
+    holes = {
+        "cubic spline": rows["cubic"].split()[2],
+        "Hermite": rows["Hermite"].split()[1],
+        "limb fill": rows["limb"].split()[2],
+    }
+    lowest = min(holes.values(), key=float)
+    verdict = perfect.splitlines()[-1]
+    assert any(
+        verdict.startswith(f"holes: mocapfix 0.0 mm, the best classical fill ({name}) {lowest} mm; ") for name in holes
+    )
+    assert verdict.endswith(
+        "filled by limb 10: the model filled none (it fills a kind of hole only where it beat every "
+        "classical fill on holes cut into this take)"
+    )
 
 
 def test_the_held_out_take_is_from_the_test_split_and_not_fitted(bandai_dir):

@@ -7,9 +7,10 @@ person can judge.
 2. break a take the fit never saw the way capture fails: the whole body missing for 0.5 s, an
    arm for 0.9 s, a leg for 0.7 s, and the other arm jumped 35 cm away for 0.6 s;
 3. fix it with `mocapfix fix --mode both` and the fine-tuned checkpoint;
-4. score input, a cubic spline and mocapfix against the unbroken take (MPJPE in mm over the
-   holes and over the jumped arm, and how many clean tokens each changed), and draw the input
-   beside the fixed take (`mocapfix render`).
+4. score input, the classical fills (cubic spline, Hermite, limb fill) and mocapfix against the
+   unbroken take (MPJPE in mm over the holes and over the jumped arm, and how many clean tokens
+   each changed), say which fill filled the holes, and draw the input beside the fixed take
+   (`mocapfix render`).
 """
 
 from __future__ import annotations
@@ -85,16 +86,26 @@ def main(argv: list[str] | None = None) -> int:
     )
     fixed_path = out_dir / f"{held_out.name}_fixed.npz"
     print(f"mocapfix demo 2/3: fixing {shown(broken_path)} (a take the fit never saw, broken) with {shown(ckpt)}")
-    from mocapfix.apps.fix_cli import main as fix_main
+    import time
 
-    code = fix_main([str(broken_path), "--ckpt", str(ckpt), "-o", str(fixed_path), "--mode", "both", "--force"])
-    if code != 0:
-        return code
+    from mocapfix.apps.fix_one import report_text
+    from mocapfix.fix import fix_file, load_fixer
     from mocapfix.io import read_motion
 
-    as_read = read_motion(broken_path)[0]  # what fix and the spline both start from
+    try:  # what `mocapfix fix BROKEN --ckpt CKPT --mode both -o FIXED` does, with its report kept
+        t0 = time.perf_counter()
+        result = fix_file(broken_path, load_fixer(ckpt), "both", output=fixed_path)
+        result.write(overwrite=True)
+    except MotionFileError as e:
+        print(f"mocapfix demo: {e}", file=sys.stderr)
+        return 1
+    print(report_text(result, time.perf_counter() - t0, as_json=False))
+    as_read = read_motion(broken_path)[0]  # what fix and the classical fills all start from
     fixed = read_motion(fixed_path)[0].positions
-    print(score_table(truth.positions, as_read.positions, fixed, damage))
+    table = score_table(
+        truth.positions, as_read.positions, fixed, damage, truth.skeleton.parents, result.report.filled_by
+    )
+    print(table)
 
     print("mocapfix demo 3/3: drawing the input beside the fixed take")
     from mocapfix.apps.render import render_files
@@ -219,26 +230,41 @@ def break_take(clip: Clip) -> tuple[Clip, Clip, Damage]:
     return clip, clip.replace(positions=broken), Damage(holes, jumped)
 
 
-def score_table(truth: np.ndarray, as_read: np.ndarray, fixed: np.ndarray, damage: Damage) -> str:
+def score_table(
+    truth: np.ndarray,
+    as_read: np.ndarray,
+    fixed: np.ndarray,
+    damage: Damage,
+    parents,
+    filled_by: dict[str, int] | None = None,
+) -> str:
     """The table the demo prints: MPJPE (mm) against the unbroken take over the holes and over the
-    jumped arm, and the clean tokens each output changed. The spline fills what the file, as
-    read, lacks (a value no body can take is read as missing: io/absurd.py) and keeps the rest."""
+    jumped arm, and the clean tokens each output changed; beside mocapfix, the classical fills of
+    what the file, as read, lacks (a value no body can take is read as missing: io/absurd.py),
+    which keep the rest (parents: the take's skeleton's, for the limb fill). filled_by: the fix
+    report's count of tokens by fill: the last line says which fill filled the holes and how
+    mocapfix compares with the best classical fill there."""
     import torch
 
-    from mocapfix.fills.classical import spline_infill
+    from mocapfix.fills.classical import CLASSICAL
+    from mocapfix.fills.policy import is_learned
 
     seen = np.isfinite(as_read).all(-1)
-    spline = spline_infill(torch.from_numpy(np.nan_to_num(as_read))[None], torch.from_numpy(seen)[None])[0].numpy()
+    x, observed = torch.from_numpy(np.nan_to_num(as_read))[None], torch.from_numpy(seen)[None]
+    classical = {name: CLASSICAL[key](x, observed, parents)[0].numpy() for key, name in CLASSICAL_ROWS.items()}
+
+    def mean_mm(y: np.ndarray, where: np.ndarray) -> float:
+        return float(1000 * np.linalg.norm(y - truth, axis=-1)[where].mean())
 
     def error_mm(y: np.ndarray, where: np.ndarray) -> str:
-        e = np.linalg.norm(y - truth, axis=-1)[where]
-        return "missing" if not np.isfinite(e).all() else f"{1000 * e.mean():.1f}"
+        e = mean_mm(y, where)
+        return "missing" if not np.isfinite(e) else f"{e:.1f}"
 
     def changed(y: np.ndarray) -> str:
         moved = (np.linalg.norm(y - as_read, axis=-1) > MOVED_M) & damage.clean & seen
         return f"{int(moved.sum())} of {int((damage.clean & seen).sum())}"
 
-    rows = [("input", as_read), ("cubic spline", spline), ("mocapfix", fixed)]
+    rows = [("input", as_read), *classical.items(), ("mocapfix", fixed)]
     holes, jumped = int(damage.holes.sum()), int(damage.jumped.sum())
     head = ("", f"holes ({holes} tokens)", f"jumped arm ({jumped})", "clean changed")
     cells = [head] + [
@@ -247,4 +273,20 @@ def score_table(truth: np.ndarray, as_read: np.ndarray, fixed: np.ndarray, damag
     ]
     widths = [max(len(r[i]) for r in cells) for i in range(len(head))]
     lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))) for r in cells]
-    return "MPJPE in mm against the take before it was broken\n" + "\n".join(lines)
+    best = min(classical, key=lambda name: mean_mm(classical[name], damage.holes))
+    ours, theirs = mean_mm(fixed, damage.holes), mean_mm(classical[best], damage.holes)
+    verdict = f"holes: mocapfix {ours:.1f} mm, the best classical fill ({best}) {theirs:.1f} mm"
+    if filled_by:
+        learned = sum(n for m, n in filled_by.items() if is_learned(m))
+        by = ", ".join(f"{m} {n}" for m, n in sorted(filled_by.items()))
+        verdict += f"; filled by {by}: " + (
+            f"the model filled {learned} tokens"
+            if learned
+            else "the model filled none (it fills a kind of hole only where it beat every classical fill on "
+            "holes cut into this take)"
+        )
+    return "MPJPE in mm against the take before it was broken\n" + "\n".join(lines) + "\n" + verdict
+
+
+# the classical fills the table shows beside mocapfix (fills/classical.py), by their row names
+CLASSICAL_ROWS = {"spline": "cubic spline", "hermite": "Hermite", "limb": "limb fill"}
