@@ -57,6 +57,8 @@ def main(argv=None) -> int:
     ap.add_argument("--max-takes", type=int, default=None, help="at most this many takes, evenly spread")
     ap.add_argument("--source", default="bvh", help="the files' format (fix --source)")
     ap.add_argument("--name", default=None, help="the result file's suffix")
+    ap.add_argument("--parts", default=",".join(PARTS), help="some of " + ",".join(PARTS))
+    ap.add_argument("--gaps", default=",".join(f"{g:g}" for g in GAPS_S), help="hole lengths, seconds")
     ap.add_argument("--device", default="cpu")
     ap.add_argument(
         "--model-only",
@@ -91,8 +93,10 @@ def main(argv=None) -> int:
     model = model_fill(fixer, overlap=0.5, batch_size=64)
     t0 = time.perf_counter()
     sums: dict[tuple[str, float, str], list[float]] = {}
-    for part, group in PARTS.items():
-        for gap in GAPS_S:
+    parts = {p: PARTS[p] for p in args.parts.split(",")}
+    gaps = [float(g) for g in args.gaps.split(",")]
+    for part, group in parts.items():
+        for gap in gaps:
             holed_takes, hiddens = [], []
             for clip in takes:
                 truth = clip.positions.astype(np.float64)
@@ -130,18 +134,18 @@ def main(argv=None) -> int:
                     s[0] += 1000 * float(err.sum())
                     s[1] += int(err.size)
     rows = []
-    for part in PARTS:
+    for part in parts:
         matching = [f"{m} ({w})" for w in ("folder", "take alone") for m in MATCH_FILLS]
         for name in ["fix", "fix (file alone)", "model", *CLASSICAL, *matching]:
-            if (part, GAPS_S[0], name) not in sums:
+            if (part, gaps[0], name) not in sums:
                 continue
             row = {"part": part, "method": name}
-            for gap in GAPS_S:
+            for gap in gaps:
                 s = sums[(part, gap, name)]
                 row[f"{gap:g}s"] = s[0] / max(s[1], 1)
             rows.append(row)
         best = {"part": part, "method": "best classical"}
-        for gap in GAPS_S:
+        for gap in gaps:
             best[f"{gap:g}s"] = min(r[f"{gap:g}s"] for r in rows if r["part"] == part and r["method"] in CLASSICAL)
         rows.append(best)
     result = {
@@ -156,7 +160,7 @@ def main(argv=None) -> int:
     }
     suffix = "-".join(filter(None, [args.name, "model_only" if args.model_only else None])) or None
     path = write_result("fix_strangers_cmu", result, args.json_out, suffix)
-    columns = [("part", "part"), ("method", "method")] + [(f"{g:g}s", f"{g:g} s") for g in GAPS_S]
+    columns = [("part", "part"), ("method", "method")] + [(f"{g:g}s", f"{g:g} s") for g in gaps]
     title = f"fix on {args.data}: takes >= {args.min_seconds:g} s ({len(takes)}), MPJPE mm over the holes"
     print_table(title, rows, columns)
     print(f"wrote {path}")

@@ -14,7 +14,7 @@ import torch
 
 from mocapfix.fills.classical import classical_fills
 from mocapfix.fills.fill import Fill, blends, made
-from mocapfix.fills.holes import PARTS, cut_holes
+from mocapfix.fills.holes import PARTS, cut_holes, room_for_holes, share_holes
 from mocapfix.fills.motion_matching import MotionLibrary, MotionMatching, library_of
 
 HOLES_PER_CELL = 64  # the budget of holes cut into the recording per (part, gap): a model pass each kind
@@ -98,11 +98,11 @@ def measure_on_takes(
     to its MotionLibrary; default their order), each take's own with its holes cut, and `library`
     (the user's other takes, fix --library)."""
     errors = ErrorSums(gaps_s)
-    budget = -(-HOLES_PER_CELL // max(1, len(takes)))
     keys = list(range(len(takes))) if keys is None else list(keys)
     library = library_of(takes, keys, skeleton, library)
     gaps = tuple(errors.gaps_s)
-    jobs = [(x, fps, skeleton, gaps, cells, budget, library, key) for (x, fps), key in zip(takes, keys)]
+    budgets = hole_budgets(takes, skeleton, gaps, cells)
+    jobs = [(x, fps, skeleton, gaps, cells, b, library, key) for (x, fps), key, b in zip(takes, keys, budgets)]
     results = [measure_take(*job, model_fill=model_fill) for job in jobs] if map_takes is None else map_takes(jobs)
     cut: dict[tuple[str, float], int] = {}
     for sums, take_cut in results:
@@ -112,17 +112,49 @@ def measure_on_takes(
     return (errors.tables() if errors.sums else None), cut
 
 
-def measure_take(
-    x: np.ndarray, fps: float, skeleton, gaps_s, cells, budget: int, library=None, key=None, model_fill=None
-):
-    """One take's share of measure_on_takes: up to `budget` holes of each kind cut into x (T, J, 3)
-    and every fill's error there -> (ErrorSums.sums, holes cut per (part, gap)). library: a
-    MotionLibrary (its take `key` left out: this one is searched with its holes cut), None: no
-    motion-matching fills; model_fill: a Fill, or None."""
-    errors = ErrorSums(gaps_s)
+def hole_budgets(takes: list[tuple[np.ndarray, float]], skeleton, gaps_s, cells) -> list[dict[tuple[str, float], int]]:
+    """Per take, the holes of each kind (part, gap) to cut into it: HOLES_PER_CELL spread over the
+    takes (share_holes), a take crowded with holes of its own cutting fewer and the others more.
+    (Bandai's 4-15-s test takes, each with four 0.9-s holes: equal shares cut 19 holes of 64.)"""
+    options = part_options(skeleton)
+    kinds = [(p, g) for p in PARTS for g in gaps_s if p in options and (cells is None or (p, g) in cells)]
+    budgets: list[dict[tuple[str, float], int]] = [{} for _ in takes]
+    observed = [np.isfinite(x).all(-1) for x, _ in takes]
+    for part, gap in kinds:
+        room = [
+            room_for_holes(o, options[part], max(1, round(gap * fps)), max(1, round(CONTEXT_S * fps)))
+            for o, (_, fps) in zip(observed, takes)
+        ]
+        for budget, n in zip(budgets, share_holes(room, HOLES_PER_CELL)):
+            budget[(part, gap)] = n
+    return budgets
+
+
+def part_options(skeleton) -> dict[str, list[list[int]]]:
+    """part -> the joint sets a hole of it takes: the whole body; each arm; each leg."""
     options = {"full": [list(range(skeleton.num_joints))]}
     for group, members in sorted(skeleton.groups.items()):
         options.setdefault(group.split("_")[-1], []).append(list(members))
+    return options
+
+
+def measure_take(
+    x: np.ndarray,
+    fps: float,
+    skeleton,
+    gaps_s,
+    cells,
+    budget: dict[tuple[str, float], int],
+    library=None,
+    key=None,
+    model_fill=None,
+):
+    """One take's share of measure_on_takes: budget[(part, gap)] holes of each kind (hole_budgets)
+    cut into x (T, J, 3) and every fill's error there -> (ErrorSums.sums, holes cut per (part,
+    gap)). library: a MotionLibrary (its take `key` left out: this one is searched with its holes
+    cut), None: no motion-matching fills; model_fill: a Fill, or None."""
+    errors = ErrorSums(gaps_s)
+    options = part_options(skeleton)
     observed = np.isfinite(x).all(-1)
     truth = torch.from_numpy(x.astype(np.float64))[None]
     fills = classical_fills()
@@ -133,10 +165,10 @@ def measure_take(
     cut: dict[tuple[str, float], int] = {}
     for part in PARTS:
         for gap in gaps_s:
-            if part not in options or (cells is not None and (part, gap) not in cells):
+            if part not in options or (cells is not None and (part, gap) not in cells) or not budget.get((part, gap)):
                 continue
             hidden = cut_holes(
-                observed, options[part], max(1, round(gap * fps)), budget, max(1, round(CONTEXT_S * fps))
+                observed, options[part], max(1, round(gap * fps)), budget[(part, gap)], max(1, round(CONTEXT_S * fps))
             )
             if not hidden.any():
                 continue

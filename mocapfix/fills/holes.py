@@ -81,3 +81,45 @@ def cut_holes(observed: np.ndarray, options: list[list[int]], frames: int, budge
                 taken[s : s + frames] = True
                 break
     return hidden
+
+
+def room_for_holes(observed: np.ndarray, options: list[list[int]], frames: int, margin: int = 1) -> int:
+    """How many holes cut_holes could cut at most into a take: holes of `frames` frames over the
+    joints of one of `options`, each with `margin` observed frames on both sides, apart by a margin
+    (observed: (T, J) bool). Counted over every option's places at once (an upper bound where the
+    options' places differ), greedily from the start: cheap enough to ask of every take."""
+    starts = set()
+    for joints in options:
+        seen = observed[:, joints].all(-1).astype(np.int64)
+        run = np.convolve(seen, np.ones(frames + 2 * margin, dtype=np.int64), mode="valid")
+        starts.update((np.nonzero(run == frames + 2 * margin)[0] + margin).tolist())
+    count, free_from = 0, -(10**9)
+    for s in sorted(starts):
+        if s - margin >= free_from:
+            count += 1
+            free_from = s + frames
+    return count
+
+
+def share_holes(room: list[int], total: int) -> list[int]:
+    """Each take's share of `total` holes: an equal share (rounded up) where the take has room for
+    it, and what takes without room cannot cut given to those with room, evenly. room: room_for_holes
+    per take. A folder of short takes crowded with their own holes still gets its total."""
+    n = len(room)
+    if n == 0:
+        return []
+    share = -(-total // n)
+    budget = [min(share, r) for r in room]
+    left = min(total, n * share) - sum(budget)
+    while left > 0:
+        open_ = [k for k in range(n) if budget[k] < room[k]]
+        if not open_:
+            break
+        each = max(1, left // len(open_))
+        for k in open_:
+            give = min(each, room[k] - budget[k], left)
+            budget[k] += give
+            left -= give
+            if left == 0:
+                break
+    return budget
