@@ -361,15 +361,16 @@ class CorrectionFixer(PositionFixer):
         return super().fix_clips(clips, options)
 
     def estimates(self, clips: list[Clip], view: ModelView, need_m: list[np.ndarray], options: FixOptions) -> Estimates:
-        # each clip at its own frames: every hole the base fill's, corrected where need_m asks
+        # each clip at its own frames: every hole the base fill's, corrected where need_m asks;
+        # no windows (none blind, none served by a fallback)
         out, runs = [], 0
         for c, x, need in zip(clips, view.x_in, need_m):
             at_model = np.round(np.arange(c.num_frames) * self.fps / c.fps).astype(np.int64)
             asked = need[np.minimum(at_model, len(need) - 1)]
-            est, n = corrected_take(self.net, x, c.fps, self.fps, self.max_hole_s, asked)
+            est, corrected = corrected_take(self.net, x, c.fps, self.fps, self.max_hole_s, asked)
             out.append(est)
-            runs += n
-        return Estimates(out, [np.zeros(len(n), dtype=bool) for n in need_m], runs, 0)
+            runs += corrected
+        return Estimates(out, [np.zeros(len(need), dtype=bool) for need in need_m], runs, 0, 0)
 
 
 class JitterFixer(Fixer):

@@ -65,7 +65,6 @@ def positions_pass(
     asked = learned_frames(clips, view, policy, model) if mode == "infill" and policy is not None else None
     need_m = needed_frames(clips, view, mode, fps_m, asked)
     made = fixer.estimates(clips, view, need_m, options)
-    whole = joints_missing_for_a_window(view.x_m, fixer.window, options.overlap)  # for the report
 
     tally, out_clips = PassTally(model), []
     for k, c in enumerate(clips):
@@ -79,7 +78,7 @@ def positions_pass(
         out_clips.append(
             clip_fixed(c, k, new, view, fixer, mode, keep, seen, fill_other_joints, tally, who(clips), source)
         )
-    return out_clips, tally.report(clips, fps_m, mode, made.runs, made.failed, whole)
+    return out_clips, tally.report(clips, fps_m, mode, made.runs, made.failed, made.blind)
 
 
 def learned_frames(clips: list[Clip], view: ModelView, policy: FillPolicy, model) -> list[np.ndarray] | None:
@@ -108,6 +107,7 @@ class Estimates(NamedTuple):
     unserved: list[np.ndarray]  # (K,) bool per clip: needed model frames the model did not serve (Lerp there)
     runs: int  # the network's runs (windows; a correction's holes)
     failed: int  # of those, runs whose estimate was not finite
+    blind: int  # windows with a joint missing throughout (joints_missing_for_a_window), for the report
 
 
 def model_estimates(
@@ -125,7 +125,8 @@ def model_estimates(
         for track, c in zip(blended.tracks, clips)
     ]
     unserved = [~served & need for served, need in zip(blended.by_model, need_m)]
-    return Estimates(estimates, unserved, blended.windows, blended.failed)
+    blind = joints_missing_for_a_window(view.x_m, fixer.window, options.overlap)
+    return Estimates(estimates, unserved, blended.windows, blended.failed, blind)
 
 
 def with_mode(options: FixOptions, mode: str) -> FixOptions:
