@@ -88,16 +88,16 @@ def room_for_holes(observed: np.ndarray, options: list[list[int]], frames: int, 
     joints of one of `options`, each with `margin` observed frames on both sides, apart by a margin
     (observed: (T, J) bool). Counted over every option's places at once (an upper bound where the
     options' places differ), greedily from the start: cheap enough to ask of every take."""
-    starts = set()
+    places, width = [], frames + 2 * margin
     for joints in options:
-        seen = observed[:, joints].all(-1).astype(np.int64)
-        run = np.convolve(seen, np.ones(frames + 2 * margin, dtype=np.int64), mode="valid")
-        starts.update((np.nonzero(run == frames + 2 * margin)[0] + margin).tolist())
-    count, free_from = 0, -(10**9)
-    for s in sorted(starts):
-        if s - margin >= free_from:
-            count += 1
-            free_from = s + frames
+        seen = np.concatenate([[0], np.cumsum(observed[:, joints].all(-1))])  # observed frames before each
+        run = seen[width:] - seen[:-width]  # observed frames in each hole-and-margins stretch
+        places.append(np.nonzero(run == width)[0] + margin)
+    starts = np.unique(np.concatenate(places))  # sorted
+    count, i = 0, 0
+    while i < len(starts):  # one step per hole: the first start a margin past the last hole's end
+        count += 1
+        i = int(np.searchsorted(starts, starts[i] + frames + margin))
     return count
 
 
