@@ -32,6 +32,7 @@ def test_the_checkout_configs_are_the_packaged_ones():
         "xmae_amass",
         "xmae_h36m",
         "correction_h36m",
+        "correction_bvh",
         "motion_dvae",
         "motion_dvae_bvh",
         "motion_dvae_denoise_bvh",
