@@ -28,6 +28,8 @@ START_FROM = "xmae-cpu-bandai"
 JUMP_M = 0.35  # the jumped arm's offset: a marker swap or a mislabelled arm, not an absurd value
 MOVED_M = 0.001  # a clean token "changed" when moved by more than this
 MIN_TAKE_S = 6.0  # room for the three holes and the jump, 0.5 s or more apart
+# the classical fills the table shows beside mocapfix (fills/classical.py), by their row names
+CLASSICAL_ROWS = {"spline": "cubic spline", "hermite": "Hermite", "limb": "limb fill"}
 
 
 @dataclass(frozen=True)
@@ -286,7 +288,3 @@ def score_table(
             "holes cut into this take)"
         )
     return "MPJPE in mm against the take before it was broken\n" + "\n".join(lines) + "\n" + verdict
-
-
-# the classical fills the table shows beside mocapfix (fills/classical.py), by their row names
-CLASSICAL_ROWS = {"spline": "cubic spline", "hermite": "Hermite", "limb": "limb fill"}

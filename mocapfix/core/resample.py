@@ -56,6 +56,16 @@ def resample_frames(x: np.ndarray, src_fps: float, dst_fps: float, num: int) -> 
     return out.astype(x.dtype, copy=False)
 
 
+def frames_around(marked: np.ndarray, src_fps: float, dst_fps: float, num: int) -> np.ndarray:
+    """marked: (T,) bool at src_fps -> (num,) bool at dst_fps: the frames each marked instant lies
+    between (both; the one frame it falls on), the last frame for instants past the end."""
+    f = np.nonzero(marked)[0] * (dst_fps / src_fps)
+    out = np.zeros(num, dtype=bool)
+    out[np.minimum(np.floor(f + 1e-6).astype(np.int64), num - 1)] = True
+    out[np.minimum(np.ceil(f - 1e-6).astype(np.int64), num - 1)] = True
+    return out
+
+
 def hold_last_frame(x: np.ndarray) -> np.ndarray:
     """(T, ...) with NaN frames past the last finite one (resample_frames' end) -> those hold it."""
     ok = np.isfinite(x.reshape(len(x), -1)).all(-1)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from mocapfix.core.resample import frames_within, model_frames, resample_frames
+from mocapfix.core.resample import frames_around, frames_within, model_frames, resample_frames
 from mocapfix.models.correction import CorrectionNet, base_fill
 
 
@@ -82,7 +82,7 @@ def corrected_take(
         observed_m = torch.isfinite(xm).all(-1)
         base_m = base_fill(net.config, xm, observed_m)[0].numpy()
         hole_m = ~observed_m[0].numpy() & shown
-        wanted = None if asked is None else _frames_at(asked, fps, fps_m, K)
+        wanted = None if asked is None else frames_around(asked, fps, fps_m, K)
     runs = hole_runs(hole_m, max(1, round(max_hole_s * fps_m)))
     if wanted is not None:
         runs = [(s, e) for s, e in runs if wanted[s:e].any()]
@@ -105,12 +105,3 @@ def _past_end_held(x: np.ndarray, within: int) -> np.ndarray:
     within = min(within, len(x))
     x[within:] = x[within - 1]
     return x
-
-
-def _frames_at(frames: np.ndarray, fps: float, fps_m: float, K: int) -> np.ndarray:
-    """(T,) bool at fps -> (K,) bool at fps_m: the frames around each instant of a marked frame."""
-    f = np.nonzero(frames)[0] * (fps_m / fps)
-    out = np.zeros(K, dtype=bool)
-    out[np.minimum(np.floor(f + 1e-6).astype(np.int64), K - 1)] = True
-    out[np.minimum(np.ceil(f - 1e-6).astype(np.int64), K - 1)] = True
-    return out

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from mocapfix.core.clip import Clip
-from mocapfix.core.resample import hold_last_frame, resample_frames
+from mocapfix.core.resample import frames_around, hold_last_frame, resample_frames
 from mocapfix.fills.classical import hermite_infill, lerp_infill
 from mocapfix.fix.fixer import Fixer
 from mocapfix.fix.joints import ModelView
@@ -80,12 +80,7 @@ def needed_frames(
             need = obs.any(-1)
         else:
             need = np.ones(len(obs), dtype=bool)
-        # the model frames each needed input frame interpolates from
-        f = np.nonzero(need)[0] * (fps_m / c.fps)
-        nm = np.zeros(len(xm), dtype=bool)
-        nm[np.minimum(np.floor(f + 1e-6).astype(np.int64), len(xm) - 1)] = True
-        nm[np.minimum(np.ceil(f - 1e-6).astype(np.int64), len(xm) - 1)] = True
-        need_m.append(nm)
+        need_m.append(frames_around(need, c.fps, fps_m, len(xm)))  # the model frames each interpolates from
     return need_m
 
 
