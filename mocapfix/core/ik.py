@@ -14,9 +14,9 @@ differs between the positions and the skeleton does not carry down the chain):
 
 from __future__ import annotations
 
-import roma
 import torch
 
+from mocapfix.core import lazy_roma as roma
 from mocapfix.core.kinematics import forward_kinematics
 
 

@@ -6,8 +6,9 @@ Motion-DVAE body model all call it. Batched over any leading dims, differentiabl
 
 from __future__ import annotations
 
-import roma
 import torch
+
+from mocapfix.core import lazy_roma as roma
 
 
 def forward_kinematics(

@@ -12,9 +12,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import roma
 import torch
 
+from mocapfix.core import lazy_roma as roma
 from mocapfix.core.clip import Clip
 from mocapfix.core.kinematics import fk_axis_angle
 

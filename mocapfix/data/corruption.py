@@ -21,9 +21,9 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import roma
 import torch
 
+from mocapfix.core import lazy_roma as roma
 from mocapfix.core.kinematics import fk_axis_angle
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 from torchmetrics import Metric
 
-M_TO_MM = 1000.0
+from mocapfix.evaluation.limb_lengths import M_TO_MM, limb_sigmas
 
 
 def _finite_token(x: torch.Tensor) -> torch.Tensor:
@@ -139,12 +139,4 @@ class LimbSigma(_MeanMetric):
             raise ValueError("LimbSigma needs at least one limb")
 
     def update(self, positions: torch.Tensor) -> None:
-        a = torch.tensor([parent for parent, _ in self.limbs], device=positions.device)
-        b = torch.tensor([child for _, child in self.limbs], device=positions.device)
-        length = (positions[:, :, a] - positions[:, :, b]).norm(dim=-1)  # (B, T, L)
-        ok = ~torch.isnan(length)
-        zero = torch.zeros((), dtype=length.dtype, device=length.device)
-        n = ok.sum(dim=1)  # (B, L)
-        mean = torch.where(ok, length, zero).sum(dim=1) / n.clamp_min(1)
-        var = torch.where(ok, (length - mean[:, None]) ** 2, zero).sum(dim=1) / n.clamp_min(1)
-        self._accumulate(M_TO_MM * var.sqrt(), n >= 2)
+        self._accumulate(*limb_sigmas(positions, self.limbs))

@@ -19,7 +19,7 @@ import torch
 
 from mocapfix.core.clip import Clip
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.evaluation.metrics import LimbSigma
+from mocapfix.evaluation.limb_lengths import limb_sigmas
 
 NOT_JUDGED = "observed tokens kept, not judged"
 
@@ -62,10 +62,12 @@ def _finite_or_none(v: float) -> float | None:
 class LimbSpread:
     """Limb sigma (the std over time of each limb's length) of a file's clips as read and as
     fixed, over the model's limbs between two joints the file has: a limb to a joint the rig
-    lacks has nothing read to compare with, and what the model estimated there is not written."""
+    lacks has nothing read to compare with, and what the model estimated there is not written.
+    The mean over clips and limbs, as metrics.LimbSigma takes it (evaluation/limb_lengths.py)."""
 
     def __init__(self, model: Skeleton):
-        self.before, self.after = LimbSigma(list(model.limbs)), LimbSigma(list(model.limbs))
+        self.limbs = [(int(a), int(b)) for a, b in model.limbs]
+        self.sums = {"before": [0.0, 0], "after": [0.0, 0]}  # [sum of stds mm, count]
 
     def add(self, before: np.ndarray, after: np.ndarray, index: np.ndarray | None = None) -> None:
         """before, after: (T, Jm, 3) one clip at the model's joints as read and as fixed; index:
@@ -74,15 +76,15 @@ class LimbSpread:
             before, after = before.copy(), after.copy()
             before[:, index < 0] = np.nan
             after[:, index < 0] = np.nan
-        self.before.update(torch.from_numpy(before)[None])
-        self.after.update(torch.from_numpy(after)[None])
+        for name, x in (("before", before), ("after", after)):
+            sigma, valid = limb_sigmas(torch.from_numpy(x)[None], self.limbs)
+            self.sums[name][0] += float(torch.where(valid, sigma, 0.0).sum(dtype=torch.float64))
+            self.sums[name][1] += int(valid.sum())
 
     def values(self) -> tuple[float, float]:
-        """(before, after) in mm; NaN (shown "-") where no clip was measured, without the warning
-        torchmetrics prints for a compute() before any update()."""
-        if not self.before.update_count:
-            return float("nan"), float("nan")
-        return float(self.before.compute()), float(self.after.compute())
+        """(before, after) in mm, as float32 as LimbSigma gives them; NaN (shown "-") where
+        nothing was measured."""
+        return tuple(float(np.float32(total / count)) if count else float("nan") for total, count in self.sums.values())
 
 
 @dataclass

@@ -9,9 +9,9 @@ are the forward kinematics of the result. A BVH input is read again with the mod
 from __future__ import annotations
 
 import numpy as np
-import roma
 import torch
 
+from mocapfix.core import lazy_roma as roma
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.core.kinematics import fk_axis_angle
 from mocapfix.core.resample import model_frames, resample_motion

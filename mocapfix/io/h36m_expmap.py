@@ -31,9 +31,9 @@ import re
 from pathlib import Path
 
 import numpy as np
-import roma
 import torch
 
+from mocapfix.core import lazy_roma as roma
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.io.h36m import H36M_FPS, H36M_KEEP, H36M_SPLIT, h36m_skeleton
 from mocapfix.io.untrusted import read_bytes

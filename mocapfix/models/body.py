@@ -18,10 +18,10 @@ from pathlib import Path
 from typing import NamedTuple, Protocol
 
 import numpy as np
-import roma
 import torch
 import torch.nn as nn
 
+from mocapfix.core import lazy_roma as roma
 from mocapfix.core.clip import MotionFileError
 from mocapfix.core.kinematics import forward_kinematics
 

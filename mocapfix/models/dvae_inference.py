@@ -23,9 +23,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import roma
 import torch
 
+from mocapfix.core import lazy_roma as roma
 from mocapfix.models.dvae import InitialStatePredictor, MotionDVAE, NoisePredictor
 from mocapfix.models.dvae_state import Canonical, MotionState, from_canonical, split_rotation_state
 

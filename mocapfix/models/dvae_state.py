@@ -18,10 +18,10 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import roma
 import torch
 import torch.nn as nn
 
+from mocapfix.core import lazy_roma as roma
 from mocapfix.models.body import BodyOutput
 
 STATES = ("rotations", "positions")
