@@ -198,13 +198,14 @@ def test_the_recording_policy_never_searches_the_truth_of_its_cut_holes():
     rng = np.random.default_rng(5)
     steps = rng.normal(0, 0.004, (600, BODY.num_joints, 3)).cumsum(0).cumsum(0) * 0.05
     x = steps + rng.normal(0, 0.3, (1, BODY.num_joints, 3)) + [0, 0, 1.0]
-    table, holes = measure_on_takes([(x, 30.0), (x + [5.0, 0.0, 0.0], 30.0)], BODY, (0.5,), {("full", 0.5)})
+    errors, holes = measure_on_takes([(x, 30.0), (x + [5.0, 0.0, 0.0], 30.0)], BODY, (0.5,), {("full", 0.5)})
+    table = errors.tables()
     assert holes[("full", 0.5)] >= 8
     full = {m: e[0] for m, e in table["full"].items()}
     # the second take is the first moved 5 m: each one's cut holes are found in the other, uncut
     assert full["match"] < 0.01 * full["hermite"]
     one, _ = measure_on_takes([(x, 30.0)], BODY, (0.5,), {("full", 0.5)})
-    alone = {m: e[0] for m, e in one["full"].items()}
+    alone = {m: e[0] for m, e in one.tables()["full"].items()}
     assert alone["match"] > 0.3 * alone["hermite"] and alone["hermite"] > 1.0
 
 
@@ -275,3 +276,27 @@ def test_a_long_library_scored_first_by_the_proxy_finds_what_the_exact_search_fi
     for name in exact:
         np.testing.assert_allclose(proxied[name], exact[name], atol=1e-6)
     assert np.abs(exact["match"][~observed] - x[~observed]).max() < 1e-4  # found the take itself
+
+
+def test_the_best_starts_apart_are_those_of_a_pick_at_a_time():
+    """_best_apart sorts only the lowest distances; it must pick what taking the argmin, ruling
+    out its neighbourhood and taking the argmin again picks, ties and unscored starts included."""
+    from mocapfix.fills.motion_matching import _best_apart
+
+    def one_at_a_time(of, n, apart):
+        left, out = of.copy(), []
+        for _ in range(n):
+            i = int(np.argmin(left))
+            if not np.isfinite(left[i]):
+                break
+            out.append(i)
+            left[max(0, i - apart) : i + apart + 1] = np.inf
+        return out
+
+    rng = np.random.default_rng(3)
+    for trial in range(200):
+        N = int(rng.integers(1, 400))
+        of = rng.integers(0, 6, N).astype(float) if trial % 2 else rng.random(N)  # many ties, or none
+        of[rng.random(N) < 0.2] = np.inf
+        n, apart = int(rng.integers(1, 20)), int(rng.integers(0, 12))
+        assert _best_apart(of, n, apart) == one_at_a_time(of, n, apart)

@@ -153,7 +153,8 @@ def test_the_classical_fills_are_ranked_on_the_take_itself():
     a, b, c = (rng.normal(size=(1, body.num_joints, 3)) * s for s in (0.3, 0.1, 0.02))
     x = (a * t + b * t**2 + c * t**3).astype(np.float64)
     x[50:60] = np.nan
-    table, holes = measure_on_takes([(x, 30.0)], body, (0.3, 0.5), {("full", 0.5), ("arm", 0.3)})
+    errors, holes = measure_on_takes([(x, 30.0)], body, (0.3, 0.5), {("full", 0.5), ("arm", 0.3)})
+    table = errors.tables()
     assert holes[("full", 0.5)] >= 4 and set(holes) == {("full", 0.5), ("arm", 0.3)}
     full = {m: e[1] for m, e in table["full"].items()}
     assert full["spline"] < 0.01 * full["lerp"] and full["lerp"] > 1.0
@@ -263,3 +264,90 @@ def test_library_files_past_what_the_search_keeps_are_not_read(tmp_path, monkeyp
     read = fix_run._library_takes([str(tmp_path)], "auto", err, {})
     assert [c[0].source.endswith(f"take{i}.npz") for i, c in enumerate(read)] == [True, True]
     assert "2 files (0 min) read; 1 more not read" in err.getvalue()
+
+
+def test_a_costly_fill_that_cannot_win_a_kind_is_screened_out_and_one_that_can_is_kept():
+    """hopeless: paired per-hole errors against what choose() asks (MODEL_MARGIN / PREFERRED_MARGIN
+    x the preferred fill's): clearly above it, the fill stops measuring that kind; near it, not."""
+    from mocapfix.fills.errors import ErrorSums
+    from mocapfix.fills.policy import hopeless
+
+    rng = np.random.default_rng(0)
+    limb = 0.010 + 0.004 * rng.random(16)  # the holes differ far more than the fills on one hole
+    errors = ErrorSums([0.5, 0.9])
+    errors.holes = {
+        ("full", 0.5, "limb"): list(limb),
+        ("full", 0.5, "match"): list(1.5 * limb),  # far behind
+        ("full", 0.5, "limb+match"): list(1.2 * limb),
+        ("full", 0.5, "xmae"): list(0.99 * limb + 1e-5 * rng.random(16)),  # ahead, but not by 2 %
+        ("full", 0.9, "limb"): list(limb),
+        ("full", 0.9, "match"): list(1.5 * limb),
+        ("full", 0.9, "limb+match"): list(0.9 * limb + 0.002 * rng.standard_normal(16)),  # may win
+        ("full", 0.9, "xmae"): list(0.9 * limb),
+    }
+    out = hopeless(errors, [("match", "match_delta"), ("xmae",)])
+    assert out == {("full", 0.5): {"match", "match_delta", "xmae"}}
+
+
+def test_fills_screened_out_after_the_first_takes_are_not_run_on_the_others():
+    """measure_on_takes asks its screen once the first takes are measured; a costly fill it names
+    is not run again on that kind, and its candidates are inf in the tables (not the val split's)."""
+    from mocapfix.core.skeleton import preset
+    from mocapfix.fills.errors import measure_on_takes, screening_takes
+    from mocapfix.fills.fill import Fill
+    from mocapfix.io.synthetic import generate_clips
+    from mocapfix.rig.mapping import onto_skeleton
+
+    body = preset("body21")
+    takes = [(onto_skeleton(c, body).positions.astype(np.float64), 30.0) for c in generate_clips(8, 8.0, 30.0, seed=2)]
+
+    class Counted(Fill):
+        names, costly, calls = ("xmae",), True, 0
+
+        def fill(self, positions, observed, fps, skeleton, asked=None):
+            Counted.calls += 1
+            return {"xmae": positions.nan_to_num()}
+
+    cells = {("full", 0.5)}
+    errors, cut = measure_on_takes(takes, body, (0.5,), cells, Counted(), screen=lambda e, costly: {})
+    every = Counted.calls
+    assert every == len(takes) and np.isfinite(errors.tables()["full"]["xmae"][0])
+    Counted.calls = 0
+    seen = []
+    screened, cut2 = measure_on_takes(
+        takes, body, (0.5,), cells, Counted(), screen=lambda e, costly: seen.append(costly) or {("full", 0.5): {"xmae"}}
+    )
+    first = screening_takes([{("full", 0.5): cut[("full", 0.5)] // len(takes)}] * len(takes))
+    assert Counted.calls == len(first) < len(takes) and ("xmae",) in seen[0]
+    assert cut2 == cut  # the same holes cut
+    table = screened.tables()["full"]
+    assert table["xmae"][0] == float("inf") and table["limb+xmae"][0] == float("inf")
+    assert np.isfinite(table["limb"][0])
+
+
+def test_a_model_screened_out_on_the_recording_is_not_taken_on_its_val_split_numbers():
+    """A kind the recording measured keeps the recording's verdict: a model screened out there is
+    inf in the policy's tables, whatever its checkpoint's val split says."""
+    from mocapfix.core.skeleton import preset
+    from mocapfix.fills.fill import Made
+    from mocapfix.fills.policy import FillPolicy, is_learned
+    from mocapfix.io.synthetic import generate_clips
+    from mocapfix.rig.mapping import onto_skeleton
+
+    body = preset("body21")
+    takes = [(onto_skeleton(c, body).positions.astype(np.float64), 30.0) for c in generate_clips(8, 8.0, 30.0, seed=4)]
+
+    class Far(Made):  # a model metres off, costly as models are
+        costly = True
+
+    far = Far("xmae", torch.zeros(1, len(takes[0][0]), body.num_joints, 3, dtype=torch.float64))
+    gaps = [0.1, 0.3, 0.5, 0.7, 0.9]
+    val = {
+        p: {m: [50.0] * 5 for m in ("lerp", "limb", "spline", "pchip")} | {"xmae": [1.0] * 5}
+        for p in ("full", "arm", "leg")
+    }
+    x = takes[0][0].copy()
+    x[60:75] = np.nan  # one 0.5-s full-body hole of its own
+    policy, note = FillPolicy(gaps, val, None).fit(takes, body, far, holes_of=([x], 30.0))
+    assert "stopped measuring a costly fill" in note
+    assert policy.error_mm["full"]["xmae"][2] == float("inf") and not is_learned(policy.choose("full", 0.5))

@@ -13,10 +13,13 @@ import numpy as np
 import torch
 
 from mocapfix.fills.classical import classical_fills
-from mocapfix.fills.fill import Fill, blends, made
+from mocapfix.fills.fill import Fill, blends, components, made
 from mocapfix.fills.holes import PARTS, cut_holes, room_for_holes, share_holes
 from mocapfix.fills.motion_matching import MotionLibrary, MotionMatching, library_of
 
+# The costly fills (motion matching, a model) are screened on the first SCREEN_HOLES holes of a
+# kind (measure_on_takes' screen) and measured further only where they may still be chosen.
+SCREEN_HOLES = 16
 HOLES_PER_CELL = 64  # the budget of holes cut into the recording per (part, gap): a model pass each kind
 # A hole is cut only where its joints are observed this long on both sides. Cut right next to
 # one of the recording's own holes, it is a hole twice as long for the classical fills, and the
@@ -28,41 +31,63 @@ CONTEXT_S = 0.1
 
 class ErrorSums:
     """Each candidate's error summed per (part, gap) over filled tokens with truth -> the error
-    tables of a fill policy (tables: part -> method -> mean error in mm per gap)."""
+    tables of a fill policy (tables: part -> method -> mean error in mm per gap); where the holes
+    are told apart (add_fills' hole_of), each hole's mean error too, in the order measured: the
+    paired evidence a costly candidate is screened out on (policy.py, hopeless)."""
 
     def __init__(self, gaps_s):
         self.gaps_s = sorted(float(g) for g in gaps_s)
         self.sums: dict[tuple[str, float, str], list[float]] = {}  # (part, gap, method) -> [error sum m, count]
-
-    def add_infill(
-        self, part: str, gap_s: float, method: str, pred: torch.Tensor, target: torch.Tensor, scored: torch.Tensor
-    ) -> None:
-        """pred, target: (B, T, J, 3) metres; scored: (B, T, J) bool (the filled tokens with truth).
-        Pass blends(fills) through add_fills to measure the pairs too."""
-        err = (pred.float() - torch.nan_to_num(target.float())).norm(dim=-1)[scored]
-        s = self.sums.setdefault((part, float(gap_s), method), [0.0, 0])
-        s[0] += float(err.sum())
-        s[1] += int(err.numel())
+        self.holes: dict[tuple[str, float, str], list[float]] = {}  # (part, gap, method) -> mean error m per hole
+        self.dropped: set[tuple[str, float, str]] = set()  # screened out: no number, inf in the tables
 
     def add_fills(
-        self, part: str, gap_s: float, fills: dict[str, torch.Tensor], target: torch.Tensor, scored: torch.Tensor
+        self,
+        part: str,
+        gap_s: float,
+        fills: dict[str, torch.Tensor],
+        target: torch.Tensor,
+        scored: torch.Tensor,
+        hole_of: torch.Tensor | None = None,
     ) -> None:
-        """Every single fill and the mean of every pair of them (policy.py's docstring says why)."""
-        for method, pred in blends(fills).items():
-            self.add_infill(part, gap_s, method, pred, target, scored)
+        """Every single fill and the mean of every pair of them (policy.py's docstring says why).
+        fills: name -> (B, T, J, 3) metres, target: (B, T, J, 3), scored: (B, T, J) bool (the
+        filled tokens with truth); hole_of: (B, T, J) long, the hole each scored token is in."""
+        truth = torch.nan_to_num(target[scored].float())  # (M, 3): only the scored tokens are compared
+        hole = None if hole_of is None else hole_of[scored]  # (M,)
+        for method, pred in blends({name: f[scored] for name, f in fills.items()}).items():
+            err = (pred.float() - truth).norm(dim=-1)  # (M,)
+            key = (part, float(gap_s), method)
+            s = self.sums.setdefault(key, [0.0, 0])
+            s[0] += float(err.sum())
+            s[1] += int(err.numel())
+            if hole is not None and len(hole):
+                _, at = torch.unique(hole, return_inverse=True)  # holes numbered in order
+                per_hole = torch.zeros(int(at.max()) + 1, dtype=torch.float64).index_add_(0, at, err.double())
+                self.holes.setdefault(key, []).extend((per_hole / torch.bincount(at)).tolist())
 
-    def add_sums(self, sums: dict) -> None:
-        """Another ErrorSums' sums (a take measured elsewhere: a worker of fix --jobs)."""
-        for key, (total, count) in sums.items():
+    def add(self, other: ErrorSums) -> None:
+        """Another ErrorSums' sums and holes (a take measured elsewhere: a worker of fix --jobs)."""
+        for key, (total, count) in other.sums.items():
             s = self.sums.setdefault(key, [0.0, 0])
             s[0] += total
             s[1] += count
+        for key, errors in other.holes.items():
+            self.holes.setdefault(key, []).extend(errors)
+
+    def drop(self, part: str, gap_s: float, methods) -> None:
+        """These candidates screened out of the cell: measured no further, inf in its tables."""
+        for method in methods:
+            key = (part, float(gap_s), method)
+            self.sums.pop(key, None)
+            self.holes.pop(key, None)
+            self.dropped.add(key)
 
     def tables(self) -> dict[str, dict[str, list[float]]]:
         """part -> method -> mean error (mm) per gap; inf where nothing was measured."""
         error: dict[str, dict[str, list[float]]] = {}
         for part in PARTS:
-            methods = sorted({m for (p, _, m) in self.sums if p == part})
+            methods = sorted({m for (p, _, m) in [*self.sums, *self.dropped] if p == part})
             rows = {
                 m: [
                     1000.0 * self.sums[(part, g, m)][0] / max(self.sums[(part, g, m)][1], 1)
@@ -86,30 +111,70 @@ def measure_on_takes(
     map_takes=None,
     keys=None,
     library: MotionLibrary | None = None,
-) -> tuple[dict[str, dict[str, list[float]]] | None, dict[tuple[str, float], int]]:
+    screen=None,
+) -> tuple[ErrorSums, dict[tuple[str, float], int]]:
     """takes: (x (T, J, 3) NaN = missing, fps) per clip, at the model's joints and the input's fps;
     model_fill: the model's fill as fix makes it (None: no model) -> (every fill's error and the
-    mean of every two, part -> method -> mm per gap, over holes cut into the takes, inf where none
-    could be cut, None where nothing was; the holes cut per (part, gap)). cells: only these
+    mean of every two over holes cut into the takes (ErrorSums: its tables, part -> method -> mm
+    per gap, inf where none could be cut); the holes cut per (part, gap)). cells: only these
     (part, gap), None: all. map_takes(jobs) -> results: how the takes' measure_take(*job) calls
     run (default: one after another here; fix --jobs hands them to its workers); each take is
-    measured alone and the sums are added up in the takes' order, so the result is the same
+    measured alone and the sums are added up in a fixed order, so the result is the same
     either way. The motion-matching fills search the takes (keys: one per take, as fix names them
     to its MotionLibrary; default their order), each take's own with its holes cut, and `library`
-    (the user's other takes, fix --library)."""
+    (the user's other takes, fix --library).
+    screen(errors, costly) -> {(part, gap): fill names}: asked once the first takes
+    (screening_takes: SCREEN_HOLES holes of each kind, spread over the folder) are measured, with
+    the names of each costly fill (motion matching's, the model's); the fills it names are not run
+    on that kind's holes in the other takes, and their candidates are dropped from its tables
+    (policy.py: hopeless). None: every take measures every fill."""
     errors = ErrorSums(gaps_s)
     keys = list(range(len(takes))) if keys is None else list(keys)
     library = library_of(takes, keys, skeleton, library)
     gaps = tuple(errors.gaps_s)
     budgets = hole_budgets(takes, skeleton, gaps, cells)
     jobs = [(x, fps, skeleton, gaps, cells, b, library, key) for (x, fps), key, b in zip(takes, keys, budgets)]
-    results = [measure_take(*job, model_fill=model_fill) for job in jobs] if map_takes is None else map_takes(jobs)
+    first = screening_takes(budgets) if screen is not None else list(range(len(jobs)))
+    rest = [i for i in range(len(jobs)) if i not in set(first)]
     cut: dict[tuple[str, float], int] = {}
-    for sums, take_cut in results:
-        errors.add_sums(sums)
-        for cell, n in take_cut.items():
-            cut[cell] = cut.get(cell, 0) + n
-    return (errors.tables() if errors.sums else None), cut
+
+    def measured(work: list[tuple]) -> None:
+        results = [measure_take(*job, model_fill=model_fill) for job in work] if map_takes is None else map_takes(work)
+        for take_errors, take_cut in results:
+            errors.add(take_errors)
+            for cell, n in take_cut.items():
+                cut[cell] = cut.get(cell, 0) + n
+
+    measured([jobs[i] for i in first])
+    skip = {}
+    if rest:
+        costly = [f.names for f in take_fills(library, None, model_fill) if f.costly]
+        skip = screen(errors, costly)
+        for (part, gap), names in skip.items():
+            methods = {m for (p, g, m) in errors.sums if (p, g) == (part, gap) and set(components(m)) & set(names)}
+            errors.drop(part, gap, methods)
+        measured([jobs[i] + (skip,) for i in rest])
+    return errors, cut
+
+
+def screening_takes(budgets: list[dict[tuple[str, float], int]]) -> list[int]:
+    """The takes measured before the costly fills are screened (measure_on_takes): every fourth
+    take, then the ones between, until each kind has SCREEN_HOLES holes planned (all its holes
+    where it has fewer), so that the first holes come from across the folder -> take indices."""
+    order = [i for phase in range(4) for i in range(phase, len(budgets), 4)]
+    wanted: dict[tuple[str, float], int] = {}
+    for budget in budgets:
+        for cell, n in budget.items():
+            wanted[cell] = wanted.get(cell, 0) + n
+    wanted = {cell: min(n, SCREEN_HOLES) for cell, n in wanted.items()}
+    first, have = [], dict.fromkeys(wanted, 0)
+    for i in order:
+        if all(have[cell] >= n for cell, n in wanted.items()):
+            break
+        first.append(i)
+        for cell, n in budgets[i].items():
+            have[cell] += n
+    return sorted(first)
 
 
 def hole_budgets(takes: list[tuple[np.ndarray, float]], skeleton, gaps_s, cells) -> list[dict[tuple[str, float], int]]:
@@ -138,6 +203,17 @@ def part_options(skeleton) -> dict[str, list[list[int]]]:
     return options
 
 
+def take_fills(library: MotionLibrary | None, key, model_fill: Fill | None) -> list[Fill]:
+    """The fills measured on a take: every classical fill, motion matching where there is a
+    library (the take `key` searched with its holes cut), the model's fill where there is one."""
+    fills = classical_fills()
+    if library is not None:
+        fills.append(MotionMatching(library, key))
+    if model_fill is not None:
+        fills.append(model_fill)
+    return fills
+
+
 def measure_take(
     x: np.ndarray,
     fps: float,
@@ -147,21 +223,19 @@ def measure_take(
     budget: dict[tuple[str, float], int],
     library=None,
     key=None,
+    skip: dict[tuple[str, float], set[str]] | None = None,
     model_fill=None,
-):
+) -> tuple[ErrorSums, dict[tuple[str, float], int]]:
     """One take's share of measure_on_takes: budget[(part, gap)] holes of each kind (hole_budgets)
-    cut into x (T, J, 3) and every fill's error there -> (ErrorSums.sums, holes cut per (part,
-    gap)). library: a MotionLibrary (its take `key` left out: this one is searched with its holes
-    cut), None: no motion-matching fills; model_fill: a Fill, or None."""
+    cut into x (T, J, 3) and every fill's error there -> (ErrorSums, holes cut per (part, gap)).
+    library: a MotionLibrary (its take `key` left out: this one is searched with its holes cut),
+    None: no motion-matching fills; skip: per kind, the fills (by name) not run there (screened
+    out); model_fill: a Fill, or None."""
     errors = ErrorSums(gaps_s)
     options = part_options(skeleton)
     observed = np.isfinite(x).all(-1)
     truth = torch.from_numpy(x.astype(np.float64))[None]
-    fills = classical_fills()
-    if library is not None:  # this take: searched with its holes cut
-        fills.append(MotionMatching(library, key))
-    if model_fill is not None:
-        fills.append(model_fill)
+    fills = take_fills(library, key, model_fill)
     cut: dict[tuple[str, float], int] = {}
     for part in PARTS:
         for gap in gaps_s:
@@ -172,10 +246,13 @@ def measure_take(
             )
             if not hidden.any():
                 continue
-            cut[(part, gap)] = int((np.diff(hidden.any(-1).astype(np.int64), prepend=0) == 1).sum())
+            starts = np.diff(hidden.any(-1).astype(np.int64), prepend=0) == 1  # (T,) a cut hole's first frame
+            cut[(part, gap)] = int(starts.sum())
+            hole_of = torch.from_numpy(np.broadcast_to(np.cumsum(starts)[:, None], hidden.shape).copy())[None]
             holed = truth.masked_fill(torch.from_numpy(hidden)[None, ..., None], float("nan"))
             obs = torch.from_numpy(observed & ~hidden)[None]
+            unskipped = [f for f in fills if not set(f.names) & (skip or {}).get((part, gap), set())]
             # only the cut holes are scored: the fills that can skip the take's own holes do
-            candidates = made(fills, holed, obs, fps, skeleton, asked=torch.from_numpy(hidden)[None])
-            errors.add_fills(part, gap, candidates, truth, torch.from_numpy(hidden)[None])
-    return errors.sums, cut
+            candidates = made(unskipped, holed, obs, fps, skeleton, asked=torch.from_numpy(hidden)[None])
+            errors.add_fills(part, gap, candidates, truth, torch.from_numpy(hidden)[None], hole_of)
+    return errors, cut

@@ -26,6 +26,7 @@ class Fill:
     a take asks for those, not for the take's own)."""
 
     names: tuple[str, ...] = ()
+    costly = False  # its fill costs far more than a classical fill's: measured only while it may win
 
     def fill(
         self,

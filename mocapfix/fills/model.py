@@ -24,6 +24,7 @@ class ModelFill(Fill):
     the replace threshold reads them)."""
 
     names = ("xmae",)
+    costly = True
 
     def __init__(self, reconstruct: Reconstruct):
         self.reconstruct = reconstruct

@@ -195,6 +195,7 @@ class MotionMatching(Fill):
     None: the take itself only)."""
 
     names = FILLS
+    costly = True
 
     def __init__(self, library: MotionLibrary | None, key=None):
         self.library, self.key = library, key
@@ -338,22 +339,12 @@ def _search(
         if into is d:
             angle[at], centre[at] = np.arctan2(cross, dot), np.stack([sx, sy], -1) / P
 
-    def best(n: int, of: np.ndarray) -> list[int]:  # the best, then the best more than `apart` from it, ...
-        left, out = of.copy(), []
-        for _ in range(n):
-            i = int(np.argmin(left))
-            if not np.isfinite(left[i]):
-                break
-            out.append(i)
-            left[max(0, i - apart) : i + apart + 1] = np.inf
-        return out
-
     count = (N - 1) // step + 1
     grid = step * np.arange(count)
     if proxy is not None and count > 4 * PROXY_BASINS * max(1, apart // step):
         rough = np.full(N, np.inf)
         score(grid, _correlate(source.coordinates, proxy, 0, count, step), proxy.query, rough)
-        places = np.array(best(PROXY_BASINS, rough), dtype=np.int64)  # (B,) starts
+        places = np.array(_best_apart(rough, PROXY_BASINS, apart), dtype=np.int64)  # (B,) starts
         if not len(places):
             return []
         near = (places[:, None] + step * np.arange(-(apart // step), apart // step + 1)).ravel()
@@ -361,11 +352,33 @@ def _search(
         score(grid, _sums_at(source.coordinates, w, grid), w.query, d)
     else:
         score(grid, _correlate(source.coordinates, w, 0, count, step), w.query, d)
-    picks = best(2 * k, d) if step > 1 else []
+    picks = _best_apart(d, 2 * k, apart) if step > 1 else []
     if picks:  # every start around the best of them
         near = np.unique(np.concatenate([np.arange(max(0, i - step + 1), min(N, i + step)) for i in picks]))
         score(near, _sums_at(source.coordinates, w, near), w.query, d)
-    return [(float(d[i]), i, float(angle[i]), centre[i]) for i in best(k, d)]
+    return [(float(d[i]), i, float(angle[i]), centre[i]) for i in _best_apart(d, k, apart)]
+
+
+def _best_apart(of: np.ndarray, n: int, apart: int) -> list[int]:
+    """of: (N,) distances (inf: not a candidate) -> the indices of the n best, each more than
+    `apart` from every better one picked before it: the lowest, then the lowest more than `apart`
+    from it, ... (ties to the lower index). Each pick rules out at most 2 apart + 1 places, so
+    the picks are among the n (2 apart + 1) lowest: only those are sorted, not the whole source."""
+    pool = np.flatnonzero(np.isfinite(of))
+    m = n * (2 * apart + 1)
+    if len(pool) > m:
+        edge = of[pool[np.argpartition(of[pool], m - 1)[:m]]].max()
+        pool = pool[of[pool] <= edge]  # ties at the edge kept
+    pool = pool[np.lexsort((pool, of[pool]))]
+    out: list[int] = []
+    blocked = np.zeros(len(of), dtype=bool)
+    for i in pool.tolist():
+        if not blocked[i]:
+            out.append(i)
+            if len(out) == n:
+                break
+            blocked[max(0, i - apart) : i + apart + 1] = True
+    return out
 
 
 def _proxy_frames(width: int, start: int, end: int, step: int) -> np.ndarray:

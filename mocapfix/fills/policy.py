@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.fills.errors import ErrorSums, measure_on_takes
-from mocapfix.fills.fill import BLEND, Fill, made_for_choice, pick
+from mocapfix.fills.errors import SCREEN_HOLES, ErrorSums, measure_on_takes
+from mocapfix.fills.fill import BLEND, Fill, components, made_for_choice, pick
 from mocapfix.fills.holes import PARTS, hole_kinds, token_choice
 
 LEARNED = ("xmae", "correction")  # the candidates that are models; every other is a classical fill
@@ -172,7 +172,8 @@ class FillPolicy:
         cells = None if holes_of is None else hole_kinds(holes_of[0], skeleton, holes_of[1], gaps)
         if cells is not None and not cells:  # no hole to fill
             return self, None
-        measured, cut = measure_on_takes(takes, skeleton, gaps, cells, model_fill, map_takes, keys, library)
+        errors, cut = measure_on_takes(takes, skeleton, gaps, cells, model_fill, map_takes, keys, library, hopeless)
+        measured = errors.tables() if errors.sums else None
         asked = sorted(cells) if cells is not None else [(p, g) for p in PARTS for g in gaps]
         earned = {cell for cell in asked if cut.get(cell, 0) >= TRUSTED_HOLES}
         base = self if earned else self._classical_only()
@@ -189,6 +190,9 @@ class FillPolicy:
         evidence = f"{sum(cut.values())} holes cut into it" + (
             "" if earned else f"; classical fills only: fewer than {TRUSTED_HOLES} holes of a kind"
         )
+        screened = {(p, g) for p, g, _ in errors.dropped}
+        if screened:
+            evidence += f"; {len(screened)} kinds stopped measuring a costly fill after {SCREEN_HOLES} holes"
         return out, f"fill policy measured on this recording ({evidence}): {chosen or 'nothing could be cut'}"
 
     def _classical_only(self) -> FillPolicy:
@@ -259,9 +263,43 @@ def _with_measured(base: dict, measured: dict, gaps, asked, earned, cut) -> dict
                     and 0 < cut.get((part, g), 0) < TRUSTED_HOLES
                 ):
                     errors[i] = float("inf")  # too few holes to overrule the preferred fill
-                elif method in here and np.isfinite(here[method][i]):
-                    errors[i] = here[method][i]
+                elif method in here and (np.isfinite(here[method][i]) or cut.get((part, g), 0) > 0):
+                    errors[i] = here[method][i]  # where holes were cut, inf too: screened out (hopeless)
     return tables
+
+
+# A costly candidate is screened out of a kind of hole when its first holes put it this many
+# standard errors of the paired per-hole differences above what it must beat (hopeless).
+SCREEN_Z = 3.0
+
+
+def hopeless(errors: ErrorSums, costly: list[tuple[str, ...]]) -> dict[tuple[str, float], set[str]]:
+    """The costly fills (each a tuple of candidate names: motion matching's, a model's) that a kind
+    of hole can stop measuring (errors.measure_on_takes' screen) -> {(part, gap): names}. A fill
+    goes where every candidate with it in (blends too) is worse, hole by hole over the holes
+    measured so far, than what choose() asks of it: below MODEL_MARGIN (a model) or
+    PREFERRED_MARGIN (a classical candidate) times the preferred fill's error; a necessary
+    condition of being chosen (the best classical fill is never worse than the preferred one), so
+    a fill screened out would not have been chosen but for a SCREEN_Z-standard-error chance. Paired
+    per hole: the holes differ far more from each other than the fills on one hole do."""
+    out: dict[tuple[str, float], set[str]] = {}
+    for part, gap in sorted({(p, g) for p, g, _ in errors.holes}):
+        preferred = np.array(errors.holes.get((part, gap, PREFERRED), []))
+        if len(preferred) < 3:
+            continue
+        for names in costly:
+            candidates = [m for p, g, m in errors.holes if (p, g) == (part, gap) and set(components(m)) & set(names)]
+            if candidates and all(_behind(errors.holes[(part, gap, m)], preferred, m) for m in candidates):
+                out.setdefault((part, gap), set()).update(names)
+    return out
+
+
+def _behind(errors: list[float], preferred: np.ndarray, method: str) -> bool:
+    """Per-hole errors of `method` above its margin times the preferred fill's, by SCREEN_Z
+    standard errors of the paired differences (hopeless)."""
+    margin = MODEL_MARGIN if is_learned(method) else PREFERRED_MARGIN
+    d = np.array(errors) - margin * preferred  # (holes,)
+    return len(d) == len(preferred) and d.mean() > SCREEN_Z * d.std(ddof=1) / np.sqrt(len(d))
 
 
 def apply_fill_policy(

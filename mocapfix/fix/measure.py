@@ -27,6 +27,8 @@ class TakeFill(Fill):
     (the ones a policy is measured on), it runs the windows those need and no others: a hole of
     the take's own keeps the Lerp fill there."""
 
+    costly = True
+
     def __init__(self, fixer: Fixer, overlap: float, batch_size: int):
         self.fixer, self.options = fixer, FixOptions("infill", overlap, batch_size)
         self.names = (fixer.candidate,)
