@@ -120,3 +120,34 @@ def test_hermite_continues_the_motion_and_keeps_the_contract():
     lerp = (lerp_infill(holed, observed)[0, gap, 0] - path[gap]).norm(dim=-1).mean()
     assert err < 0.2 * lerp
     assert torch.equal(out[0, :5, 1], positions[0, 5, 1].expand(5, 3))
+
+
+@pytest.mark.parametrize("name", ["spline", "pchip", "hermite", "limb"])
+def test_a_classical_fill_asked_for_a_few_holes_fills_them_as_over_the_whole_take(name):
+    """Asked for some holes, a classical fill fills crops around them (CROP_FRAMES each side):
+    at the asked tokens the same as filling the whole take (the take's other holes, near and far,
+    included; bones that stretch as tracked keypoints' do), within 0.01 mm (a spline's reach beyond
+    the crop: 4e-3 mm here), and Lerp at the holes not asked for."""
+    from mocapfix.core.skeleton import preset
+    from mocapfix.fills.classical import Classical, lerp_infill
+    from mocapfix.io.synthetic import generate_clips
+    from mocapfix.rig.mapping import onto_skeleton
+
+    body = preset("body21")
+    clip = onto_skeleton(generate_clips(1, 20.0, 30.0, seed=3)[0], body)
+    rng = np.random.default_rng(1)
+    x = torch.from_numpy(clip.positions.astype(np.float64) + rng.normal(0, 0.01, clip.positions.shape))[None]
+    observed = torch.ones(x.shape[:3], dtype=torch.bool)
+    for start in rng.integers(5, 580, 30):  # the take's own holes, some next to the asked ones
+        observed[0, start : start + rng.integers(2, 20), rng.integers(0, body.num_joints, 3)] = False
+    asked = torch.zeros_like(observed)
+    for start, joints in ((100, [5, 6, 7]), (118, [5, 6, 7]), (400, list(range(body.num_joints)))):
+        observed[0, start : start + 15, joints] = False
+        asked[0, start : start + 15, joints] = True
+    x = x.masked_fill(~observed[..., None], float("nan"))
+    whole = Classical(name).fill(x, observed, 30.0, body)[name]
+    cropped = Classical(name).fill(x, observed, 30.0, body, asked)[name]
+    assert (cropped - whole).norm(dim=-1)[asked].max() < 1e-5
+    others = ~observed & ~asked
+    assert torch.equal(cropped[others], lerp_infill(x, observed)[others])
+    assert torch.equal(cropped[observed], x[observed])

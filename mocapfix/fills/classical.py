@@ -138,7 +138,20 @@ def spline_infill(positions: torch.Tensor, observed: torch.Tensor, kind: str = "
     return torch.where(observed[..., None] & ~torch.isnan(positions).any(-1, keepdim=True), positions, filled)
 
 
-def limb_infill(positions: torch.Tensor, observed: torch.Tensor, parents) -> torch.Tensor:
+def bone_lengths(positions: torch.Tensor, observed: torch.Tensor, parents) -> torch.Tensor:
+    """positions: (B, T, J, 3), observed: (B, T, J) -> (B, 1, C) each bone's median length over the
+    frames where both its ends are observed (NaN where never), C the joints with a parent in order."""
+    obs = observed.to(torch.bool) & ~torch.isnan(positions).any(dim=-1)
+    p = torch.as_tensor(list(parents), device=positions.device)
+    child = torch.nonzero(p >= 0).flatten()
+    both = obs[:, :, child] & obs[:, :, p[child]]  # (B, T, C)
+    length = torch.where(both, (positions[:, :, child] - positions[:, :, p[child]]).norm(dim=-1), torch.nan)
+    return length.nanmedian(dim=1, keepdim=True).values
+
+
+def limb_infill(
+    positions: torch.Tensor, observed: torch.Tensor, parents, lengths: torch.Tensor | None = None
+) -> torch.Tensor:
     """Fill along the skeleton, keeping bone lengths: each missing joint is its parent's (filled)
     position plus the bone vector from parent to joint, interpolated in time (cubic spline) over
     the frames where both ends are seen and scaled to the bone's median length in the window.
@@ -146,7 +159,8 @@ def limb_infill(positions: torch.Tensor, observed: torch.Tensor, parents) -> tor
     observed elbow follows the elbow. A joint whose bone is never seen whole in the window, and
     the root, are filled by the spline of their own positions.
 
-    positions: (B, T, J, 3), observed: (B, T, J) bool, parents: (J,) with parents[j] < j
+    positions: (B, T, J, 3), observed: (B, T, J) bool, parents: (J,) with parents[j] < j;
+    lengths: (B, 1, C) the bones' lengths (bone_lengths; None: measured in the window)
     -> (B, T, J, 3), observed tokens as given."""
     obs = observed.to(torch.bool) & ~torch.isnan(positions).any(dim=-1)
     own = spline_infill(positions, obs)  # fallback for every joint
@@ -155,8 +169,7 @@ def limb_infill(positions: torch.Tensor, observed: torch.Tensor, parents) -> tor
     both = obs[:, :, child] & obs[:, :, p[child]]  # (B, T, C)
     bone = positions[:, :, child] - positions[:, :, p[child]]  # (B, T, C, 3)
     bone = spline_infill(torch.where(both[..., None], bone, torch.nan), both)
-    length = torch.where(both, (positions[:, :, child] - positions[:, :, p[child]]).norm(dim=-1), torch.nan)
-    length = length.nanmedian(dim=1, keepdim=True).values  # (B, 1, C)
+    length = bone_lengths(positions, obs, parents) if lengths is None else lengths  # (B, 1, C)
     bone = bone * (length / bone.norm(dim=-1).clamp_min(1e-9))[..., None]
     seen = both.any(dim=1)  # (B, C) the bone has a length
     out = own.clone()
@@ -176,15 +189,69 @@ CLASSICAL = {
 }
 
 
+# A fill asked for a few holes of a take fills crops around them (CROP_FRAMES of the take each
+# side), not the whole take: Lerp, the Hermite and PCHIP read two observed frames each side of a
+# hole, a cubic spline's reach dies off by ~0.27 a knot (16 knots: 1e-9 of it), and the limb fill
+# gets the whole take's bone lengths. Holes not asked for keep the Lerp fill (Fill's contract).
+CROP_FRAMES = 16
+
+
 class Classical(Fill):
     """A classical fill of CLASSICAL as a Fill (found by name when it runs: a worker of fix --jobs
-    gets it pickled)."""
+    gets it pickled). Asked for some holes, it fills crops around them (CROP_FRAMES)."""
 
     def __init__(self, name: str):
         self.names = (name,)
 
     def fill(self, positions, observed, fps, skeleton, asked=None) -> dict[str, torch.Tensor]:
-        return {self.names[0]: CLASSICAL[self.names[0]](positions, observed, skeleton.parents)}
+        name, parents = self.names[0], skeleton.parents
+        spans = None
+        if asked is not None and name != "lerp":
+            seen = observed.to(torch.bool) & ~torch.isnan(positions).any(dim=-1)
+            spans = crop_spans(asked.any(-1), ~seen.all(-1), CROP_FRAMES)
+        if spans is None or sum(e - s for _, s, e in spans) > 0.5 * asked.shape[0] * asked.shape[1]:
+            return {name: CLASSICAL[name](positions, observed, parents)}  # the whole take: as cheap
+        out = lerp_infill(positions, observed)
+        if not spans:
+            return {name: out}
+        # the crops side by side, (S, W, J, 3), a shorter one padded with unobserved frames after
+        # its end (a border gap for every fill: nothing inside the crop changes)
+        W = max(e - s for _, s, e in spans)
+        crops = positions.new_full((len(spans), W, *positions.shape[2:]), float("nan"))
+        seen = torch.zeros(crops.shape[:3], dtype=torch.bool, device=observed.device)
+        for k, (b, s, e) in enumerate(spans):
+            crops[k, : e - s], seen[k, : e - s] = positions[b, s:e], observed[b, s:e]
+        if name == "limb":
+            lengths = bone_lengths(positions, observed, parents)[[b for b, _, _ in spans]]  # (S, 1, C)
+            filled = limb_infill(crops, seen, parents, lengths)
+        else:
+            filled = CLASSICAL[name](crops, seen, parents)
+        for k, (b, s, e) in enumerate(spans):
+            out[b, s:e] = torch.where(asked[b, s:e, :, None], filled[k, : e - s], out[b, s:e])
+        return {name: out}
+
+
+def crop_spans(asked: torch.Tensor, gaps: torch.Tensor, context: int) -> list[tuple[int, int, int]]:
+    """asked: (B, T) bool, the frames with tokens asked for; gaps: (B, T) bool, the frames some
+    joint misses -> (b, start, end) of each crop: a run of gap frames with an asked frame in it
+    (the whole run: a hole of one joint that goes on past the asked frames, or a parent's hole
+    the limb fill follows, is filled from its own ends) and `context` frames each side, crops
+    that overlap merged."""
+    B, T = asked.shape
+    spans: list[tuple[int, int, int]] = []
+    zero = gaps.new_zeros(1, dtype=torch.int8)
+    for b in range(B):
+        d = torch.diff(gaps[b].to(torch.int8), prepend=zero, append=zero)
+        starts, ends = torch.nonzero(d == 1).flatten().tolist(), torch.nonzero(d == -1).flatten().tolist()
+        for s, e in zip(starts, ends):
+            if not asked[b, s:e].any():
+                continue
+            s, e = max(0, s - context), min(T, e + context)
+            if spans and spans[-1][0] == b and s <= spans[-1][2]:
+                spans[-1] = (b, spans[-1][1], max(e, spans[-1][2]))
+            else:
+                spans.append((b, s, e))
+    return spans
 
 
 def classical_fills() -> list[Fill]:
