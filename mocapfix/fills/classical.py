@@ -208,7 +208,7 @@ class Classical(Fill):
         spans = None
         if asked is not None and name != "lerp":
             seen = observed.to(torch.bool) & ~torch.isnan(positions).any(dim=-1)
-            spans = crop_spans(asked.any(-1), ~seen.all(-1), CROP_FRAMES)
+            spans = crop_spans(hole_frames_of(asked, seen, parents if name == "limb" else None), CROP_FRAMES)
         if spans is None or sum(e - s for _, s, e in spans) > 0.5 * asked.shape[0] * asked.shape[1]:
             return {name: CLASSICAL[name](positions, observed, parents)}  # the whole take: as cheap
         out = lerp_infill(positions, observed)
@@ -231,21 +231,38 @@ class Classical(Fill):
         return {name: out}
 
 
-def crop_spans(asked: torch.Tensor, gaps: torch.Tensor, context: int) -> list[tuple[int, int, int]]:
-    """asked: (B, T) bool, the frames with tokens asked for; gaps: (B, T) bool, the frames some
-    joint misses -> (b, start, end) of each crop: a run of gap frames with an asked frame in it
-    (the whole run: a hole of one joint that goes on past the asked frames, or a parent's hole
-    the limb fill follows, is filled from its own ends) and `context` frames each side, crops
-    that overlap merged."""
-    B, T = asked.shape
+def hole_frames_of(asked: torch.Tensor, seen: torch.Tensor, parents=None) -> torch.Tensor:
+    """asked: (B, T, J) bool, missing tokens asked for; seen: (B, T, J) bool, the observed ones ->
+    (B, T) bool: the frames of every hole an asked token is in, from the observed frame before it
+    to the one after (a hole goes on past the asked frames: it is filled from its own ends).
+    parents: where given, a joint's hole runs on while a joint above it misses (the limb fill
+    follows the parent)."""
+    missing = ~seen
+    if parents is not None:
+        missing = missing.clone()
+        for j, parent in enumerate(parents):  # parents before children
+            if parent >= 0:
+                missing[..., j] |= missing[..., parent]
+    _, prev, nxt = _observed_neighbours(~missing)  # (B, T, J)
+    B, T, _ = asked.shape
+    b = torch.arange(B, device=asked.device).view(B, 1, 1).expand_as(asked)[asked]
+    # +1 where an asked token's hole starts (its observed frame before), -1 after it ends
+    edges = torch.zeros(B, T + 1, dtype=torch.long, device=asked.device)
+    edges.index_put_((b, prev[asked].clamp_min(0)), torch.ones_like(b), accumulate=True)
+    edges.index_put_((b, nxt[asked].clamp_max(T - 1) + 1), -torch.ones_like(b), accumulate=True)
+    return edges.cumsum(dim=1)[:, :T] > 0
+
+
+def crop_spans(frames: torch.Tensor, context: int) -> list[tuple[int, int, int]]:
+    """frames: (B, T) bool (hole_frames_of) -> (b, start, end) of each crop: a run of frames with
+    `context` frames more each side, crops that overlap merged."""
+    B, T = frames.shape
     spans: list[tuple[int, int, int]] = []
-    zero = gaps.new_zeros(1, dtype=torch.int8)
+    zero = frames.new_zeros(1, dtype=torch.int8)
     for b in range(B):
-        d = torch.diff(gaps[b].to(torch.int8), prepend=zero, append=zero)
+        d = torch.diff(frames[b].to(torch.int8), prepend=zero, append=zero)
         starts, ends = torch.nonzero(d == 1).flatten().tolist(), torch.nonzero(d == -1).flatten().tolist()
         for s, e in zip(starts, ends):
-            if not asked[b, s:e].any():
-                continue
             s, e = max(0, s - context), min(T, e + context)
             if spans and spans[-1][0] == b and s <= spans[-1][2]:
                 spans[-1] = (b, spans[-1][1], max(e, spans[-1][2]))
