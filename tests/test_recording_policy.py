@@ -351,3 +351,60 @@ def test_a_model_screened_out_on_the_recording_is_not_taken_on_its_val_split_num
     policy, note = FillPolicy(gaps, val, None).fit(takes, body, far, holes_of=([x], 30.0))
     assert "stopped measuring a costly fill" in note
     assert policy.error_mm["full"]["xmae"][2] == float("inf") and not is_learned(policy.choose("full", 0.5))
+
+
+def test_a_candidate_ahead_take_by_take_over_many_takes_is_proven_on_few_holes_and_not_on_one_take():
+    """proven(): the per-take mean of (error - margin x the preferred fill's), below 0 by TRUST_Z
+    standard errors over TRUST_TAKES takes or more. Holes of one take never prove anything,
+    however many; a candidate ahead on average but behind in many takes is not proven."""
+    from mocapfix.fills.errors import ErrorSums
+    from mocapfix.fills.policy import TRUST_TAKES, proven
+
+    rng = np.random.default_rng(0)
+
+    def sums(takes: list, model_ratio: np.ndarray) -> ErrorSums:
+        e = ErrorSums([0.9])
+        limb = 0.05 + 0.03 * rng.random(len(takes))
+        e.holes = {("full", 0.9, "limb"): list(limb), ("full", 0.9, "correction"): list(model_ratio * limb)}
+        e.hole_takes = {("full", 0.9): takes}
+        return e
+
+    many = [k // 2 for k in range(2 * TRUST_TAKES + 4)]  # two holes in each of 10 takes
+    assert proven(sums(many, np.full(len(many), 0.8))) == {("full", 0.9, "correction")}
+    one = ["take"] * 60
+    assert proven(sums(one, np.full(60, 0.5))) == set()  # one take, however many holes
+    mixed = np.where(np.arange(len(many)) % 4 < 2, 0.6, 1.2)  # -20 % on average, +20 % in half the takes
+    assert proven(sums(many, mixed)) == set()
+    few = many[: 2 * (TRUST_TAKES - 1)]  # ahead everywhere, but in fewer than TRUST_TAKES takes
+    assert proven(sums(few, np.full(len(few), 0.5))) == set()
+
+
+def test_a_model_ahead_in_every_take_of_a_folder_takes_a_kind_with_fewer_cut_holes_than_trusted():
+    """Ten 4-s takes have room for fewer than TRUSTED_HOLES cut 0.9-s holes; a model exact on each
+    of them (ahead take by take) takes the kind, and the report says on what evidence."""
+    from mocapfix.core.skeleton import preset
+    from mocapfix.fills.fill import Fill
+    from mocapfix.fills.policy import TRUSTED_HOLES, FillPolicy
+    from mocapfix.io.synthetic import generate_clips
+    from mocapfix.rig.mapping import onto_skeleton
+
+    body = preset("body21")
+    takes = [(onto_skeleton(c, body).positions.astype(np.float64), 30.0) for c in generate_clips(10, 4.0, 30.0, seed=8)]
+
+    class Oracle(Fill):  # the take's truth, found by its observed tokens
+        names, costly = ("xmae",), True
+
+        def fill(self, positions, observed, fps, skeleton, asked=None):
+            out = []
+            for x, o in zip(positions, observed):
+                truth = next(t for t, _ in takes if len(t) == len(x) and np.allclose(t[o.numpy()], x[o].numpy()))
+                out.append(torch.from_numpy(truth))
+            return {"xmae": torch.stack(out)}
+
+    x = takes[0][0].copy()
+    x[40:67] = np.nan  # a 0.9-s full-body hole of its own
+    val = {p: {m: [50.0] * 5 for m in ("lerp", "limb", "spline", "pchip", "xmae")} for p in ("full", "arm", "leg")}
+    policy, note = FillPolicy([0.1, 0.3, 0.5, 0.7, 0.9], val, None).fit(takes, body, Oracle(), holes_of=([x], 30.0))
+    cut = int(note.split("(")[1].split(" holes")[0])
+    assert cut < TRUSTED_HOLES and policy.choose("full", 0.9) == "xmae"
+    assert "taken on fewer holes, ahead take by take" in note and "full 0.9s" in note

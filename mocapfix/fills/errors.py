@@ -40,6 +40,7 @@ class ErrorSums:
         self.sums: dict[tuple[str, float, str], list[float]] = {}  # (part, gap, method) -> [error sum m, count]
         self.holes: dict[tuple[str, float, str], list[float]] = {}  # (part, gap, method) -> mean error m per hole
         self.dropped: set[tuple[str, float, str]] = set()  # screened out: no number, inf in the tables
+        self.hole_takes: dict[tuple[str, float], list] = {}  # (part, gap) -> the take of each hole, in order
 
     def add_fills(
         self,
@@ -49,12 +50,16 @@ class ErrorSums:
         target: torch.Tensor,
         scored: torch.Tensor,
         hole_of: torch.Tensor | None = None,
+        take=None,
     ) -> None:
         """Every single fill and the mean of every pair of them (policy.py's docstring says why).
         fills: name -> (B, T, J, 3) metres, target: (B, T, J, 3), scored: (B, T, J) bool (the
-        filled tokens with truth); hole_of: (B, T, J) long, the hole each scored token is in."""
+        filled tokens with truth); hole_of: (B, T, J) long, the hole each scored token is in;
+        take: the take they were cut into (holes of one take are not independent evidence)."""
         truth = torch.nan_to_num(target[scored].float())  # (M, 3): only the scored tokens are compared
         hole = None if hole_of is None else hole_of[scored]  # (M,)
+        if hole is not None and len(hole):
+            self.hole_takes.setdefault((part, float(gap_s)), []).extend([take] * len(torch.unique(hole)))
         for method, pred in blends({name: f[scored] for name, f in fills.items()}).items():
             err = (pred.float() - truth).norm(dim=-1)  # (M,)
             key = (part, float(gap_s), method)
@@ -74,6 +79,8 @@ class ErrorSums:
             s[1] += count
         for key, errors in other.holes.items():
             self.holes.setdefault(key, []).extend(errors)
+        for cell, takes in other.hole_takes.items():
+            self.hole_takes.setdefault(cell, []).extend(takes)
 
     def drop(self, part: str, gap_s: float, methods) -> None:
         """These candidates screened out of the cell: measured no further, inf in its tables."""
@@ -254,5 +261,5 @@ def measure_take(
             unskipped = [f for f in fills if not set(f.names) & (skip or {}).get((part, gap), set())]
             # only the cut holes are scored: the fills that can skip the take's own holes do
             candidates = made(unskipped, holed, obs, fps, skeleton, asked=torch.from_numpy(hidden)[None])
-            errors.add_fills(part, gap, candidates, truth, torch.from_numpy(hidden)[None], hole_of)
+            errors.add_fills(part, gap, candidates, truth, torch.from_numpy(hidden)[None], hole_of, key)
     return errors, cut
