@@ -269,3 +269,38 @@ def test_the_jitter_remover_leaves_a_limb_never_seen_missing(tmp_path, body_take
     assert "joints never observed: UpperArm_L, LowerArm_L, Hand_L (left missing" in out
     back = np.load(tmp_path / "azure.fixed.npy")
     assert np.isnan(back[:, arm, :3]).all() and np.isfinite(np.delete(back, arm, axis=1)).all()
+
+
+@pytest.mark.parametrize("case", [str.lower, str.upper])
+def test_a_csv_named_with_a_layouts_joints_reads_as_that_layout_and_fixes_back_as_written(
+    tmp_path, body_take, case, capsys
+):
+    """FreeMoCap's `mediapipe_body_3d_xyz.csv`: MediaPipe's 33 landmark names as `<name>_x,_y,_z`
+    columns, mm, no frame column, no tree. Read as the mediapipe33 layout (its tree and limbs) in
+    the file's own names, any case; `fix` fills a hole and writes the same columns and unit."""
+    lay = LAYOUTS["mediapipe33"]
+    x = in_layout("mediapipe33", body_take)
+    x = 1000.0 * x
+    x[20:28, lay.joint_names.index("left_wrist")] = np.nan
+    header = ",".join(f"{case(n)}_{a}" for n in lay.joint_names for a in "xyz")
+    rows = ["".join(",".join("" if np.isnan(v) else f"{v:.3f}" for v in row)) for row in x.reshape(len(x), -1)]
+    (tmp_path / "body.csv").write_text(header + "\n" + "\n".join(rows) + "\n")
+    (clip,) = read_motion(tmp_path / "body.csv", fps=30.0, unit="mm")
+    assert clip.skeleton.name == "mediapipe33" and clip.skeleton.joint_names[0] == case("nose")
+    assert set(clip.skeleton.groups) == {"left_arm", "right_arm", "left_leg", "right_leg"}
+    args = ["fix", str(tmp_path / "body.csv"), "--model", "xmae-cpu-bandai", "--fps", "30", "--unit", "mm"]
+    rc, out, err = run_mocapfix([*args, "-o", tmp_path / "out.csv"], capsys)
+    assert rc == 0, err
+    written = (tmp_path / "out.csv").read_text().splitlines()
+    assert header in written and "unit=mm" in written[0]
+    (out,) = read_motion(tmp_path / "out.csv")
+    assert np.isfinite(out.positions[20:28, lay.joint_names.index("left_wrist")]).all()
+
+
+def test_a_csv_named_with_a_layout_whose_tree_is_out_of_file_order_asks_for_parents(tmp_path):
+    names = LAYOUTS["kinect25"].joint_names
+    (tmp_path / "k.csv").write_text(
+        ",".join(f"{n}_{a}" for n in names for a in "xyz") + "\n" + ",".join(["0.1"] * 75) + "\n"
+    )
+    with pytest.raises(MotionFileError, match="kinect25 layout's"):
+        read_motion(tmp_path / "k.csv", fps=30.0)

@@ -44,6 +44,7 @@ from mocapfix.core.clip import NEAR_ORIGIN_M, Clip, MotionFileError, check_frame
 from mocapfix.core.skeleton import PRESETS, Skeleton
 from mocapfix.io.conventions import from_z_up, guess_up_axis, parse_unit, resolve_unit, to_z_up
 from mocapfix.io.files import atomic_write
+from mocapfix.io.layouts import LAYOUTS, layout_skeleton
 from mocapfix.io.npz import listed_keys, load_npz, npz_array
 from mocapfix.io.npz import one_line as _one_line
 from mocapfix.io.untrusted import printable, quoted, read_bytes
@@ -70,6 +71,8 @@ def skeleton_from(path: Path, joint_names, parents, num_joints: int, groups=None
                 if names == p.joint_names and (parents is None or tuple(int(i) for i in parents) == p.parents):
                     skel = p
                     break
+            if skel is None and parents is None:
+                skel = _named_layout(path, names)
             if skel is None:
                 if parents is None:
                     raise MotionFileError(path, f"joint names match no preset ({', '.join(PRESETS)}); give parents too")
@@ -86,6 +89,20 @@ def skeleton_from(path: Path, joint_names, parents, num_joints: int, groups=None
         if isinstance(e, MotionFileError):
             raise
         raise MotionFileError(path, _one_line(e).split(": ", 1)[-1]) from None
+
+
+def _named_layout(path: Path, names: tuple[str, ...]) -> Skeleton | None:
+    """The skeleton of the published keypoint layout whose joint names these are, in its order, any
+    case (io/layouts.py: FreeMoCap's `mediapipe_body_3d_xyz.csv` names MediaPipe's 33 landmarks),
+    under the file's own names; None where they are no layout's."""
+    lowered = tuple(n.lower() for n in names)
+    lay = next((lay for lay in LAYOUTS.values() if tuple(n.lower() for n in lay.joint_names) == lowered), None)
+    if lay is None:
+        return None
+    skel, order = layout_skeleton(lay)
+    if order != list(range(len(order))):  # its tree is not parents-first in the file's order
+        raise MotionFileError(path, f"joint names are the {lay.name} layout's, in an order that needs parents given")
+    return Skeleton(names, skel.parents, skel.groups, lay.name, labels=skel.labels)
 
 
 def _resolve_up(path, up_opt, up_file, raw, skeleton) -> str:
