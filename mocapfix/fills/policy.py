@@ -175,7 +175,9 @@ class FillPolicy:
         every kind, for a run's policy in --mode both, whose jumps make holes of any kind), the
         others keep this policy's numbers, the classical ones only where nothing of the recording
         could be measured. A kind with fewer than TRUSTED_HOLES cut holes gets the preferred
-        classical fill (neither the model nor another classical fill has earned its place there).
+        classical fill (neither the model nor another classical fill has earned its place there)
+        unless a candidate is ahead of it take by take (proven); the costly candidates are
+        screened after the first holes (hopeless).
         map_takes, keys, library: errors.measure_on_takes'."""
         gaps = tuple(self.gaps_s)
         cells = None if holes_of is None else hole_kinds(holes_of[0], skeleton, holes_of[1], gaps)
