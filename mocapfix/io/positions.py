@@ -463,6 +463,7 @@ def read_positions_csv(
             "time_column": times is not None,
             "frame_column": "frame" in special,
             "first_frame": first_frame,
+            "comment_lines": bool(comments),  # a file without them (FreeMoCap's) is written without
         }
         for i in range(P)
     ]
@@ -558,6 +559,7 @@ def write_positions(
     first_frame: int = 0,
     times: np.ndarray | None = None,
     origin: np.ndarray | None = None,
+    comment_lines: bool = True,
 ) -> Path:
     """Write positions (T, J, 3) or (P, T, J, 3), metres z up, NaN = missing, as .npz or .csv (by
     the path's extension) in `unit` (a name or metres per unit) and `up_axis`. The layout options
@@ -566,7 +568,9 @@ def write_positions(
     default), frame/time columns, first_frame and times (csv: (T,) or (P, T) seconds of each row;
     default (first_frame + t) / fps). origin: (3,) metres z up that the positions are relative
     to (Clip.origin), added back in float64; npz positions are float32, or float64 where a value
-    lies beyond NEAR_ORIGIN_M (float32 would round it by more than 4 um)."""
+    lies beyond NEAR_ORIGIN_M (float32 would round it by more than 4 um). comment_lines: csv,
+    the `# fps= unit= up_axis=` and `# parents=` lines above the header (False: a file read
+    without them is written back without them; reading it again needs the same options)."""
     path = Path(path)
     origin = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64).reshape(3)
     pos = np.asarray(positions, dtype=np.float64)
@@ -615,8 +619,11 @@ def write_positions(
             + [f"{n}_{a}" for n in skeleton.joint_names for a in "xyz"]
         )
         lines = [
-            f"# fps={fps:.9g} unit={unit} up_axis={up_axis}",
-            "# parents=" + ",".join(str(p) for p in skeleton.parents),
+            *(
+                [f"# fps={fps:.9g} unit={unit} up_axis={up_axis}", "# parents=" + ",".join(map(str, skeleton.parents))]
+                if comment_lines
+                else []
+            ),
             ",".join(header),
         ]
         if times is None:
@@ -682,4 +689,5 @@ def write_clips(path, clips: list[Clip]) -> Path:
         first_frame=int(m.get("first_frame", 0)),
         times=times,
         origin=c0.origin,
+        comment_lines=m.get("comment_lines", True) if from_csv else True,
     )
