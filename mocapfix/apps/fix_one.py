@@ -15,7 +15,6 @@ from pathlib import Path
 
 from mocapfix.apps.fix_plan import RunPlan, plan_run, renders_of
 from mocapfix.core.clip import MotionFileError, shown
-from mocapfix.core.render import holes_map, render, tracks_for
 from mocapfix.fills.motion_matching import MotionLibrary
 from mocapfix.fix.files import FixedFile, fix_recording, read_recording
 from mocapfix.fix.fixer import Fixer, FixOptions
@@ -117,6 +116,9 @@ def _publish(fixed: FixedFile, outputs: list[Path], force: bool, render_gif: boo
                     raise
                 raise MotionFileError(path, f"cannot write output {shown(target)}: {e.problem}") from None
         if render_gif:  # the first person: a preview, not a report of every clip
+            # matplotlib, imported only for --render: a third of a second of every run's start
+            from mocapfix.core.render import holes_map, render, tracks_for
+
             gif, holes = outputs[1:]
             first = fixed.inputs[0]
             tracks = tracks_for(first, [(target.name, fixed.clips[0])])
