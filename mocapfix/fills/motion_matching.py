@@ -364,6 +364,8 @@ def _best_apart(of: np.ndarray, n: int, apart: int) -> list[int]:
     `apart` from every better one picked before it: the lowest, then the lowest more than `apart`
     from it, ... (ties to the lower index). Each pick rules out at most 2 apart + 1 places, so
     the picks are among the n (2 apart + 1) lowest: only those are sorted, not the whole source."""
+    if n <= 0:
+        return []
     pool = np.flatnonzero(np.isfinite(of))
     m = n * (2 * apart + 1)
     if len(pool) > m:
