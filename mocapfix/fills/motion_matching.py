@@ -105,19 +105,31 @@ def mirrored(x: np.ndarray, partner) -> np.ndarray:
 
 
 class Searchable(NamedTuple):
-    """Frames a hole's search reads: (N, J, 3) metres (NaN = missing), their coordinates as the
-    search reads them (made once, read by every hole), a span of frames never matched
-    (first, end): a take hidden from its own search, and the joint partners its takes were
-    mirrored by (MotionLibrary.mirror): the take being fixed is searched mirrored too."""
+    """Frames a hole's search reads, as their coordinates (made once, read by every hole; the
+    frames themselves are not kept beside them: a library holds minutes of takes six times over),
+    a span of frames never matched (first, end): a take hidden from its own search, and the joint
+    partners its takes were mirrored by (MotionLibrary.mirror): the take being fixed is searched
+    mirrored too."""
 
-    frames: np.ndarray
     coordinates: _Coordinates
     hidden: tuple[int, int] = (0, 0)
     mirror: list[int] | None = None
 
+    @property
+    def num_frames(self) -> int:
+        return self.coordinates.x.shape[1]
+
+    def stretch(self, start: int, width: int) -> np.ndarray:
+        """Frames [start, start + width) -> (width, J, 3) metres, float64, NaN where missing."""
+        c = self.coordinates
+        out = np.stack([v[:, start : start + width].T for v in (c.x, c.y, c.z)], axis=-1)
+        out[c.missing[:, start : start + width].T > 0] = np.nan
+        return out
+
 
 def searchable(frames: np.ndarray) -> Searchable:
-    return Searchable(frames, _coordinates(frames))
+    """frames: (N, J, 3) metres, NaN where missing."""
+    return Searchable(_coordinates(frames))
 
 
 class MotionLibrary:
@@ -316,7 +328,7 @@ def _search(
     around the best of them. proxy: the query at a few of its frames (_proxy_frames): on a long
     source the grid is scored by it first, and the full query scores only the grid's starts
     near the PROXY_BASINS best places it finds."""
-    N = len(source.frames) - width + 1
+    N = source.num_frames - width + 1
     if N <= 0:
         return []
     whole = ~source.coordinates.missing[need].any(0)  # (N + width - 1,)
@@ -447,7 +459,7 @@ def match_fills(
         width = hi - lo
         if not sources:
             sources = [searchable(t) for t in takes]
-            sources += [library] if library is not None and len(library.frames) else []
+            sources += [library] if library is not None and library.num_frames else []
         w = _weights(frames, joints, query, J)
         step = max(1, n // STRIDE_PER_HOLE)
         at = _proxy_frames(width, s - lo, e - lo, step)
@@ -464,7 +476,7 @@ def match_fills(
         if not chosen:
             continue
         # the neighbours turned and shifted onto the query: (K, width, J, 3)
-        seg = np.stack([sources[i].frames[start : start + width] for _, i, start, _, _ in chosen]).astype(np.float64)
+        seg = np.stack([sources[i].stretch(start, width) for _, i, start, _, _ in chosen])  # (K, width, J, 3)
         angle = np.array([a for *_, a, _ in chosen])
         cos, sin = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
         centre = np.stack([c for *_, c in chosen])[:, None, None]  # (K, 1, 1, 2)
