@@ -12,6 +12,7 @@ import torch
 from scipy.interpolate import CubicSpline, PchipInterpolator
 
 from mocapfix.fills.fill import Fill
+from mocapfix.fills.holes import runs
 
 
 def _observed_neighbours(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -258,11 +259,8 @@ def crop_spans(frames: torch.Tensor, context: int) -> list[tuple[int, int, int]]
     `context` frames more each side, crops that overlap merged."""
     B, T = frames.shape
     spans: list[tuple[int, int, int]] = []
-    zero = frames.new_zeros(1, dtype=torch.int8)
     for b in range(B):
-        d = torch.diff(frames[b].to(torch.int8), prepend=zero, append=zero)
-        starts, ends = torch.nonzero(d == 1).flatten().tolist(), torch.nonzero(d == -1).flatten().tolist()
-        for s, e in zip(starts, ends):
+        for s, e in runs(frames[b].cpu().numpy()):
             s, e = max(0, s - context), min(T, e + context)
             if spans and spans[-1][0] == b and s <= spans[-1][2]:
                 spans[-1] = (b, spans[-1][1], max(e, spans[-1][2]))

@@ -11,6 +11,12 @@ from mocapfix.core.skeleton import Skeleton
 PARTS = ("full", "arm", "leg")
 
 
+def runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(T,) bool -> the [start, end) of each run of True."""
+    edges = np.diff(np.concatenate([[0], np.asarray(mask).astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
+
+
 def hole_frames(observed: torch.Tensor) -> torch.Tensor:
     """observed: (B, T, J) bool -> (B, T, J) long: for a missing token, the length in frames of the
     run of missing frames of its joint that it is in; 0 for observed tokens."""

@@ -35,6 +35,7 @@ from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.augment import mirror_index
 from mocapfix.fills.classical import hermite_infill, lerp_infill
 from mocapfix.fills.fill import Fill
+from mocapfix.fills.holes import runs
 
 FILLS = ("match", "match_delta")
 # Context each side of a hole, as a fraction of its length (at least MIN_CONTEXT frames): on CMU
@@ -221,12 +222,6 @@ class MotionMatching(Fill):
             for x, o, h, a in zip(positions, observed, hermite, asked)
         ]
         return {name: torch.stack([torch.from_numpy(f[name]) for f in found]) for name in FILLS}
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """(T,) bool -> the (start, end) of each run of True."""
-    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
 
 
 def _spread(frames: np.ndarray, k: int) -> np.ndarray:
@@ -438,7 +433,7 @@ def match_fills(
     mirror = None if library is None else library.mirror
     takes = [x] + ([mirrored(x, mirror)] if mirror is not None else [])
     sources: list[Searchable] = []  # made at the first hole searched
-    for s, e in _runs(~observed[:, seen].all(1)):
+    for s, e in runs(~observed[:, seen].all(1)):
         if s == 0 or e == T or (fps is not None and e - s < MIN_HOLE_S * fps):
             continue
         if asked is not None and not asked[s:e].any():

@@ -333,19 +333,23 @@ def proven(errors: ErrorSums) -> set[tuple[str, float, str]]:
         for (p, g, method), e in errors.holes.items():
             if (p, g) != (part, gap) or method == PREFERRED or len(e) != len(takes):
                 continue
-            margin = MODEL_MARGIN if is_learned(method) else PREFERRED_MARGIN
-            d = np.array(e) - margin * preferred  # (holes,)
+            d = _over_margin(e, preferred, method)  # (holes,)
             per_take = np.bincount(keys, weights=d, minlength=n) / np.bincount(keys, minlength=n)  # (takes,)
             if per_take.mean() + stdtrit(n - 1, TRUST_CONFIDENCE) * per_take.std(ddof=1) / np.sqrt(n) < 0:
                 out.add((p, g, method))
     return out
 
 
+def _over_margin(errors: list[float], preferred: np.ndarray, method: str) -> np.ndarray:
+    """Per-hole errors of `method` less what choose() asks it to beat: MODEL_MARGIN (a model) or
+    PREFERRED_MARGIN (a classical candidate) times the preferred fill's error on the same hole."""
+    return np.array(errors) - (MODEL_MARGIN if is_learned(method) else PREFERRED_MARGIN) * preferred
+
+
 def _behind(errors: list[float], preferred: np.ndarray, method: str) -> bool:
     """Per-hole errors of `method` above its margin times the preferred fill's, by SCREEN_Z
     standard errors of the paired differences (hopeless)."""
-    margin = MODEL_MARGIN if is_learned(method) else PREFERRED_MARGIN
-    d = np.array(errors) - margin * preferred  # (holes,)
+    d = _over_margin(errors, preferred, method)  # (holes,)
     return len(d) == len(preferred) and d.mean() > SCREEN_Z * d.std(ddof=1) / np.sqrt(len(d))
 
 

@@ -19,16 +19,14 @@ import numpy as np
 import torch
 
 from mocapfix.core.resample import frames_around, frames_within, model_frames, resample_frames
+from mocapfix.fills.holes import runs
 from mocapfix.models.correction import CorrectionNet, base_fill
 
 
 def hole_runs(missing: np.ndarray, longest: int) -> list[tuple[int, int]]:
     """missing: (T, J) bool -> [(start, end)) of each run of frames with a missing token, those
     no longer than `longest` frames."""
-    frames = np.concatenate([[0], missing.any(-1).astype(np.int8), [0]])
-    edges = np.diff(frames)
-    runs = zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist())
-    return [(s, e) for s, e in runs if e - s <= longest]
+    return [(s, e) for s, e in runs(missing.any(-1)) if e - s <= longest]
 
 
 @torch.inference_mode()
@@ -83,20 +81,20 @@ def corrected_take(
         base_m = base_fill(net.config, xm, observed_m)[0].numpy()
         hole_m = ~observed_m[0].numpy() & shown
         wanted = None if asked is None else frames_around(asked, fps, fps_m, K)
-    runs = hole_runs(hole_m, max(1, round(max_hole_s * fps_m)))
+    holes = hole_runs(hole_m, max(1, round(max_hole_s * fps_m)))
     if wanted is not None:
-        runs = [(s, e) for s, e in runs if wanted[s:e].any()]
-    if not runs:
+        holes = [(s, e) for s, e in holes if wanted[s:e].any()]
+    if not holes:
         return base, 0
-    delta = corrections(net, base_m, hole_m, runs)
+    delta = corrections(net, base_m, hole_m, holes)
     if not same_rate:
         # a take's hole frame between the network's last hole frame and the next one (observed
         # there, no correction) takes the hole's correction, not a ramp down to nothing
-        for s, e in runs:
+        for s, e in holes:
             delta[max(s - 1, 0)] = delta[s]
             delta[min(e, len(delta) - 1)] = delta[e - 1]
         delta = _past_end_held(resample_frames(delta, fps_m, fps, len(x)), frames_within(K, fps_m, fps))
-    return np.where(hole[..., None], base + delta, base), len(runs)
+    return np.where(hole[..., None], base + delta, base), len(holes)
 
 
 def _past_end_held(x: np.ndarray, within: int) -> np.ndarray:

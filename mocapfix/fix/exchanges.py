@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from mocapfix.core.skeleton import Skeleton
+from mocapfix.fills.holes import runs
 
 PAIRS = (("left_arm", "right_arm"), ("left_leg", "right_leg"))
 MARGIN_M = 0.05  # the exchanged labelling must be this much nearer, per joint on average
@@ -43,26 +44,20 @@ def exchanged_frames(x: np.ndarray, left: list[int], right: list[int]) -> np.nda
     return out
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """(start, stop) of each run of True."""
-    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist()))
-
-
 def put_back_exchanges(x: np.ndarray, skeleton: Skeleton, fps: float) -> tuple[np.ndarray, int, int]:
     """x: (T, J, 3) one take's positions -> (x with short exchanges of left and right limbs put
     back, how many runs, how many frames). A joint below a limb's top moves with its limb."""
     x = x.copy()
-    runs = frames = 0
+    exchanges = frames = 0
     longest = max(1, round(MAX_EXCHANGE_S * fps))
     for a, b in PAIRS:
         left, right = list(skeleton.groups.get(a, ())), list(skeleton.groups.get(b, ()))
         if not left or len(left) != len(right):
             continue
         mask = exchanged_frames(x, left, right)
-        for start, stop in _runs(mask):
+        for start, stop in runs(mask):
             if stop - start > longest:
                 continue
             x[start:stop, left + right] = x[start:stop, right + left]
-            runs, frames = runs + 1, frames + stop - start
-    return x, runs, frames
+            exchanges, frames = exchanges + 1, frames + stop - start
+    return x, exchanges, frames
