@@ -61,25 +61,34 @@ MIN_HOLE_S = 0.2
 
 
 class _Coordinates(NamedTuple):
-    """A source's frames as the search reads them, each (J, N): x, y, z metres and squared
-    (x^2 + y^2 + z^2), 0 where missing (float64: the sums below subtract large numbers), and
-    missing (1.0 where missing, else 0; float32, exact for counts of points). Made once per source,
-    read by every hole's search. Joints first: the search's products are (outputs, J) @ (J, N),
-    which BLAS runs several times faster than (N, J) @ (J, outputs) for a few dozen outputs."""
+    """A source's frames as the search reads them, each (J, N) float32: x, y, z metres (x and y
+    about their mean, `middle`: the search is blind to a shift over the floor, and float32 keeps
+    a micrometre within metres of the origin, not 100 km out) and squared (x^2 + y^2 + z^2), 0 where
+    missing, and missing (1.0 where missing, else 0; exact for counts of points). Made once per
+    source, read by every hole's search. float32 halves the library's memory and the bytes each
+    product reads (the products are memory-bound); a distance's rounding is ~1e-6 of the
+    stretch's spread, far below the differences between neighbours (bench/match_search.py).
+    Joints first: the search's products are (outputs, J) @ (J, N), which BLAS runs several times
+    faster than (N, J) @ (J, outputs) for a few dozen outputs."""
 
     x: np.ndarray
     y: np.ndarray
     z: np.ndarray
     squared: np.ndarray
     missing: np.ndarray
+    middle: np.ndarray  # (2,) float64: the x, y taken off
 
 
 def _coordinates(frames: np.ndarray) -> _Coordinates:
     """frames: (N, J, 3) metres, NaN where missing."""
     missing = ~np.isfinite(frames).all(-1)
     c = np.where(missing[..., None], 0.0, frames).astype(np.float64)
-    x, y, z = (np.ascontiguousarray(c[..., i].T) for i in range(3))
-    return _Coordinates(x, y, z, x**2 + y**2 + z**2, np.ascontiguousarray(missing.T, dtype=np.float32))
+    middle = c[..., :2].sum((0, 1)) / max(1, (~missing).sum())
+    c[..., :2] -= middle
+    c[missing] = 0.0
+    x, y, z = (np.ascontiguousarray(c[..., i].T, dtype=np.float32) for i in range(3))
+    missing = np.ascontiguousarray(missing.T, dtype=np.float32)
+    return _Coordinates(x, y, z, x**2 + y**2 + z**2, missing, middle)
 
 
 # Each library take is also searched mirrored (left and right swapped: a left leg's hole finds
@@ -123,7 +132,8 @@ class Searchable(NamedTuple):
     def stretch(self, start: int, width: int) -> np.ndarray:
         """Frames [start, start + width) -> (width, J, 3) metres, float64, NaN where missing."""
         c = self.coordinates
-        out = np.stack([v[:, start : start + width].T for v in (c.x, c.y, c.z)], axis=-1)
+        out = np.stack([v[:, start : start + width].T for v in (c.x, c.y, c.z)], axis=-1).astype(np.float64)
+        out[..., :2] += c.middle
         out[c.missing[:, start : start + width].T > 0] = np.nan
         return out
 
@@ -153,7 +163,7 @@ class MotionLibrary:
 
     def __getstate__(self) -> dict:
         # a worker (fix --jobs) makes the searched frames again on first use: pickled, they
-        # would copy six times the takes, in float64, into every job
+        # would copy six times the takes into every job
         return {**self.__dict__, "_at": {}}
 
     def including(self, takes: list[tuple[np.ndarray, float]], keys: list) -> MotionLibrary:
@@ -286,8 +296,7 @@ def _correlate(source: _Coordinates, w: _Weights, first: int, count: int, step: 
             rows = slice(first + phase + step * a, first + phase + step * (b - 1 + shift[-1]) + 1, step)
             for name, weights, cols in _SUMS:
                 values = getattr(source, name)[:, rows]  # (J, rows)
-                # in the values' precision: float32 for the missing counts (exact), else float64
-                on = getattr(w, weights)[:, us].astype(values.dtype, copy=False)  # (J, V, k)
+                on = getattr(w, weights)[:, us].astype(values.dtype, copy=False)  # (J, V, k), float32
                 per_row = (on.reshape(J, -1).T @ values).reshape(len(us), on.shape[-1], -1)  # (V, k, rows)
                 for v, sh in enumerate(shift):
                     sums[cols, a:b] += per_row[v, :, sh : sh + b - a]
@@ -295,14 +304,18 @@ def _correlate(source: _Coordinates, w: _Weights, first: int, count: int, step: 
 
 
 def _sums_at(source: _Coordinates, w: _Weights, starts: np.ndarray) -> np.ndarray:
-    """_correlate's sums for any starts (M,) -> (M, 9), each offset's frames gathered: what
-    refines a coarse search, a few hundred starts."""
-    sums = np.zeros((9, len(starts)))
-    for u, offset in enumerate(w.offsets):
-        rows = starts + offset
+    """_correlate's sums for any starts (M,) -> (M, 9), every offset's frames gathered at once:
+    what refines a coarse search, a few hundred starts. In float64: the distances that rank the
+    neighbours and weigh them are differences of sums thousands of times larger (a stretch and
+    its copy elsewhere must come out ~0 apart, not float32's rounding of the sums)."""
+    J, U = source.x.shape[0], len(w.offsets)
+    sums = np.zeros((len(starts), 9))
+    for a in range(0, len(starts), max(1, CHUNK // U)):
+        rows = starts[a : a + CHUNK // U, None] + w.offsets  # (M, U) frames
         for name, weights, cols in _SUMS:
-            sums[cols] += getattr(w, weights)[:, u].T @ getattr(source, name)[:, rows]  # (k, M)
-    return sums.T
+            values = getattr(source, name)[:, rows].transpose(1, 0, 2).reshape(len(rows), J * U)  # (M, J U)
+            sums[a : a + len(rows), cols] += values.astype(np.float64) @ getattr(w, weights).reshape(J * U, -1)
+    return sums
 
 
 def _search(
@@ -319,10 +332,10 @@ def _search(
     from each other -> list of (distance, start, angle, centre): distance the mean squared
     distance (m^2) between the query and the stretch's tokens at its points after the best turn
     about z and shift in x, y (angle and the stretch's x, y centre); need (J,) the joints the
-    stretch must hold in every frame. Starts `step` frames apart are scored, then every start
-    around the best of them. proxy: the query at a few of its frames (_proxy_frames): on a long
-    source the grid is scored by it first, and the full query scores only the grid's starts
-    near the PROXY_BASINS best places it finds."""
+    stretch must hold in every frame. Starts `step` frames apart are scored (float32 sums), then
+    every start around the best of them (float64: the distances returned). proxy: the query at
+    a few of its frames (_proxy_frames): on a long source the grid is scored by it first, and
+    the full query scores only the grid's starts near the PROXY_BASINS best places it finds."""
     N = source.num_frames - width + 1
     if N <= 0:
         return []
@@ -359,11 +372,13 @@ def _search(
         score(grid, _sums_at(source.coordinates, w, grid), w.query, d)
     else:
         score(grid, _correlate(source.coordinates, w, 0, count, step), w.query, d)
-    picks = _best_apart(d, 2 * k, apart) if step > 1 else []
-    if picks:  # every start around the best of them
+    # every start around the best of them (with step 1 the best themselves), in float64 (_sums_at)
+    picks = _best_apart(d, 2 * k, apart)
+    if picks:
         near = np.unique(np.concatenate([np.arange(max(0, i - step + 1), min(N, i + step)) for i in picks]))
         score(near, _sums_at(source.coordinates, w, near), w.query, d)
-    return [(float(d[i]), i, float(angle[i]), centre[i]) for i in _best_apart(d, k, apart)]
+    middle = source.coordinates.middle  # the centres as Searchable.stretch gives the frames
+    return [(float(d[i]), i, float(angle[i]), centre[i] + middle) for i in _best_apart(d, k, apart)]
 
 
 def _best_apart(of: np.ndarray, n: int, apart: int) -> list[int]:
