@@ -123,6 +123,14 @@ from mocapfix.rig.mapping import match_joints
 def cpu():
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
+def peak_mb():
+    # this process's own high-water mark: ru_maxrss also keeps the parent's at the fork before exec
+    # (Linux carries it over), a pytest worker's gigabyte after a few hundred tests
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith("VmHWM:")) / 1024
+    except OSError:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 started = cpu()
 clips = read_motion(sys.argv[1])
 motion_stats(clips)  # what `mocapfix inspect` prints
@@ -133,7 +141,7 @@ print(json.dumps({
     # not the other; and of the reading, not the start before it (torch: 1-2 CPU s that vary with the
     # machine's load: a fresh clone's run once took the whole past the bound, 10.5 s)
     "seconds": cpu() - started,
-    "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    "peak_mb": peak_mb(),
     "joints": clips[0].skeleton.num_joints,
     "rotations": clips[0].has_rotations,
     "labels": {n: labels.get(n) for n in sys.argv[2:]},
