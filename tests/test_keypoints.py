@@ -182,6 +182,28 @@ def test_an_npz_without_names_is_a_keypoint_array_with_its_key_fps_and_unit_kept
         assert np.array_equal(back["keypoints3d"], file) and back["fps"] == 30.0 and str(back["unit"]) == "cm"
 
 
+@pytest.mark.parametrize("key", ["reconstruction", "arr_0"])
+def test_a_lifters_npz_reads_under_its_own_key_and_is_written_back_under_it(tmp_path, body_take, capsys, key):
+    """MHFormer's demo saves (T, 17, 3) as "reconstruction"; VideoPose3D's in-the-wild scripts
+    np.savez the prediction unnamed ("arr_0"): each reads as H36M-17 and fix writes the same key."""
+    file = from_z_up(in_layout("h36m17", body_take), "y").astype(np.float32)
+    np.savez(tmp_path / "lifted.npz", **{key: file})
+    args = ["fix", tmp_path / "lifted.npz", "--layout", "h36m17", "--fps", "30", "--model", "jitter-many"]
+    rc, out, err = run_mocapfix(args, capsys)
+    assert rc == 0, err
+    with np.load(tmp_path / "lifted.fixed.npz") as back:
+        assert back.files[0] == key and back[key].shape == file.shape and back[key].dtype == file.dtype
+        assert 0 < np.abs(back[key] - file).max() < 0.05  # denoised, in the file's own metres
+    (again,) = read_motion(tmp_path / "lifted.fixed.npz", layout="h36m17")  # its fps and unit beside it now
+    assert again.fps == 30.0 and again.meta["unit"] == "m"
+
+
+def test_an_npz_whose_arrays_name_no_keypoints_is_one_line_naming_its_keys(tmp_path, body_take):
+    np.savez(tmp_path / "two.npz", in_layout("h36m17", body_take), np.zeros(3))  # arr_0 and arr_1: which?
+    with pytest.raises(MotionFileError, match="unknown keys.*arr_0.*arr_1"):
+        read_motion(tmp_path / "two.npz")
+
+
 def test_a_limb_never_seen_is_left_missing_and_said_so(tmp_path, body_take, capsys):
     """An arm out of the camera's view all take long: nothing says where it was, so it is not
     filled with a body's guess (the rest of the take is fixed as usual)."""

@@ -151,12 +151,15 @@ def detect_source(path) -> str:
             return "amass"
         if "positions" in keys and keys & {"joint_names", "parents"}:
             return "positions"
-        if keys & {"positions", "keypoints3d", "keypoints"}:  # no names, no tree: a published layout's
+        from mocapfix.io.keypoints import array_key
+
+        if array_key(keys) is not None:  # no names, no tree: a published layout's
             return "keypoints"
         raise MotionFileError(
             path,
             f"npz with unknown keys ({listed_keys(list(keys))}); expected positions (positions file or "
-            "keypoints), positions_3d (Human3.6M) or poses+trans (AMASS)",
+            "keypoints), keypoints3d / keypoints / reconstruction (keypoints), positions_3d (Human3.6M) "
+            "or poses+trans (AMASS)",
         )
     raise MotionFileError(
         path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz, .npy, .skeleton, .json, .txt"

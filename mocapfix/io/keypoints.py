@@ -3,9 +3,12 @@ MotionBERT: H36M-17), SMPL regressors (SMPL-24), MediaPipe, OpenPose and depth c
 Azure Kinect) hand them over.
 
     .npy                     (T, J, 3) or (T, J, 4), or (P, T, J, 3|4) for P people
-    .npz                     the same under "positions", "keypoints3d" or "keypoints" (no joint
-                             names, no parents: a positions file with those is io/positions.py's),
-                             optionally "fps", "unit" and "times" (T,) seconds of each row
+    .npz                     the same under "positions", "keypoints3d", "keypoints" or
+                             "reconstruction" (MHFormer's demo), or as "arr_0" with nothing but
+                             fps, unit and times beside it (np.savez(path, prediction):
+                             VideoPose3D's in-the-wild scripts); no joint names, no parents (a
+                             positions file with those is io/positions.py's), optionally "fps",
+                             "unit" and "times" (T,) seconds of each row
 
 The joints are those of a published layout (io/layouts.py): --layout names it, or the joint
 count tells it where only one layout has that many. A 4th column is each joint's confidence or
@@ -39,7 +42,15 @@ from mocapfix.io.positions import _check_fps, _clips, _fps_from_times, _npz_scal
 from mocapfix.io.untrusted import open_regular
 
 log = logging.getLogger(__name__)
-ARRAY_KEYS = ("positions", "keypoints3d", "keypoints")
+ARRAY_KEYS = ("positions", "keypoints3d", "keypoints", "reconstruction")
+UNNAMED_KEY = "arr_0"  # np.savez's name for an array passed without one: read with only ABOUT_KEYS beside it
+ABOUT_KEYS = {"fps", "unit", "times"}  # what an npz may hold beside its array
+
+
+def array_key(keys) -> str | None:
+    """The npz key a keypoint array is under, None if none."""
+    keys = set(keys)
+    return next((k for k in ARRAY_KEYS if k in keys), UNNAMED_KEY if keys - ABOUT_KEYS == {UNNAMED_KEY} else None)
 
 
 class KeypointFile(NamedTuple):
@@ -62,10 +73,12 @@ def _load(path: Path) -> KeypointFile:
             except Exception as e:
                 raise MotionFileError(path, f"not a readable .npy array ({one_line(e)})") from None
     with load_npz(path) as data:
-        key = next((k for k in ARRAY_KEYS if k in data.files), None)
+        key = array_key(data.files)
         if key is None:
             raise MotionFileError(
-                path, f"no keypoint array ({' or '.join(ARRAY_KEYS)}; keys: {listed_keys(data.files)})"
+                path,
+                f"no keypoint array ({' or '.join(ARRAY_KEYS)}, or {UNNAMED_KEY} alone; keys: "
+                f"{listed_keys(data.files)})",
             )
         raw = npz_array(path, data, key)
         fps = None
