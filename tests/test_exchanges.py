@@ -28,6 +28,18 @@ def test_clean_takes_keep_their_labels(body21_takes):
             assert runs == 0 and np.array_equal(y, take)
 
 
+def test_jitter_far_over_a_shoulders_width_invents_no_exchange(body21_takes):
+    """Every frame 12 cm off (a heading misses by ~30 cm): a fixed 5-cm margin lost to chance
+    every few frames and put back a run of arms or legs each time (the jitter remover's benchmark,
+    0.1 rad on every joint, went 25.8 -> 51 mm); the margin grows with the take's own misses."""
+    invented = 0
+    for i, x in enumerate(body21_takes[:10]):
+        noisy = x + np.random.default_rng(i).normal(scale=0.12, size=x.shape)
+        _, runs, _ = put_back_exchanges(noisy, BODY, 30.0)
+        invented += runs
+    assert invented <= 1
+
+
 def test_exchanges_of_3_to_30_frames_are_put_back(body21_takes):
     rng = np.random.default_rng(1)
     put_back = tried = 0

@@ -20,7 +20,12 @@ from mocapfix.core.skeleton import Skeleton
 from mocapfix.fills.holes import runs
 
 PAIRS = (("left_arm", "right_arm"), ("left_leg", "right_leg"))
-MARGIN_M = 0.05  # the exchanged labelling must be this much nearer, per joint on average
+MARGIN_M = 0.05  # the exchanged labelling must be this much nearer, per joint on average,
+# and by this many times the take's typical miss of the heading (its jitter and its motion's turns,
+# the median over frames): under heavy jitter a heading misses by more than a shoulder's width by
+# chance, and each chance win would put a run back (0.1 rad on every joint of the CMU takes: 8-65
+# runs invented per take at the fixed margin, the jitter remover's error doubled, 25.8 -> 51 mm)
+NOISE_MARGIN = 1.0
 MAX_EXCHANGE_S = 1.5  # longer runs are the take's labelling, not a slip
 
 
@@ -30,6 +35,9 @@ def exchanged_frames(x: np.ndarray, left: list[int], right: list[int]) -> np.nda
     out = np.zeros(len(x), dtype=bool)
     fixed = x[:, left + right].astype(np.float64).copy()  # (T, 2n, 3) as put back so far
     n = len(left)
+    miss = np.linalg.norm(fixed[2:] - (2 * fixed[1:-1] - fixed[:-2]), axis=-1).mean(-1)  # (T - 2,)
+    miss = miss[np.isfinite(miss)]
+    margin = max(MARGIN_M, NOISE_MARGIN * float(np.median(miss))) if len(miss) else MARGIN_M
     for t in range(2, len(x)):
         prev, prev2, now = fixed[t - 1], fixed[t - 2], fixed[t]
         if not (np.isfinite(prev).all() and np.isfinite(prev2).all() and np.isfinite(now).all()):
@@ -38,7 +46,7 @@ def exchanged_frames(x: np.ndarray, left: list[int], right: list[int]) -> np.nda
         swapped = np.concatenate([now[n:], now[:n]])
         keep_cost = np.linalg.norm(now - heading, axis=-1).mean()
         swap_cost = np.linalg.norm(swapped - heading, axis=-1).mean()
-        if swap_cost < keep_cost - MARGIN_M:
+        if swap_cost < keep_cost - margin:
             out[t] = True
             fixed[t] = swapped
     return out
