@@ -197,3 +197,24 @@ def test_the_rotations_denoiser_on_another_rig_names_the_real_reason(cmu_files, 
     err = capsys.readouterr().err
     assert rc == 1 and err.count("\n") == 1
     assert "rotations do not fit" in err and "--model jitter-many" in err and "has none" not in err
+
+
+def test_the_correction_reaches_no_further_than_twice_what_the_low_pass_took_out():
+    """fixers.capped: a correction within CORRECTION_REACH RMS residuals (over the window) is
+    kept as it is; a longer one (a body unlike any the network learned) is cut to that length,
+    its direction kept; the RMS is over the window, so a token whose own residual is ~0 by
+    chance (white noise) is not cut to nothing."""
+    from mocapfix.fix.fixers import CORRECTION_REACH, capped
+
+    rng = np.random.default_rng(0)
+    residual = rng.normal(0, 0.01, (200, 3, 3))  # 1 cm of white noise: RMS ~1.7 cm a token
+    residual[100] = 0.0  # this frame's tokens happen to sit on their low-pass
+    small = rng.normal(0, 0.002, (200, 3, 3))
+    np.testing.assert_array_equal(capped(small, residual, 5), small)
+    far = np.zeros((200, 3, 3))
+    far[:, :, 0] = 0.5  # half a metre along x everywhere
+    out = capped(far, residual, 5)
+    rms = np.sqrt((residual**2).sum(-1).mean())
+    assert np.abs(out[..., 1:]).max() == 0 and (out[..., 0] > 0).all()  # direction kept
+    assert 0.5 * CORRECTION_REACH * rms < np.median(out[..., 0]) < 2 * CORRECTION_REACH * rms
+    assert out[100, :, 0].min() > 0.3 * CORRECTION_REACH * rms  # the window's RMS, not the token's 0

@@ -373,6 +373,28 @@ class CorrectionFixer(PositionFixer):
         return Estimates(out, [np.zeros(len(need), dtype=bool) for need in need_m], runs, 0, 0)
 
 
+# How far the jitter remover's correction may reach, in RMS residuals of the low-pass (capped).
+CORRECTION_REACH = 2.0
+
+
+def capped(correction: np.ndarray, residual: np.ndarray, frames: int) -> np.ndarray:
+    """correction, residual (the input less its low-pass): (T, J, 3) -> the correction, each
+    token's cut to CORRECTION_REACH times the residual's RMS over `frames` around it (one period
+    of the cutoff). The network gives back motion the low-pass took out, so about as much as it
+    took out: a correction far longer is a body unlike any it learned (NTU RGB+D's Kinect v2
+    takes, their camera pitched 12-18 degrees: 13-18 mm a token where the low-pass moved them
+    1-6; 0-3 mm on mocap). Per token against the RMS, not the token's own residual: white noise
+    leaves some tokens near their low-pass by chance (that cap cost 1.6 mm on Bandai's noisy
+    takes, bench/denoise_strangers.py; this one 0.1)."""
+    r2 = (residual**2).sum(-1)  # (T, J)
+    sums = np.concatenate([np.zeros((1, r2.shape[1])), np.cumsum(r2, 0)])  # (T + 1, J)
+    t = np.arange(len(r2))
+    lo, hi = np.clip(t - frames // 2, 0, len(r2)), np.clip(t + frames - frames // 2, 0, len(r2))
+    rms = np.sqrt((sums[hi] - sums[lo]) / np.maximum(hi - lo, 1)[:, None])[..., None]  # (T, J, 1)
+    length = np.linalg.norm(correction, axis=-1, keepdims=True)
+    return correction * np.minimum(1.0, CORRECTION_REACH * rms / np.maximum(length, 1e-12))
+
+
 class JitterFixer(Fixer):
     """The jitter remover (models/jitter.py) on whole takes: the low-pass and the noise measure at
     the recording's own frame rate, the network's correction at its own (window_fps), brought back
@@ -426,7 +448,7 @@ class JitterFixer(Fixer):
             out = self.net(b, n)[0].double().cpu().numpy()
             out_m[start : min(K, start + chunk)] = out[start - lo : start - lo + min(chunk, K - start)]
         correction = hold_last_frame(resample_frames(out_m - base_m, fps_m, fps, len(x)))
-        return base + correction
+        return base + capped(correction, x - base, round(fps / cutoff))
 
 
 # kind -> class with from_checkpoint(path, ckpt, device, precision, policy)
