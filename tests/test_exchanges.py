@@ -28,6 +28,17 @@ def test_clean_takes_keep_their_labels(body21_takes):
             assert runs == 0 and np.array_equal(y, take)
 
 
+def test_a_run_to_the_takes_end_is_its_own_labelling_however_short(body21_takes):
+    """A 1.2-s take whose arms read exchanged from its third frame on (CMU subject 09's runs:
+    their first frames off) keeps its labels: nothing after the run says which labelling is the
+    slip."""
+    x = body21_takes[0][:36]
+    for start in (2, 20):
+        swapped = exchange(x, ("left_arm", "right_arm"), start, len(x) - start)
+        y, runs, _ = put_back_exchanges(swapped, BODY, 30.0)
+        assert runs == 0 and np.array_equal(y, swapped)
+
+
 def test_jitter_far_over_a_shoulders_width_invents_no_exchange(body21_takes):
     """Every frame 12 cm off (a heading misses by ~30 cm): a fixed 5-cm margin lost to chance
     every few frames and put back a run of arms or legs each time (the jitter remover's benchmark,

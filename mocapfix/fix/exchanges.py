@@ -5,9 +5,10 @@ Each pair of limbs (the arms, the legs: the skeleton's limb groups, top joint an
 followed through the take: each frame is compared with where the limbs were heading (the two
 frames before it, as put back so far, at constant velocity). Where the frame's left limb sits
 where the right one was heading and the right where the left was, by a clear margin, the two
-are exchanged. A run of exchanged frames is put back only if it is short (MAX_EXCHANGE_S): a
-long one is the take's own labelling, not a tracker's slip (the first frames of a take that
-starts exchanged set its labels). The top joints (shoulders, hips) are part of each limb, and
+are exchanged. A run of exchanged frames is put back only if it is short (MAX_EXCHANGE_S) and has
+unexchanged frames on both sides: a long one, or one that runs to the take's end, is the take's
+own labelling, not a tracker's slip (the first frames of a take that starts exchanged set its
+labels; CMU subject 09's 1.2-s runs, their first two frames off, were turned round whole). The top joints (shoulders, hips) are part of each limb, and
 they are a shoulder or hip width apart: a clean take's crossing hands or feet never make the
 exchanged labelling the nearer one.
 """
@@ -64,8 +65,8 @@ def put_back_exchanges(x: np.ndarray, skeleton: Skeleton, fps: float) -> tuple[n
             continue
         mask = exchanged_frames(x, left, right)
         for start, stop in runs(mask):
-            if stop - start > longest:
-                continue
+            if stop - start > longest or start <= 2 or stop == len(x):
+                continue  # long, or with no unexchanged frames on one side: the take's own labelling
             x[start:stop, left + right] = x[start:stop, right + left]
             exchanges, frames = exchanges + 1, frames + stop - start
     return x, exchanges, frames
