@@ -8,9 +8,9 @@ where the right one was heading and the right where the left was, by a clear mar
 are exchanged. A run of exchanged frames is put back only if it is short (MAX_EXCHANGE_S) and has
 unexchanged frames on both sides: a long one, or one that runs to the take's end, is the take's
 own labelling, not a tracker's slip (the first frames of a take that starts exchanged set its
-labels; CMU subject 09's 1.2-s runs, their first two frames off, were turned round whole). The top joints (shoulders, hips) are part of each limb, and
-they are a shoulder or hip width apart: a clean take's crossing hands or feet never make the
-exchanged labelling the nearer one.
+labels; CMU subject 09's 1.2-s runs, their first two frames off, were turned round whole).
+The top joints (shoulders, hips) are part of each limb, and they are a shoulder or hip width
+apart: a clean take's crossing hands or feet never make the exchanged labelling the nearer one.
 """
 
 from __future__ import annotations
