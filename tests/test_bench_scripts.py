@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -549,3 +550,37 @@ def test_match_search(tmp_path, cmu_files):
     assert len(r["rows"]) == 12
     for row in r["rows"]:
         assert 0 < row["match_delta exact"] < 1000 and row["largest difference mm"] >= 0
+
+
+def test_keypoints_real(tmp_path, bandai_files):
+    """Two of the sets, made from a Bandai walk with bones that breathe by 2 cm: a Kinect v1 SDK
+    log (timestamps in ms, a tracking flag per joint; a 2-s gap where the person left splits it
+    in two takes) and a lifter's unnamed npz in the Human3.6M layout."""
+    from test_keypoints import in_layout
+    from test_limbs import ALL, BODY, breathing
+
+    from mocapfix.fix.limbs import limb_bones
+    from mocapfix.io import read_motion
+    from mocapfix.io.conventions import from_z_up
+    from mocapfix.io.layouts import LAYOUTS
+    from mocapfix.rig.mapping import onto_skeleton
+
+    walk = next(f for f in bandai_files if f.name == "dataset-2_walk_elderly_002.bvh")
+    clip = onto_skeleton(read_motion(walk)[0], BODY)
+    body = breathing(clip.positions.astype(np.float64) + clip.origin, limb_bones(BODY, ALL), 0.02, seed=4)
+    kinect = from_z_up(in_layout("kinect20", body), "y")  # (T, 20, 3), a camera's y up
+    names = LAYOUTS["kinect20"].joint_names
+    header = ["timestamp", "framenum"] + [f"{n}_{c}" for n in names for c in ("X", "Y", "Z", "tracked")]
+    stamps = np.arange(len(kinect)) * 1000 / 30 + np.where(np.arange(len(kinect)) >= 200, 2000, 0)
+    rows = [[t, i] + [v for j in range(len(names)) for v in (*kinect[i, j], 2)] for i, t in enumerate(stamps)]
+    (tmp_path / "root" / "gaitkinect").mkdir(parents=True)
+    lines = ["\t".join(header)] + ["\t".join(f"{v:.6f}" for v in r) for r in rows]
+    (tmp_path / "root" / "gaitkinect" / "inputs__miky__walk.skl").write_text("\n".join(lines) + "\n")
+    (tmp_path / "root" / "vp3d_skating").mkdir()
+    np.savez(tmp_path / "root" / "vp3d_skating" / "out_3D_vp3d.npz", from_z_up(in_layout("h36m17", body), "y"))
+    r = bench("keypoints_real", "--root", tmp_path / "root", tmp_path=tmp_path)
+    rows = {x["set"]: x for x in r["rows"]}
+    assert set(rows) == {"GaitKinect v1 gait (Kinect v1)", "VideoPose3D skating (video)"}
+    assert rows["GaitKinect v1 gait (Kinect v1)"]["takes"] == 2  # split at the gap
+    for row in rows.values():
+        assert row["input_limb_sigma_mm"] > 5 and row["fix_sigma_cut"] > 0.5 > row["butterworth_sigma_cut"]

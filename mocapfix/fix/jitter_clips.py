@@ -6,8 +6,10 @@ and corrected at its own frame rate (fixers.JitterFixer.denoise). The model's jo
 the rest for the network (rig/stand_ins.py) and not written. The rig's other joints (fingers,
 toes, extra spine and twist joints) get the same low-pass and move with the nearest model joint
 above them by its correction, so a hand brings its fingers along. Holes stay holes: jitter is
-taken out of what was recorded and nothing is invented (an XMAE fills holes). A take shorter
-than MIN_TAKE_S is kept as recorded: too little motion to tell jitter from it.
+taken out of what was recorded and nothing is invented (an XMAE fills holes). A take of joint
+positions (keypoints, positions files) then has its limbs held at one length (limbs.py): no
+low-pass takes out bones that breathe as slowly as the body moves. A take shorter than
+MIN_TAKE_S is kept as recorded: too little motion to tell jitter from it.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import torch
 
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.fills.classical import lerp_infill
+from mocapfix.fix.limbs import hold_limb_lengths, limb_bones
 from mocapfix.fix.report import NOT_JUDGED, FixReport, LimbSpread, frames_and_people, who
 from mocapfix.models.jitter import lowpass
 from mocapfix.rig.stand_ins import with_stand_ins
@@ -42,7 +45,7 @@ def denoise_clips(
             f"a jitter remover takes jitter out (--mode denoise), it does not fill holes (--mode {mode}): an XMAE does",
         )
     name = who(clips)
-    out, replaced, passengers, notes = [], 0, 0, []
+    out, replaced, passengers, notes, held = [], 0, 0, [], []
     spread = LimbSpread(model)
     absent_notes: list[str] = []
     for k, c in enumerate(clips):
@@ -88,7 +91,11 @@ def denoise_clips(
             if j not in column and a >= 0:  # a passenger: moves with the model joint above it
                 positions[:, j] += correction[:, column[a]]
                 passengers += 1
-        positions = np.where(observed[0, ..., None].numpy(), positions, np.nan).astype(np.float32)
+        positions = np.where(observed[0, ..., None].numpy(), positions, np.nan)
+        if not c.has_rotations:  # a hierarchy's bones are rigid already; a tracker's breathe
+            positions, spread_mm = hold_limb_lengths(positions, c.skeleton, limb_bones(model, model_index))
+            held.append(spread_mm)
+        positions = positions.astype(np.float32)
         replaced += int(observed[0][:, index].sum())
         at = np.maximum(model_index, 0)
         spread.add(c.positions[:, at], positions[:, at], model_index)
@@ -97,6 +104,11 @@ def denoise_clips(
             progress(k + 1, len(clips))
 
     notes[:0] = [f"jitter taken out: a {fixer.net.cutoff_hz:g}-Hz zero-phase low-pass and the model's correction to it"]
+    if any(held):
+        notes.append(
+            f"the limbs' long bones held at each take's median length (they varied by {np.mean(held):.1f} mm "
+            "after the low-pass)"
+        )
     notes += absent_notes
     if passengers:
         notes.insert(

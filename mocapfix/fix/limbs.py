@@ -1,0 +1,88 @@
+"""Limbs held at one length: a tracker's bones breathe, a person's do not.
+
+Depth cameras and video lifters place each joint on its own, so the upper arm of one take is
+22 cm in one frame and 26 in the next (Kinect v1: 30-50 mm of standard deviation, docs/results.md),
+and no low-pass takes that out: it is as slow as the motion (bench/keypoints_real.py: the 6-Hz
+Butterworth and the jitter remover cut it by 0-3 %). The rigid long bones of the limbs (upper arm,
+forearm, thigh, shank, foot) are held at their median length over the take: each bone's two ends
+are moved along the bone, towards or apart, the shoulder and hip (the torso's joints) staying
+put, until every bone has its length (position-based dynamics' distance constraints: each
+correction shared between the two ends, which moves the joints less than pushing the whole
+error down the chain; a few sweeps settle a chain of three bones). Bone directions are kept.
+Joints below a limb's last one (hand tips, thumbs) move with it. The torso's distances are left
+alone: a spine bends and a shoulder girdle shrugs, their length between keypoints varies in a
+real body.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocapfix.core.skeleton import Skeleton
+
+SWEEPS = 30  # Gauss-Seidel sweeps over the bones: a chain of three settles within ~0.01 mm
+TOLERANCE_M = 1e-5  # stop once every bone is this close to its length
+LIMBS = ("left_arm", "right_arm", "left_leg", "right_leg")
+
+
+def _above(skeleton: Skeleton, j: int):
+    """The joints above j, nearest first."""
+    j = skeleton.parents[j]
+    while j >= 0:
+        yield j
+        j = skeleton.parents[j]
+
+
+def limb_bones(model: Skeleton, index: np.ndarray) -> list[tuple[int, int]]:
+    """The limbs' rigid bones as (upper, lower) joints of a take: model: the fixer's skeleton,
+    its limbs the groups LIMBS (body21: upper arm, forearm; thigh, shank, foot); index: (Jm,)
+    the take's joint of each model joint, -1 where the take has none (a bone to it is skipped)."""
+    bones = []
+    for limb in LIMBS:
+        group = model.groups.get(limb, ())
+        for m in group:
+            p = model.parents[m]
+            if p in group and index[p] >= 0 and index[m] >= 0:
+                bones.append((int(index[p]), int(index[m])))
+    return bones
+
+
+def hold_limb_lengths(x: np.ndarray, skeleton: Skeleton, bones: list[tuple[int, int]]) -> tuple[np.ndarray, float]:
+    """x: (T, J, 3) metres, NaN where missing, the take's joints (skeleton); bones: limb_bones ->
+    (T, J, 3) with those bones at their median length over the frames that show both ends, and
+    the mean standard deviation (mm) of those lengths before. A bone with a missing end in a
+    frame is left as it is there."""
+    if not bones:
+        return x, 0.0
+    out = x.astype(np.float64)
+    lengths = np.stack([np.linalg.norm(out[:, b] - out[:, a], axis=-1) for a, b in bones], -1)  # (T, B)
+    if not np.isfinite(lengths).any(0).all():
+        keep = np.isfinite(lengths).any(0)
+        bones, lengths = [bone for bone, k in zip(bones, keep) if k], lengths[:, keep]
+    target = np.nanmedian(lengths, 0)  # (B,)
+    spread_mm = float(np.nanmean(np.nanstd(lengths, 0)) * 1000)
+    tops = {a for a, _ in bones} - {b for _, b in bones}  # the shoulder and hip: the torso's joints
+    moves = {j: 0.0 if j in tops else 1.0 for bone in bones for j in bone}  # inverse masses
+    for _ in range(SWEEPS):
+        worst = 0.0
+        for (a, b), length in zip(bones, target):
+            d = out[:, b] - out[:, a]  # (T, 3)
+            n = np.linalg.norm(d, axis=-1)
+            ok = np.isfinite(n) & (n > 0)
+            error = np.where(ok, n - length, 0.0)
+            worst = max(worst, float(np.abs(error).max()))
+            step = (error / np.where(ok, n, 1.0))[:, None] * np.where(ok[:, None], d, 0.0)  # (T, 3)
+            share = moves[a] + moves[b]
+            out[:, a] += moves[a] / share * step
+            out[:, b] -= moves[b] / share * step
+        if worst < TOLERANCE_M:
+            break
+    moved = out - x
+    chain_joints = set(moves)
+    for j in range(skeleton.num_joints):  # hand tips and thumbs go with the wrist above them
+        if j in chain_joints:
+            continue
+        above = next((a for a in _above(skeleton, j) if a in chain_joints), None)
+        if above is not None and above not in tops:
+            out[:, j] += np.nan_to_num(moved[:, above])
+    return out, spread_mm
