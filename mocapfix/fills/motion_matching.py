@@ -33,7 +33,7 @@ import torch
 
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.augment import mirror_index
-from mocapfix.fills.classical import hermite_infill, lerp_infill
+from mocapfix.fills.classical import Classical, hermite_infill, lerp_infill
 from mocapfix.fills.fill import Fill
 from mocapfix.fills.holes import runs
 
@@ -225,7 +225,9 @@ class MotionMatching(Fill):
 
     def fill(self, positions, observed, fps, skeleton, asked=None) -> dict[str, torch.Tensor]:
         searched = None if self.library is None else self.library.without(self.key, fps)
-        hermite = hermite_infill(positions, observed)  # (B, T, J, 3): what a hole nothing matches keeps
+        # (B, T, J, 3): what a hole nothing matches keeps, and match_delta's base; asked for a
+        # few holes (the policy's cut ones), made on crops around them as the classical fills are
+        hermite = Classical("hermite").fill(positions, observed, fps, skeleton, asked)["hermite"]
         asked = [None] * len(positions) if asked is None else asked.numpy()
         found = [
             match_fills(x.numpy(), o.numpy(), h.numpy(), searched, fps, a)
