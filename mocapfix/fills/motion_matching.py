@@ -311,9 +311,9 @@ def _sums_at(source: _Coordinates, w: _Weights, starts: np.ndarray) -> np.ndarra
     neighbours and weigh them are differences of sums thousands of times larger (a stretch and
     its copy elsewhere must come out ~0 apart, not float32's rounding of the sums)."""
     J, U = source.x.shape[0], len(w.offsets)
-    sums = np.zeros((len(starts), 9))
-    for a in range(0, len(starts), max(1, CHUNK // U)):
-        rows = starts[a : a + CHUNK // U, None] + w.offsets  # (M, U) frames
+    sums, chunk = np.zeros((len(starts), 9)), max(1, CHUNK // U)
+    for a in range(0, len(starts), chunk):
+        rows = starts[a : a + chunk, None] + w.offsets  # (M, U) frames
         for name, weights, cols in _SUMS:
             values = getattr(source, name)[:, rows].transpose(1, 0, 2).reshape(len(rows), J * U)  # (M, J U)
             sums[a : a + len(rows), cols] += values.astype(np.float64) @ getattr(w, weights).reshape(J * U, -1)

@@ -448,7 +448,7 @@ class JitterFixer(Fixer):
             out = self.net(b, n)[0].double().cpu().numpy()
             out_m[start : min(K, start + chunk)] = out[start - lo : start - lo + min(chunk, K - start)]
         correction = hold_last_frame(resample_frames(out_m - base_m, fps_m, fps, len(x)))
-        return base + capped(correction, x - base, round(fps / cutoff))
+        return base + capped(correction, x - base, max(1, round(fps / cutoff)))
 
 
 # kind -> class with from_checkpoint(path, ckpt, device, precision, policy)
