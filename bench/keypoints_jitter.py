@@ -90,18 +90,22 @@ def measures(x: np.ndarray, clean: np.ndarray, fps: float, mapped: list[int], bo
     }
 
 
-def denoised(path: Path, name: str, fps: float, fixer) -> np.ndarray:
-    """The file as fix reads it, denoised -> (T, J, 3) metres z up in the file's order."""
-    clips = read_motion(path, fps=fps, layout=None if name == "body21" else name)
-    out, _ = fix_clips(clips, fixer, "denoise")
-    c = out[0]
-    x = c.positions.astype(np.float64) + c.origin
-    order = c.meta.get("joint_order")
+def in_file_order(clip) -> np.ndarray:
+    """clip -> (T, J, 3) metres, z up, in the file's joint order, NaN where missing."""
+    x = clip.positions.astype(np.float64) + clip.origin
+    order = clip.meta.get("joint_order")
     if order is None:
         return x
     back = np.empty_like(x)
     back[:, order] = x
     return back
+
+
+def denoised(path: Path, name: str, fps: float, fixer) -> np.ndarray:
+    """The file as fix reads it, denoised -> (T, J, 3) metres z up in the file's order."""
+    clips = read_motion(path, fps=fps, layout=None if name == "body21" else name)
+    out, _ = fix_clips(clips, fixer, "denoise")
+    return in_file_order(out[0])
 
 
 def layout_row(name: str, clips, fixer, noise_mm: float, tmp: Path) -> dict:

@@ -30,6 +30,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 from common import describe, print_table, write_result
+from keypoints_jitter import in_file_order
 from scipy.signal import butter, filtfilt
 
 from mocapfix.core.skeleton import preset  # noqa: E402
@@ -155,17 +156,6 @@ def files_of(root: Path, s: Set, tmp: Path) -> list[Path]:
                 seen.add(digest)
                 found += skl_takes(f, s.layout, tmp) if s.kind == "skl" else [f]
     return found
-
-
-def in_file_order(clip) -> np.ndarray:
-    """clip -> (T, J, 3) metres, z up, in the file's joint order, NaN where missing."""
-    x = clip.positions.astype(np.float64) + clip.origin
-    order = clip.meta.get("joint_order")
-    if order is None:
-        return x
-    back = np.empty_like(x)
-    back[:, order] = x
-    return back
 
 
 def measures(x: np.ndarray, seen: np.ndarray, fps: float, joints: list[int], bones) -> dict:

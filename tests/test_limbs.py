@@ -66,7 +66,7 @@ def test_breathing_bones_come_out_at_their_median_length_and_nearer_the_truth(bo
     bones = limb_bones(BODY, ALL)
     noisy = breathing(body_take, bones, 0.02, seed=1)
     noisy[40:60, BODY.index("LowerArm_L")] = np.nan  # a hole stays a hole
-    held, spread_mm = hold_limb_lengths(noisy, BODY, bones)
+    held, spread_mm = hold_limb_lengths(noisy, bones)
     assert spread_mm > 10.0  # what it found: 2 cm of breathing
     after = lengths(held, bones)
     assert np.nanmax(np.nanstd(after, 0)) < 1e-4  # every bone one length (within 0.1 mm)
@@ -80,13 +80,13 @@ def test_breathing_bones_come_out_at_their_median_length_and_nearer_the_truth(bo
     assert error["out"] < 0.8 * error["in"], error
     rng = np.random.default_rng(3)
     isotropic = body_take + rng.normal(0, 0.01, body_take.shape)
-    held, _ = hold_limb_lengths(isotropic, BODY, bones)
+    held, _ = hold_limb_lengths(isotropic, bones)
     before, after = (np.linalg.norm(v - body_take, axis=-1)[:, limb].mean() for v in (isotropic, held))
     assert after < 1.03 * before, (before, after)
 
 
 def test_a_take_whose_bones_are_rigid_is_left_where_it_was(body_take):
-    held, spread_mm = hold_limb_lengths(body_take, BODY, limb_bones(BODY, ALL))
+    held, spread_mm = hold_limb_lengths(body_take, limb_bones(BODY, ALL))
     assert spread_mm < 0.5  # the BVH's bones, through float rounding
     assert np.abs(held - body_take).max() < 2e-3
 

@@ -80,7 +80,13 @@ def denoise_clips(
         except ValueError as e:  # a frame rate too low for the model's cutoff, a rig too sparse to stand in for
             raise MotionFileError(source, f"{name(k)}{e}") from None
         model_index, index = index, index[present]
-        correction = denoised - positions[:, index]
+        if not c.has_rotations:  # a hierarchy's bones are rigid already; a tracker's breathe
+            seen = observed[0][:, index].numpy()  # the lengths and their corrections where recorded
+            columns = np.where(present, np.cumsum(present) - 1, -1)  # each model joint's in denoised
+            kept, spread_mm = hold_limb_lengths(np.where(seen[..., None], denoised, np.nan), limb_bones(model, columns))
+            denoised = np.where(seen[..., None], kept, denoised)
+            held.append(spread_mm)
+        correction = denoised - positions[:, index]  # the passengers below move with it, held limbs too
         positions[:, index] = denoised
         column = {int(j): m for m, j in enumerate(index)}
         parents = c.skeleton.parents
@@ -91,11 +97,7 @@ def denoise_clips(
             if j not in column and a >= 0:  # a passenger: moves with the model joint above it
                 positions[:, j] += correction[:, column[a]]
                 passengers += 1
-        positions = np.where(observed[0, ..., None].numpy(), positions, np.nan)
-        if not c.has_rotations:  # a hierarchy's bones are rigid already; a tracker's breathe
-            positions, spread_mm = hold_limb_lengths(positions, c.skeleton, limb_bones(model, model_index))
-            held.append(spread_mm)
-        positions = positions.astype(np.float32)
+        positions = np.where(observed[0, ..., None].numpy(), positions, np.nan).astype(np.float32)
         replaced += int(observed[0][:, index].sum())
         at = np.maximum(model_index, 0)
         spread.add(c.positions[:, at], positions[:, at], model_index)

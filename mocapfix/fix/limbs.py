@@ -9,9 +9,9 @@ are moved along the bone, towards or apart, the shoulder and hip (the torso's jo
 put, until every bone has its length (position-based dynamics' distance constraints: each
 correction shared between the two ends, which moves the joints less than pushing the whole
 error down the chain; a few sweeps settle a chain of three bones). Bone directions are kept.
-Joints below a limb's last one (hand tips, thumbs) move with it. The torso's distances are left
-alone: a spine bends and a shoulder girdle shrugs, their length between keypoints varies in a
-real body.
+Joints below a limb's last one (hand tips, thumbs) move with it as every joint the model does not
+use moves with the model joint above it (jitter_clips.py). The torso's distances are left alone:
+a spine bends and a shoulder girdle shrugs, their length between keypoints varies in a real body.
 """
 
 from __future__ import annotations
@@ -25,18 +25,10 @@ TOLERANCE_M = 1e-5  # stop once every bone is this close to its length
 LIMBS = ("left_arm", "right_arm", "left_leg", "right_leg")
 
 
-def _above(skeleton: Skeleton, j: int):
-    """The joints above j, nearest first."""
-    j = skeleton.parents[j]
-    while j >= 0:
-        yield j
-        j = skeleton.parents[j]
-
-
 def limb_bones(model: Skeleton, index: np.ndarray) -> list[tuple[int, int]]:
-    """The limbs' rigid bones as (upper, lower) joints of a take: model: the fixer's skeleton,
+    """The limbs' rigid bones as (upper, lower) columns of a take: model: the fixer's skeleton,
     its limbs the groups LIMBS (body21: upper arm, forearm; thigh, shank, foot); index: (Jm,)
-    the take's joint of each model joint, -1 where the take has none (a bone to it is skipped)."""
+    the take's column of each model joint, -1 where the take has none (a bone to it is skipped)."""
     bones = []
     for limb in LIMBS:
         group = model.groups.get(limb, ())
@@ -47,11 +39,10 @@ def limb_bones(model: Skeleton, index: np.ndarray) -> list[tuple[int, int]]:
     return bones
 
 
-def hold_limb_lengths(x: np.ndarray, skeleton: Skeleton, bones: list[tuple[int, int]]) -> tuple[np.ndarray, float]:
-    """x: (T, J, 3) metres, NaN where missing, the take's joints (skeleton); bones: limb_bones ->
-    (T, J, 3) with those bones at their median length over the frames that show both ends, and
-    the mean standard deviation (mm) of those lengths before. A bone with a missing end in a
-    frame is left as it is there."""
+def hold_limb_lengths(x: np.ndarray, bones: list[tuple[int, int]]) -> tuple[np.ndarray, float]:
+    """x: (T, J, 3) metres, NaN where missing; bones: limb_bones -> (T, J, 3) with those bones at
+    their median length over the frames that show both ends, and the mean standard deviation
+    (mm) of those lengths before. A bone with a missing end in a frame is left as it is there."""
     if not bones:
         return x, 0.0
     out = x.astype(np.float64)
@@ -77,12 +68,4 @@ def hold_limb_lengths(x: np.ndarray, skeleton: Skeleton, bones: list[tuple[int, 
             out[:, b] -= moves[b] / share * step
         if worst < TOLERANCE_M:
             break
-    moved = out - x
-    chain_joints = set(moves)
-    for j in range(skeleton.num_joints):  # hand tips and thumbs go with the wrist above them
-        if j in chain_joints:
-            continue
-        above = next((a for a in _above(skeleton, j) if a in chain_joints), None)
-        if above is not None and above not in tops:
-            out[:, j] += np.nan_to_num(moved[:, above])
     return out, spread_mm
