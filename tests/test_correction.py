@@ -16,7 +16,9 @@ from mocapfix.fix.fixer import FixOptions
 from mocapfix.fix.fixers import CorrectionFixer, load_fixer
 from mocapfix.io import read_motion
 from mocapfix.models.build import build_model
+from mocapfix.models.checkpoint import checkpoint_entry
 from mocapfix.models.correction import CorrectionConfig, base_fill, correction_fill, longest_run
+from mocapfix.training.ridge_bank import bucket_lengths, fit_bank, mirrored
 
 
 def _config(**changes) -> CorrectionConfig:
@@ -102,6 +104,79 @@ def test_a_correction_its_features_predict_is_learned():
     assert corrected < 0.5 * base
 
 
+def _banked(**changes) -> CorrectionConfig:
+    """A network with a linear bank: the whole body and joints 2-3 (a limb), 3 ranges of 1-15 frames."""
+    return _config(length_buckets=3, max_hole_frames=15, part_groups=((0, 1, 2, 3), (2, 3)), **changes)
+
+
+def test_each_hole_finds_its_maps_in_the_bank_by_part_and_length():
+    net = build_model("correction", _banked())
+    hole = torch.zeros(4, 30, 4, dtype=torch.bool)
+    hole[0, 5:6] = True  # the whole body, 1 frame: first range
+    hole[1, 5:15, 2:] = True  # the limb, 10 frames: 6-10, the second
+    hole[2, 5:20, 2:] = True  # 15 frames: the last
+    hole[3, 5:10, 1:] = True  # joints 1-3: no part group
+    x = _waves(4, 30, 4, seed=0).float()
+    group, bucket = net.cells(net.features(x, hole))
+    assert group.tolist() == [0, 1, 1, -1] and bucket[:3].tolist() == [0, 1, 2]
+    assert [bucket_lengths(b, 3, 15) for b in range(3)] == [(1, 5), (6, 10), (11, 15)]
+
+
+def test_a_bank_of_zeros_changes_nothing_and_a_fitted_one_survives_a_checkpoint(tmp_path):
+    x = _waves(8, 30, 4, seed=1).float()
+    hole = training_holes(8, 30, torch.tensor([[True] * 4]), 12, torch.Generator().manual_seed(0), x, margin=5)
+    base = hermite_infill(torch.where(~hole[..., None], x, torch.nan), ~hole)
+    plain, banked = build_model("correction", _config()), build_model("correction", _banked())
+    banked.load_state_dict({**banked.state_dict(), **plain.state_dict()})
+    assert torch.equal(plain(base, hole), banked(base, hole))
+    with torch.no_grad():
+        banked.bank_0.normal_(0, 0.01)
+    values = checkpoint_entry("correction", banked.config)["config"]  # as a checkpoint stores it
+    values["part_groups"] = [list(g) for g in values["part_groups"]]  # lists after a round trip
+    again = build_model("correction", values)
+    again.load_state_dict(banked.state_dict())
+    assert torch.equal(again(base, hole), banked(base, hole)) and not torch.equal(banked(base, hole), base)
+
+
+def test_the_bank_fitted_in_closed_form_takes_most_of_the_fills_error_off_new_windows():
+    """On sinusoids the Hermite's error is a function of the context a linear map of each kind
+    of hole learns: fitted on 8 batches, it takes over half of it off windows it never saw, for
+    the whole body and the limb, short holes and long ones; a strength is chosen for each."""
+    torch.manual_seed(0)
+    net = build_model("correction", _banked())
+    lines = fit_bank(
+        net,
+        lambda: iter([_waves(128, 30, 4, seed=s).float() for s in range(4)]),
+        lambda: iter([_waves(128, 30, 4, seed=50).float()]),
+        batches=8,
+        strengths=(1e-6, 1e-3),
+        floor_m=0.002,
+    )
+    assert bool(net.bank_fitted) and len(lines) == 2 and "full body" in lines[0] and "joints 2,3" in lines[1]
+    x = _waves(256, 30, 4, seed=99).float()
+    for part in (torch.tensor([[True] * 4]), torch.tensor([[False, False, True, True]])):
+        for shortest, longest in ((6, 10), (11, 15)):
+            hole = training_holes(256, 30, part, longest, torch.Generator().manual_seed(3), x, 5, shortest)
+            base = hermite_infill(torch.where(~hole[..., None], x, torch.nan), ~hole)
+            with torch.no_grad():
+                out = net(base, hole)
+            assert ((out - x) ** 2).sum(-1)[hole].mean() < 0.5 * ((base - x) ** 2).sum(-1)[hole].mean()
+
+
+def test_a_mirrored_window_swaps_each_joint_with_its_partner_across_a_vertical_plane():
+    x = _waves(2, 10, 4, seed=3)
+    y = mirrored(x, [0, 2, 1, 3])
+    assert torch.equal(y[:, :, 1, 0], -x[:, :, 2, 0]) and torch.equal(y[:, :, 2, 1:], x[:, :, 1, 1:])
+    assert torch.equal(mirrored(y, [0, 2, 1, 3]), x)
+
+
+def test_training_holes_take_lengths_between_the_shortest_and_the_longest():
+    x = torch.zeros(512, 40, 2, 3)
+    hole = training_holes(512, 40, torch.tensor([[True, True]]), 12, torch.Generator().manual_seed(0), x, 3, 7)
+    lengths = hole.any(-1).sum(1)
+    assert lengths.min() == 7 and lengths.max() == 12
+
+
 def _expmap_folder(root, seconds: float = 6.0) -> None:
     """S1 (train) and S9 (test) folders of exponential-map takes: the rest pose walking, its joints
     swinging (sinusoids of 1-2 Hz on every joint's map)."""
@@ -158,3 +233,32 @@ def test_fix_fills_holes_with_a_trained_correction_checkpoint(trained, tmp_path)
     (out,), report = fixer.fix_clips([holed], FixOptions("infill"))
     assert np.isfinite(out.positions).all() and report.filled == int(np.isnan(x).any(-1).sum())
     assert np.array_equal(out.positions[~np.isnan(x)], x[~np.isnan(x)])
+
+
+def test_fit_correction_bvh_fits_its_linear_bank_before_the_first_step_and_fix_reads_it(bandai_files, tmp_path, capsys):
+    """configs/correction_bvh.yaml on four Bandai takes (one held out as val; small: full-body
+    holes in two ranges of lengths): the bank's maps are fitted in closed form and said, the
+    checkpoint holds them, and `fix --ckpt` fills with it."""
+    folder = tmp_path / "takes"
+    folder.mkdir()
+    for f in bandai_files[:4]:
+        (folder / f.name).symlink_to(f)
+    val = bandai_files[3].name
+    args = ["fit", "--config", CONFIGS / "correction_bvh.yaml", *QUIET, "--data.path", folder]
+    args += ["--data.cache_dir", "null", "--data.batch_size", "16", "--data.val_patterns", f"[{val}]"]
+    args += ["--data.test_fraction", "0", "--model.init_args.hidden", "16", "--model.init_args.bank_batches", "2"]
+    args += ["--model.init_args.hole_parts", "[full]", "--model.init_args.length_buckets", "2"]
+    args += ["--trainer.max_steps", "1", "--trainer.limit_val_batches", "1", "--experiment", "c"]
+    assert run_cli(args, tmp_path) == 0
+    err = capsys.readouterr().err
+    assert err.count("linear bank") == 1 and "full body" in err and "16-30 frames" in err
+    ckpt = torch.load(tmp_path / "checkpoints" / "c" / "last.ckpt", weights_only=True)
+    state = ckpt["state_dict"]
+    assert bool(state["net.bank_fitted"]) and state["net.bank_0"].abs().sum() > 0
+    fixer = load_fixer(tmp_path / "checkpoints" / "c" / "last.ckpt")
+    assert isinstance(fixer, CorrectionFixer) and fixer.net.config.length_buckets == 2
+    take = read_motion(bandai_files[3])[0]
+    holed = take.positions.copy()
+    holed[40:55] = np.nan
+    (out,), report = fixer.fix_clips([take.replace(positions=holed)], FixOptions("infill"))
+    assert np.isfinite(out.positions).all() and report.filled > 0

@@ -115,10 +115,11 @@ def training_holes(
     generator: torch.Generator | None,
     like: torch.Tensor,
     margin: int = 1,
+    min_hole_frames: int = 1,
 ) -> torch.Tensor:
     """The case `fix` meets: one contiguous hole per window, of one part, in data observed all
     around it. part_joints: (P, J) bool, one row per part that can go missing (the whole body, an
-    arm, a leg); each window draws a part uniformly, a length of 1..max_hole_frames frames and a
+    arm, a leg); each window draws a part uniformly, a length of min_hole_frames..max_hole_frames frames and a
     start leaving at least `margin` observed frames on either side, or as many as the window
     leaves around a hole that long (a take's holes have data all around; a window's edge is not
     the take's). -> (B, T, J) bool, True in the hole.
@@ -130,7 +131,8 @@ def training_holes(
     longest = max(1, min(max_hole_frames, T - 2))
     draw = uniform_like((3, B), generator, like)  # (3, B)
     part = (draw[0] * P).long().clamp_max(P - 1)  # (B,)
-    length = 1 + (draw[1] * longest).long().clamp_max(longest - 1)  # (B,) in 1..longest
+    shortest = max(1, min(min_hole_frames, longest))
+    length = shortest + (draw[1] * (longest - shortest + 1)).long().clamp_max(longest - shortest)  # (B,)
     first = ((T - length) // 2).clamp(max=margin)  # (B,) observed frames kept on either side
     room = (T - length - 2 * first + 1).clamp_min(1)  # (B,) possible starts
     start = first + (draw[2] * room).long().clamp_max(room - 1)  # (B,)

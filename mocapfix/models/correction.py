@@ -16,6 +16,14 @@ outputs the correction at those points, read back at every frame of the hole by 
 interpolation in the hole's own time. Both output layers start at zero: an untrained network is
 exactly its base fill, so training can only add to it.
 
+Beside them, a bank of linear maps (`length_buckets` > 0): one per kind of hole (a part the
+training holes take, `part_groups`, and a range of lengths), fitted in closed form by weighted
+ridge regression (training/ridge_bank.py) before the MLP trains on what it leaves. One linear
+map over holes of every length and part learns next to nothing (the same features mean other
+things for a 3-frame arm hole and a 27-frame body hole: on Bandai's val windows 69.2 -> 67.3 mm
+at 0.9 s), one per kind takes half the limb fill's error off there (69.2 -> 36.1 mm); an MLP
+trained by gradient steps on a CPU budget found a fifth of it.
+
 Shapes: x (B, T, J, 3) metres, z up, every token finite (holes filled by the base fill);
 hole (B, T, J) bool, the tokens the fill made. One hole per window is corrected: the longest run
 of frames with a missing token (the protocol's gap, a training hole); other missing tokens keep
@@ -25,6 +33,7 @@ the base fill.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 import torch.nn as nn
@@ -49,6 +58,22 @@ class CorrectionConfig:
     depth: int = 2  # hidden layers
     heading_joints: tuple[int, int] = (0, 0)  # (left, right) hip: the body's left-right axis; equal: none
     parents: tuple[int, ...] = ()  # the skeleton's, for the limb fill
+    # the linear bank: one map per part (the joints a hole takes: the whole body, each limb) and
+    # per range of hole lengths (length_buckets equal ranges of 1..max_hole_frames); 0: none
+    length_buckets: int = 0
+    max_hole_frames: int = 0
+    part_groups: tuple[tuple[int, ...], ...] = ()
+
+
+class Features(NamedTuple):
+    """What CorrectionNet reads of each window's hole (its `features`)."""
+
+    values: torch.Tensor  # (B, inputs): the context, the fill at the hole's points, which frames and joints, the length
+    turn: torch.Tensor  # (B, 2, 2): world xy -> the canonical heading
+    start: torch.Tensor  # (B,) long: the hole's first frame
+    length: torch.Tensor  # (B,) long: its frames
+    part: torch.Tensor  # (B, J) bool: its joints
+    points: torch.Tensor  # (B, K) float: the frames (fractional) the correction is sampled at
 
 
 def longest_run(hole: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -66,7 +91,7 @@ def longest_run(hole: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return end - longest + 1, longest
 
 
-def _at(x: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
+def at_frames(x: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
     """x: (B, T, J, 3), frames: (B, F) float, clamped to [0, T - 1] -> (B, F, J, 3) linearly interpolated."""
     T = x.shape[1]
     f = frames.clamp(0, T - 1)
@@ -95,10 +120,23 @@ class CorrectionNet(nn.Module):
         for layer in (self.out, self.linear):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
+        self.groups = tuple(tuple(int(j) for j in g) for g in config.part_groups)
+        if config.length_buckets:
+            if config.max_hole_frames < config.length_buckets or not self.groups:
+                raise ValueError("a linear bank needs max_hole_frames >= length_buckets and part_groups")
+            masks = torch.zeros(len(self.groups), J, dtype=torch.bool)
+            for g, joints in enumerate(self.groups):
+                masks[g, list(joints)] = True
+            self.register_buffer("group_masks", masks, persistent=False)
+            # bank_g: (buckets, inputs + 1, K x joints of g x 3), the last row a bias; buffers:
+            # fitted in closed form (training/ridge_bank.py), never by the optimiser
+            for g, joints in enumerate(self.groups):
+                self.register_buffer(f"bank_{g}", torch.zeros(config.length_buckets, inputs + 1, K * len(joints) * 3))
+            self.register_buffer("bank_fitted", torch.zeros((), dtype=torch.bool))
 
-    def forward(self, x: torch.Tensor, hole: torch.Tensor) -> torch.Tensor:
+    def features(self, x: torch.Tensor, hole: torch.Tensor) -> Features:
         """x: (B, T, J, 3) the windows with their holes filled by the base fill; hole: (B, T, J)
-        -> (B, T, J, 3): x plus the correction at the tokens of each window's longest hole."""
+        -> what the network reads of each window's longest hole, seen in its own place and heading."""
         cfg = self.config
         B, T, J, _ = x.shape
         C, K = cfg.context_frames, cfg.hole_points
@@ -107,9 +145,9 @@ class CorrectionNet(nn.Module):
         offsets = torch.arange(1, C + 1, device=x.device)
         around = torch.cat([start[:, None] - offsets.flip(0), start[:, None] + length[:, None] - 1 + offsets], 1)
         inside = ((around >= 0) & (around < T)).to(x.dtype)  # (B, 2C): frames of the window
-        context = _at(x, around.to(x.dtype))  # (B, 2C, J, 3), edge frames repeated outside
+        context = at_frames(x, around.to(x.dtype))  # (B, 2C, J, 3), edge frames repeated outside
         points = start[:, None].to(x.dtype) - 0.5 + (torch.arange(K, device=x.device) + 0.5) * n[:, None] / K
-        fill = _at(x, points)  # (B, K, J, 3)
+        fill = at_frames(x, points)  # (B, K, J, 3)
         part = hole.gather(1, start.clamp(0, T - 1)[:, None, None].expand(-1, 1, J))[:, 0]  # (B, J)
 
         # one place and heading: the context's mean xy at 0, the hips' left-right axis along +x
@@ -125,7 +163,7 @@ class CorrectionNet(nn.Module):
             p = p - centre[:, None, None]
             return torch.cat([torch.einsum("bij,bfkj->bfki", turn, p[..., :2]), p[..., 2:]], -1)
 
-        features = torch.cat(
+        values = torch.cat(
             [
                 (canonical(context) * MOTION_SCALE).reshape(B, -1),
                 (canonical(fill) * MOTION_SCALE).reshape(B, -1),
@@ -135,12 +173,53 @@ class CorrectionNet(nn.Module):
             ],
             1,
         )
-        delta = CORRECTION_UNIT_M * (self.out(self.body(features)) + self.linear(features)).reshape(B, K, J, 3)
+        return Features(values, turn, start, length, part, points)
+
+    def cells(self, f: Features) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each window's kind of hole in the bank -> (group, bucket) (B,) long: the part group its
+        hole's joints are (-1: none of them, no bank term), its length's range."""
+        match = (f.part[:, None, :] == self.group_masks[None]).all(-1)  # (B, G)
+        group = torch.where(match.any(1), match.to(torch.uint8).argmax(1), -1)
+        cfg = self.config
+        n, buckets = (f.length - 1).clamp_min(0), cfg.length_buckets
+        bucket = (n * buckets // cfg.max_hole_frames).clamp_max(buckets - 1)
+        return group, bucket
+
+    def bank(self, f: Features) -> torch.Tensor:
+        """The bank's correction at the hole's points, in the canonical frame and CORRECTION_UNIT_M
+        -> (B, K, J, 3); zero for a hole of no part group."""
+        K, J = self.config.hole_points, self.config.num_joints
+        out = f.values.new_zeros(len(f.values), K, J, 3)
+        group, bucket = self.cells(f)
+        with_bias = torch.cat([f.values, torch.ones_like(f.values[:, :1])], 1)  # (B, inputs + 1)
+        for g, joints in enumerate(self.groups):
+            weights = getattr(self, f"bank_{g}")  # (buckets, inputs + 1, K x |g| x 3)
+            for b in torch.unique(bucket[group == g]).tolist():
+                sel = torch.nonzero((group == g) & (bucket == b)).flatten()
+                values = (with_bias[sel] @ weights[b].to(with_bias.dtype)).reshape(len(sel), K, len(joints), 3)
+                rows = out.new_zeros(len(sel), K, J, 3)
+                rows[:, :, list(joints)] = values
+                out[sel] = rows
+        return out
+
+    def forward(self, x: torch.Tensor, hole: torch.Tensor) -> torch.Tensor:
+        """x: (B, T, J, 3) the windows with their holes filled by the base fill; hole: (B, T, J)
+        -> (B, T, J, 3): x plus the correction at the tokens of each window's longest hole."""
+        cfg = self.config
+        B, T, J, _ = x.shape
+        K = cfg.hole_points
+        f = self.features(x, hole)
+        features, turn, start, length = f.values, f.turn, f.start, f.length
+        n = length.clamp_min(1).to(x.dtype)
+        delta = (self.out(self.body(features)) + self.linear(features)).reshape(B, K, J, 3)
+        if cfg.length_buckets:
+            delta = delta + self.bank(f)
+        delta = CORRECTION_UNIT_M * delta
         delta = torch.cat([torch.einsum("bji,bkmj->bkmi", turn, delta[..., :2]), delta[..., 2:]], -1)
         # read back at every frame of the hole: u in [0, K - 1] over the hole's own time
         t = torch.arange(T, device=x.device)[None].to(x.dtype)  # (1, T)
         u = (t - start[:, None].to(x.dtype) + 0.5) * K / n[:, None] - 0.5  # (B, T)
-        per_frame = _at(delta, u)  # (B, T, J, 3)
+        per_frame = at_frames(delta, u)  # (B, T, J, 3)
         in_run = (t >= start[:, None]) & (t < (start + length)[:, None])  # (B, T)
         return x + per_frame * (hole & in_run[..., None])[..., None].to(x.dtype)
 

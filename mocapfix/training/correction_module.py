@@ -13,10 +13,13 @@ full-body gap centred in each val window; `test` prints the XMAE paper's infilli
 
 from __future__ import annotations
 
+import sys
+
 import lightning as L
 import torch
 import torch.nn as nn
 
+from mocapfix.data.augment import mirror_index
 from mocapfix.data.corruption import available, infill_gap, training_holes
 from mocapfix.evaluation.harness import abs_and_rel, mpjpe_table
 from mocapfix.evaluation.metrics import MPJPE
@@ -27,6 +30,7 @@ from mocapfix.models.build import build_model
 from mocapfix.models.checkpoint import name_model
 from mocapfix.models.correction import BASES, CorrectionConfig, CorrectionNet, base_fill, correction_fill
 from mocapfix.training.bind_data import BuiltFromData
+from mocapfix.training.ridge_bank import fit_bank
 from mocapfix.training.schedules import adamw_warmup_cosine
 from mocapfix.training.test_report import publish
 
@@ -53,6 +57,9 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
         skeleton: dict | None = None,
         window_fps: float | None = None,
         window_frames: int | None = None,
+        length_buckets: int = 0,
+        bank_batches: int = 40,
+        bank_strengths: tuple[float, ...] = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2),
     ):
         """
         Args:
@@ -70,6 +77,11 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
             val_gap_s: the full-body gap centred in each val window (val/mpjpe_mm, and its base's).
             eval_gaps_s: the `test` tables' gaps.
             skeleton, window_fps, window_frames: filled in from the data module at setup; saved in checkpoints.
+            length_buckets: a linear bank beside the MLP (models/correction.py), one map per part
+                of hole_parts and per this many ranges of hole lengths, fitted in closed form
+                (training/ridge_bank.py) when training starts, before the MLP's first step; 0: none.
+            bank_batches: training batches drawn for each of the bank's maps (and a quarter as
+                many val batches, on which its ridge strength is chosen among bank_strengths).
         """
         super().__init__()
         if base not in BASES:
@@ -79,6 +91,11 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
             raise ValueError(f"hole_parts {list(hole_parts)}: some of {', '.join(PARTS)}")
         if max_hole_s <= 0:
             raise ValueError(f"max_hole_s must be > 0, got {max_hole_s}")
+        if length_buckets < 0 or (length_buckets and (bank_batches < 1 or not bank_strengths)):
+            raise ValueError(
+                f"length_buckets {length_buckets} must be >= 0, and a bank needs bank_batches >= 1 "
+                f"(got {bank_batches}) and bank_strengths"
+            )
         self.save_hyperparameters()
         self.net: CorrectionNet | None = None
         if skeleton is not None and window_frames is not None:  # a checkpoint's own weights follow
@@ -88,6 +105,16 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
         hp, skeleton = self.hparams, self.skeleton
         groups = skeleton.groups
         hips = (groups["left_leg"][0], groups["right_leg"][0]) if {"left_leg", "right_leg"} <= set(groups) else (0, 0)
+        # (P, J) bool: each part a training hole can take (and the bank's part groups)
+        rows = []
+        for part in hp.hole_parts:
+            if part == "full":
+                rows.append([True] * skeleton.num_joints)
+            for name, members in sorted(groups.items()):
+                if part != "full" and name.endswith(part):
+                    rows.append([j in members for j in range(skeleton.num_joints)])
+        if not rows:
+            raise ValueError(f"hole_parts {list(hp.hole_parts)}: the skeleton has no such group")
         config = CorrectionConfig(
             skeleton.num_joints,
             hp.window_fps,
@@ -98,20 +125,16 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
             hp.depth,
             hips,
             tuple(skeleton.parents),
+            hp.length_buckets,
+            self._max_hole_frames() if hp.length_buckets else 0,
+            tuple(tuple(j for j, inside in enumerate(row) if inside) for row in rows) if hp.length_buckets else (),
         )
         self.net = build_model("correction", config)
-        # (P, J) bool: each part a training hole can take
-        rows = []
-        for part in hp.hole_parts:
-            if part == "full":
-                rows.append([True] * skeleton.num_joints)
-            for name, members in sorted(groups.items()):
-                if part != "full" and name.endswith(part):
-                    rows.append([j in members for j in range(skeleton.num_joints)])
-        if not rows:
-            raise ValueError(f"hole_parts {list(hp.hole_parts)}: the skeleton has no such group")
         self.register_buffer("part_joints", torch.tensor(rows), persistent=False)
         self.val_mpjpe = nn.ModuleDict({"correction": MPJPE(), "base": MPJPE()})
+
+    def _max_hole_frames(self) -> int:
+        return max(1, round(self.hparams.max_hole_s * self.hparams.window_fps))
 
     def configure_optimizers(self):
         hp = self.hparams
@@ -121,13 +144,39 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
         if self.net is not None:
             name_model(checkpoint, "correction", self.net.config)
 
+    def on_train_start(self) -> None:
+        # the bank first, in closed form (a resumed run has it in its checkpoint): the MLP's
+        # steps then learn what it leaves
+        if self.hparams.length_buckets and not bool(self.net.bank_fitted):
+            # the val split's windows choose each map's ridge strength (other takes than training's)
+            train, val = self.trainer.train_dataloader, self.trainer.datamodule.val_dataloader()
+            lines = fit_bank(
+                self.net,
+                lambda: (batch["positions"].to(self.device) for batch in train),
+                lambda: (batch["positions"].to(self.device) for batch in val),
+                self.hparams.bank_batches,
+                tuple(self.hparams.bank_strengths),
+                BASE_ERROR_FLOOR_M,
+                self._mirror(),
+            )
+            if self.trainer.is_global_zero:
+                print("\n".join(lines), file=sys.stderr)
+
+    def _mirror(self) -> list[int] | None:
+        """Each joint's mirror partner, for the bank's mirrored windows; None where the skeleton's
+        sides do not pair up by name."""
+        try:
+            return mirror_index(self.skeleton)
+        except ValueError:
+            return None
+
     # --- the objective ---
 
     def training_step(self, batch, batch_idx):
         hp = self.hparams
         clean = batch["positions"]  # (B, T, J, 3), NaN = missing
         B, T = clean.shape[:2]
-        longest = max(1, round(hp.max_hole_s * hp.window_fps))
+        longest = self._max_hole_frames()
         hole = training_holes(B, T, self.part_joints, longest, None, clean, hp.context_frames) & available(clean)
         observed = available(clean) & ~hole
         base = base_fill(self.net.config, torch.where(observed[..., None], clean, torch.nan), observed)
