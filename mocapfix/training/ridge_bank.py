@@ -141,13 +141,20 @@ def _ridge(fit: _Sums, held: _Sums, strengths) -> tuple[torch.Tensor, float, flo
     (weights (inputs + 1, outputs), strength, held-out error left)."""
     if fit.gram is None or held.gram is None:
         raise ValueError("the linear bank found no window with room for a hole of some kind: longer windows?")
-    D = fit.gram.shape[0]
+    # the bias is not shrunk: the features and targets centred on their weighted means, the bias
+    # what the map leaves of the mean; one eigendecomposition serves every strength
+    gram, cross = fit.gram[:-1, :-1], fit.cross[:-1]
+    total, f_sum, y_sum = fit.gram[-1, -1], fit.gram[-1, :-1], fit.cross[-1]  # sums of w, w f, w y
+    gram = gram - torch.outer(f_sum, f_sum) / total
+    cross = cross - torch.outer(f_sum, y_sum) / total
     scale = torch.diagonal(fit.gram)[:-1].mean() / max(fit.count, 1)  # the features' mean square
+    values, vectors = torch.linalg.eigh(gram)
+    projected = vectors.T @ cross  # (inputs, outputs)
 
     def solve(strength: float) -> torch.Tensor:
-        ridge = strength * scale * fit.count * torch.eye(D, dtype=fit.gram.dtype)
-        ridge[-1, -1] = 0.0  # the bias is not shrunk
-        return torch.linalg.solve(fit.gram + ridge, fit.cross)
+        weights = vectors @ (projected / (values.clamp_min(0) + strength * scale * fit.count)[:, None])
+        bias = (y_sum - f_sum @ weights) / total
+        return torch.cat([weights, bias[None]])
 
     maps = {s: solve(s) for s in strengths}
     left = {s: held.left(m) for s, m in maps.items()}
