@@ -14,6 +14,7 @@ A closed form, not gradient steps: the optimum of the weighted least squares, in
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterator
 
 import torch
@@ -42,7 +43,7 @@ def fit_bank(
     mirror: list[int] | None = None,
 ) -> list[str]:
     """Fit every kind's map of net's bank (in place; bank_fitted set) -> a line per part group:
-    the kinds' held-out error left of the base fill's, and the strengths chosen.
+    the kinds' error left of the base fill's on the val windows, the strengths chosen, the time.
     windows(), held_out(): a fresh iterator of clean windows (B, T, J, 3) metres, NaN = missing
     (the training loader's, the val loader's); batches: training batches drawn per kind (and
     batches // HELD_OUT val ones, at least 2, cycled); floor_m: per hole token, added to the base
@@ -52,6 +53,7 @@ def fit_bank(
     cfg = net.config
     lines = []
     for g, joints in enumerate(net.groups):
+        began = time.perf_counter()
         part = net.group_masks[g][None]  # (1, J)
         bank = getattr(net, f"bank_{g}")
         cells = []
@@ -68,7 +70,10 @@ def fit_bank(
             bank[bucket] = weights.to(bank.dtype)
             cells.append(f"{shortest}-{longest} frames {left:.2f} (strength {strength:g})")
         name = "full body" if len(joints) == cfg.num_joints else f"joints {','.join(map(str, joints))}"
-        lines.append(f"linear bank, {name}: held-out error left of the base fill's, " + "; ".join(cells))
+        lines.append(
+            f"linear bank, {name} ({time.perf_counter() - began:.0f} s): val error left of the base fill's, "
+            + "; ".join(cells)
+        )
     net.bank_fitted.fill_(True)
     return lines
 
