@@ -140,14 +140,14 @@ def test_a_bank_of_zeros_changes_nothing_and_a_fitted_one_survives_a_checkpoint(
 
 def test_the_bank_fitted_in_closed_form_takes_most_of_the_fills_error_off_new_windows():
     """On sinusoids the Hermite's error is a function of the context a linear map of each kind
-    of hole learns: fitted on 8 batches, it takes over half of it off windows it never saw, for
-    the whole body and the limb, short holes and long ones; a strength is chosen for each."""
+    of hole learns: fitted on 8 batches (each window its own take, every 5th held out to choose a
+    strength), it takes over half of it off windows it never saw, for the whole body and the
+    limb, short holes and long ones."""
     torch.manual_seed(0)
     net = build_model("correction", _banked())
     lines = fit_bank(
         net,
-        lambda: iter([_waves(128, 30, 4, seed=s).float() for s in range(4)]),
-        lambda: iter([_waves(128, 30, 4, seed=50).float()]),
+        lambda: iter([(_waves(128, 30, 4, seed=s).float(), torch.arange(128)) for s in range(4)]),
         batches=8,
         strengths=(1e-6, 1e-3),
         floor_m=0.002,
@@ -236,18 +236,19 @@ def test_fix_fills_holes_with_a_trained_correction_checkpoint(trained, tmp_path)
 
 
 def test_fit_correction_bvh_fits_its_linear_bank_before_the_first_step_and_fix_reads_it(bandai_files, tmp_path, capsys):
-    """configs/correction_bvh.yaml on four Bandai takes (one held out as val; small: full-body
+    """configs/correction_bvh.yaml on six Bandai takes (one of them val; small: full-body
     holes in two ranges of lengths): the bank's maps are fitted in closed form and said, the
     checkpoint holds them, and `fix --ckpt` fills with it."""
     folder = tmp_path / "takes"
     folder.mkdir()
-    for f in bandai_files[:4]:
+    for f in bandai_files[:6]:
         (folder / f.name).symlink_to(f)
-    val = bandai_files[3].name
+    val = bandai_files[5].name
     args = ["fit", "--config", CONFIGS / "correction_bvh.yaml", *QUIET, "--data.path", folder]
     args += ["--data.cache_dir", "null", "--data.batch_size", "16", "--data.val_patterns", f"[{val}]"]
     args += ["--data.test_fraction", "0", "--model.init_args.hidden", "16", "--model.init_args.bank_batches", "2"]
     args += ["--model.init_args.hole_parts", "[full]", "--model.init_args.length_buckets", "2"]
+    args += ["--model.init_args.context_frames", "4", "--model.init_args.hole_points", "4"]
     args += ["--trainer.max_steps", "1", "--trainer.limit_val_batches", "1", "--experiment", "c"]
     assert run_cli(args, tmp_path) == 0
     err = capsys.readouterr().err
@@ -257,7 +258,7 @@ def test_fit_correction_bvh_fits_its_linear_bank_before_the_first_step_and_fix_r
     assert bool(state["net.bank_fitted"]) and state["net.bank_0"].abs().sum() > 0
     fixer = load_fixer(tmp_path / "checkpoints" / "c" / "last.ckpt")
     assert isinstance(fixer, CorrectionFixer) and fixer.net.config.length_buckets == 2
-    take = read_motion(bandai_files[3])[0]
+    take = read_motion(bandai_files[5])[0]
     holed = take.positions.copy()
     holed[40:55] = np.nan
     (out,), report = fixer.fix_clips([take.replace(positions=holed)], FixOptions("infill"))

@@ -80,8 +80,8 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
             length_buckets: a linear bank beside the MLP (models/correction.py), one map per part
                 of hole_parts and per this many ranges of hole lengths, fitted in closed form
                 (training/ridge_bank.py) when training starts, before the MLP's first step; 0: none.
-            bank_batches: training batches drawn for each of the bank's maps (and a quarter as
-                many val batches, on which its ridge strength is chosen among bank_strengths).
+            bank_batches: training batches drawn for each of the bank's maps (its ridge strength
+                chosen among bank_strengths on the windows of every 5th training take).
         """
         super().__init__()
         if base not in BASES:
@@ -148,12 +148,10 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
         # the bank first, in closed form (a resumed run has it in its checkpoint): the MLP's
         # steps then learn what it leaves
         if self.hparams.length_buckets and not bool(self.net.bank_fitted):
-            # the val split's windows choose each map's ridge strength (other takes than training's)
-            train, val = self.trainer.train_dataloader, self.trainer.datamodule.val_dataloader()
+            train = self.trainer.train_dataloader
             lines = fit_bank(
                 self.net,
-                lambda: (batch["positions"].to(self.device) for batch in train),
-                lambda: (batch["positions"].to(self.device) for batch in val),
+                lambda: ((batch["positions"].to(self.device), batch["clip_index"]) for batch in train),
                 self.hparams.bank_batches,
                 tuple(self.hparams.bank_strengths),
                 BASE_ERROR_FLOOR_M,

@@ -7,8 +7,9 @@ reads of the hole (CorrectionNet.features) to the base fill's error at the hole'
 to the canonical heading, in CORRECTION_UNIT_M: the MLP's output, which the bank is added to.
 Each window weighs 1 / (its base fill's squared error): the module's relative loss, so that a
 hole the base fills well counts as much as one it fills badly. The ridge strength is chosen per
-kind among `strengths` on the val split's windows (other takes: the training windows overlap,
-and a strength chosen on them is too weak for new ones), holes of the same kind cut into them.
+kind among `strengths` on the windows of every HELD_OUT-th training take, fitted on the others
+(other takes: a take's windows overlap, and a strength chosen on them is too weak for new ones;
+not the val split, which is the test split for Human3.6M), then the map is fitted on them all.
 A closed form, not gradient steps: the optimum of the weighted least squares, in seconds a kind.
 """
 
@@ -22,7 +23,7 @@ import torch
 from mocapfix.data.corruption import available, training_holes
 from mocapfix.models.correction import CORRECTION_UNIT_M, CorrectionNet, at_frames, base_fill
 
-HELD_OUT = 4  # the val batches drawn per kind: one for every HELD_OUT training batches (at least 2)
+HELD_OUT = 5  # every HELD_OUT-th training take (by its index) judges the ridge strengths
 
 
 def bucket_lengths(bucket: int, buckets: int, max_hole_frames: int) -> tuple[int, int]:
@@ -35,8 +36,7 @@ def bucket_lengths(bucket: int, buckets: int, max_hole_frames: int) -> tuple[int
 @torch.no_grad()
 def fit_bank(
     net: CorrectionNet,
-    windows: Callable[[], Iterator[torch.Tensor]],
-    held_out: Callable[[], Iterator[torch.Tensor]],
+    windows: Callable[[], Iterator[tuple[torch.Tensor, torch.Tensor]]],
     batches: int,
     strengths: tuple[float, ...],
     floor_m: float,
@@ -44,12 +44,12 @@ def fit_bank(
 ) -> list[str]:
     """Fit every kind's map of net's bank (in place; bank_fitted set) -> a line per part group:
     the kinds' error left of the base fill's on the val windows, the strengths chosen, the time.
-    windows(), held_out(): a fresh iterator of clean windows (B, T, J, 3) metres, NaN = missing
-    (the training loader's, the val loader's); batches: training batches drawn per kind (and
-    batches // HELD_OUT val ones, at least 2, cycled); floor_m: per hole token, added to the base
-    fill's error a window's weight divides by (the module's BASE_ERROR_FLOOR_M); mirror: each
-    joint's partner (data/augment.py: mirror_index): every training window is also fitted on
-    mirrored (a left arm's hole learns from the right arm's motion too), None: not."""
+    windows(): a fresh iterator of (clean windows (B, T, J, 3) metres, NaN = missing; the take
+    each is from (B,) long), the training loader's; batches: batches drawn per kind (cycled);
+    floor_m: per hole token, added to the base fill's error a window's weight divides by (the
+    module's BASE_ERROR_FLOOR_M); mirror: each joint's partner (data/augment.py: mirror_index):
+    every window is also fitted mirrored (a left arm's hole learns from the right arm's motion
+    too), None: not."""
     cfg = net.config
     lines = []
     for g, joints in enumerate(net.groups):
@@ -60,12 +60,12 @@ def fit_bank(
         for bucket in range(cfg.length_buckets):
             shortest, longest = bucket_lengths(bucket, cfg.length_buckets, cfg.max_hole_frames)
             fit, held = _Sums(), _Sums()
-            for sums, source, count in ((fit, windows, batches), (held, held_out, max(2, batches // HELD_OUT))):
-                for clean in _drawn(source, count):
-                    clean = clean.to(bank.device)
-                    if mirror is not None and sums is fit:
-                        clean = torch.cat([clean, mirrored(clean, mirror)])
-                    sums.add(*_samples(net, clean, part, list(joints), shortest, longest, floor_m))
+            for clean, take in _drawn(windows, batches):
+                clean, out = clean.to(bank.device), (take % HELD_OUT == HELD_OUT - 1).to(bank.device)
+                for sums, rows in ((fit, ~out), (held, out)):
+                    if rows.any():
+                        x = clean[rows] if mirror is None else torch.cat([clean[rows], mirrored(clean[rows], mirror)])
+                        sums.add(*_samples(net, x, part, list(joints), shortest, longest, floor_m))
             weights, strength, left = _ridge(fit, held, strengths)
             bank[bucket] = weights.to(bank.dtype)
             cells.append(f"{shortest}-{longest} frames {left:.2f} (strength {strength:g})")
@@ -83,7 +83,7 @@ def mirrored(x: torch.Tensor, mirror: list[int]) -> torch.Tensor:
     return x[:, :, mirror] * x.new_tensor([-1.0, 1.0, 1.0])
 
 
-def _drawn(source: Callable[[], Iterator[torch.Tensor]], count: int) -> Iterator[torch.Tensor]:
+def _drawn(source: Callable[[], Iterator], count: int) -> Iterator:
     """count batches from source(), started again when it runs out (other holes each time round)."""
     it, drawn = source(), 0
     while drawn < count:
@@ -135,6 +135,12 @@ class _Sums:
         self.target += float((w * (y**2).sum(1)).sum())
         self.count += len(f)
 
+    def plus(self, other: _Sums) -> _Sums:
+        out = _Sums()
+        out.gram, out.cross = self.gram + other.gram, self.cross + other.cross
+        out.target, out.count = self.target + other.target, self.count + other.count
+        return out
+
     def left(self, weights: torch.Tensor) -> float:
         """Weighted squared error of F @ weights over the sum of w |y|^2 (what the base fill leaves)."""
         error = self.target - 2 * (weights * self.cross).sum() + (weights * (self.gram @ weights)).sum()
@@ -142,26 +148,27 @@ class _Sums:
 
 
 def _ridge(fit: _Sums, held: _Sums, strengths) -> tuple[torch.Tensor, float, float]:
-    """The map fitted on `fit` with the strength that leaves the least of `held`'s error ->
-    (weights (inputs + 1, outputs), strength, held-out error left)."""
+    """The strength whose map, fitted on `fit`, leaves the least of `held`'s error, and the map
+    fitted with it on both -> (weights (inputs + 1, outputs), strength, held-out error left)."""
     if fit.gram is None or held.gram is None:
-        raise ValueError("the linear bank found no window with room for a hole of some kind: longer windows?")
-    # the bias is not shrunk: the features and targets centred on their weighted means, the bias
-    # what the map leaves of the mean; one eigendecomposition serves every strength
-    gram, cross = fit.gram[:-1, :-1], fit.cross[:-1]
-    total, f_sum, y_sum = fit.gram[-1, -1], fit.gram[-1, :-1], fit.cross[-1]  # sums of w, w f, w y
+        raise ValueError(
+            f"the linear bank needs {HELD_OUT} training takes or more, each with room for a hole of every kind"
+        )
+    left = {s: held.left(_solve(fit, s)) for s in strengths}
+    best = min(left, key=left.get)
+    return _solve(fit.plus(held), best), best, left[best]
+
+
+def _solve(sums: _Sums, strength: float) -> torch.Tensor:
+    """The weighted ridge map of sums -> (inputs + 1, outputs), the last row the bias, which is
+    not shrunk: the features and targets centred on their weighted means, the bias what the map
+    leaves of the mean."""
+    gram, cross = sums.gram[:-1, :-1], sums.cross[:-1]
+    total, f_sum, y_sum = sums.gram[-1, -1], sums.gram[-1, :-1], sums.cross[-1]  # sums of w, w f, w y
     gram = gram - torch.outer(f_sum, f_sum) / total
     cross = cross - torch.outer(f_sum, y_sum) / total
-    scale = torch.diagonal(fit.gram)[:-1].mean() / max(fit.count, 1)  # the features' mean square
-    values, vectors = torch.linalg.eigh(gram)
-    projected = vectors.T @ cross  # (inputs, outputs)
-
-    def solve(strength: float) -> torch.Tensor:
-        weights = vectors @ (projected / (values.clamp_min(0) + strength * scale * fit.count)[:, None])
-        bias = (y_sum - f_sum @ weights) / total
-        return torch.cat([weights, bias[None]])
-
-    maps = {s: solve(s) for s in strengths}
-    left = {s: held.left(m) for s, m in maps.items()}
-    best = min(left, key=left.get)
-    return maps[best], best, left[best]
+    scale = torch.diagonal(sums.gram)[:-1].mean() / max(sums.count, 1)  # the features' mean square
+    ridge = strength * scale * sums.count * torch.eye(len(gram), dtype=gram.dtype)
+    weights = torch.cholesky_solve(cross, torch.linalg.cholesky(gram + ridge))  # symmetric positive definite
+    bias = (y_sum - f_sum @ weights) / total
+    return torch.cat([weights, bias[None]])
