@@ -17,8 +17,8 @@ interpolation in the hole's own time. Both output layers start at zero: an untra
 exactly its base fill, so training can only add to it.
 
 Beside them, a bank of linear maps (`length_buckets` > 0): one per kind of hole (a part the
-training holes take, `part_groups`, and a range of lengths), fitted in closed form by weighted
-ridge regression (training/ridge_bank.py) before the MLP trains on what it leaves. One linear
+training holes take, `part_groups`, and a range of lengths), fitted in closed form by ridge
+regression (training/ridge_bank.py) before the MLP trains on what it leaves. One linear
 map over holes of every length and part learns next to nothing (the same features mean other
 things for a 3-frame arm hole and a 27-frame body hole: on Bandai's val windows 69.2 -> 67.3 mm
 at 0.9 s), one per kind takes half the limb fill's error off there (69.2 -> 36.1 mm); an MLP
