@@ -150,6 +150,7 @@ def test_the_bank_fitted_in_closed_form_takes_most_of_the_fills_error_off_new_wi
         lambda: iter([(_waves(128, 30, 4, seed=s).float(), torch.arange(128)) for s in range(4)]),
         batches=8,
         strengths=(1e-6, 1e-3),
+        floor_m=0.002,
     )
     assert bool(net.bank_fitted) and len(lines) == 2 and "full body" in lines[0] and "joints 2,3" in lines[1]
     x = _waves(256, 30, 4, seed=99).float()

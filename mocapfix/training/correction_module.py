@@ -59,7 +59,7 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
         window_frames: int | None = None,
         length_buckets: int = 0,
         bank_batches: int = 40,
-        bank_strengths: tuple[float, ...] = (1e-4, 1e-3, 1e-2, 3e-2, 0.1, 0.3),
+        bank_strengths: tuple[float, ...] = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 0.1),
     ):
         """
         Args:
@@ -154,6 +154,7 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
                 lambda: ((batch["positions"].to(self.device), batch["clip_index"]) for batch in train),
                 self.hparams.bank_batches,
                 tuple(self.hparams.bank_strengths),
+                BASE_ERROR_FLOOR_M,
                 self._mirror(),
             )
             if self.trainer.is_global_zero:

@@ -2,17 +2,18 @@
 per kind of hole, a part group and a range of lengths).
 
 For each kind, training windows get a hole of that part and a length in its range (corruption.
-training_holes), the base fill fills it, and a ridge regression maps what the network reads of
-the hole (CorrectionNet.features) to the base fill's error at the hole's points, turned to the
-canonical heading, in CORRECTION_UNIT_M: the MLP's output, which the bank is added to. Plain
-squared error, every window alike, as the ridge regression that first showed the signal: with the
-module's relative loss (each window over its base fill's error) the held-out Bandai takes chose
-the strongest strength and kept nothing of 25-30-frame body holes (the holes the limb fill nearly
-gets right weigh most there); with plain squared error the same maps leave 48 % of it. The ridge strength is chosen per
-kind among `strengths` on the windows of every HELD_OUT-th training take, fitted on the others
-(other takes: a take's windows overlap, and a strength chosen on them is too weak for new ones;
-not the val split, which is the test split for Human3.6M), then the map is fitted on them all.
-A closed form, not gradient steps: the optimum of the least squares, in seconds a kind.
+training_holes), the base fill fills it, and a weighted ridge regression maps what the network
+reads of the hole (CorrectionNet.features) to the base fill's error at the hole's points, turned
+to the canonical heading, in CORRECTION_UNIT_M: the MLP's output, which the bank is added to.
+Each window weighs 1 / (its base fill's squared error): the module's relative loss, so that the
+holes the base fill nearly gets right are left nearly alone (fitted on plain squared error the
+maps moved Bandai's 0.1-s holes 1.8 -> 2.2 mm, and `fix` took them nowhere). The ridge strength is
+chosen per kind among `strengths` on the windows of every HELD_OUT-th training take, fitted on the
+others, by plain squared error, what MPJPE weighs (by the relative error the strongest strength
+wins and keeps nothing of the long body holes), and the map is then fitted on every take (other
+takes: a take's windows overlap, and a strength chosen on them is too weak for new ones; not the
+val split, which is the test split for Human3.6M).
+A closed form, not gradient steps: the optimum of the weighted least squares, in seconds a kind.
 """
 
 from __future__ import annotations
@@ -41,13 +42,15 @@ def fit_bank(
     windows: Callable[[], Iterator[tuple[torch.Tensor, torch.Tensor]]],
     batches: int,
     strengths: tuple[float, ...],
+    floor_m: float,
     mirror: list[int] | None = None,
 ) -> list[str]:
     """Fit every kind's map of net's bank (in place; bank_fitted set) -> a line per part group:
     the kinds' error left of the base fill's on the held-out takes, the strengths chosen, the time.
     windows(): a fresh iterator of (clean windows (B, T, J, 3) metres, NaN = missing; the take
     each is from (B,) long), the training loader's; batches: batches drawn per kind (cycled);
-    mirror: each joint's partner (data/augment.py: mirror_index):
+    floor_m: per hole token, added to the base fill's error a window's weight divides by (the
+    module's BASE_ERROR_FLOOR_M); mirror: each joint's partner (data/augment.py: mirror_index):
     every window is also fitted mirrored (a left arm's hole learns from the right arm's motion
     too), None: not."""
     cfg = net.config
@@ -59,14 +62,17 @@ def fit_bank(
         cells = []
         for bucket in range(cfg.length_buckets):
             shortest, longest = bucket_lengths(bucket, cfg.length_buckets, cfg.max_hole_frames)
-            fit, held = _Sums(), _Sums()
+            fit, held, judged = _Sums(), _Sums(), _Sums()  # judged: the held-out takes, unweighted
             for clean, take in _drawn(windows, batches):
                 clean, out = clean.to(bank.device), (take % HELD_OUT == HELD_OUT - 1).to(bank.device)
                 for sums, rows in ((fit, ~out), (held, out)):
                     if rows.any():
                         x = clean[rows] if mirror is None else torch.cat([clean[rows], mirrored(clean[rows], mirror)])
-                        sums.add(*_samples(net, x, part, list(joints), shortest, longest))
-            weights, strength, left = _ridge(fit, held, strengths)
+                        f, y, w = _samples(net, x, part, list(joints), shortest, longest, floor_m)
+                        sums.add(f, y, w)
+                        if sums is held:
+                            judged.add(f, y, torch.ones_like(w))
+            weights, strength, left = _ridge(fit, held, judged, strengths)
             bank[bucket] = weights.to(bank.dtype)
             cells.append(f"{shortest}-{longest} frames {left:.2f} (strength {strength:g})")
         name = "full body" if len(joints) == cfg.num_joints else f"joints {','.join(map(str, joints))}"
@@ -97,9 +103,9 @@ def _drawn(source: Callable[[], Iterator], count: int) -> Iterator:
         yield clean
 
 
-def _samples(net, clean, part, joints, shortest, longest):
+def _samples(net, clean, part, joints, shortest, longest, floor_m):
     """One batch of windows with a hole of `part` and a length in [shortest, longest] -> features
-    (N, inputs + 1), targets (N, K x |joints| x 3): the windows whose hole fell on data."""
+    (N, inputs + 1), targets (N, K x |joints| x 3), weights (N,): the windows whose hole fell on data."""
     B, T = clean.shape[:2]
     C = net.config.context_frames
     hole = training_holes(B, T, part, longest, None, clean, C, shortest) & available(clean)
@@ -111,25 +117,28 @@ def _samples(net, clean, part, joints, shortest, longest):
     error = at_frames(truth, f.points) - at_frames(base, f.points)
     error = torch.cat([torch.einsum("bij,bkmj->bkmi", f.turn, error[..., :2]), error[..., 2:]], -1)
     target = (error[:, :, joints] / CORRECTION_UNIT_M).reshape(B, -1)
+    before = (((base - truth) ** 2).sum(-1) * hole).sum((1, 2))  # (B,) m^2
     whole = (hole == part[:, None]).all(-1).any(-1) & hole.any(-1).any(-1)  # a hole of the whole part
     keep = whole & (hole.any(-1).sum(1) >= shortest)
+    weight = 1.0 / (before + hole.sum((1, 2)) * floor_m**2)
     values = torch.cat([f.values, torch.ones_like(f.values[:, :1])], 1)
-    return values[keep].double(), target[keep].double()
+    return values[keep].double(), target[keep].double(), weight[keep].double()
 
 
 class _Sums:
-    """Least squares' sufficient statistics: F'F, F'Y, sum |y|^2, and the count."""
+    """Weighted least squares' sufficient statistics: F'WF, F'WY, sum w |y|^2, and the count."""
 
     def __init__(self):
         self.gram = self.cross = None
         self.target = 0.0
         self.count = 0
 
-    def add(self, f: torch.Tensor, y: torch.Tensor) -> None:
-        gram, cross = f.T @ f, f.T @ y
+    def add(self, f: torch.Tensor, y: torch.Tensor, w: torch.Tensor) -> None:
+        fw = f * w[:, None]
+        gram, cross = fw.T @ f, fw.T @ y
         self.gram = gram if self.gram is None else self.gram + gram
         self.cross = cross if self.cross is None else self.cross + cross
-        self.target += float((y**2).sum())
+        self.target += float((w * (y**2).sum(1)).sum())
         self.count += len(f)
 
     def plus(self, other: _Sums) -> _Sums:
@@ -139,28 +148,30 @@ class _Sums:
         return out
 
     def left(self, weights: torch.Tensor) -> float:
-        """Squared error of F @ weights over the sum of |y|^2 (what the base fill leaves)."""
+        """Weighted squared error of F @ weights over the sum of w |y|^2 (what the base fill leaves)."""
         error = self.target - 2 * (weights * self.cross).sum() + (weights * (self.gram @ weights)).sum()
         return float(error) / max(self.target, 1e-30)
 
 
-def _ridge(fit: _Sums, held: _Sums, strengths) -> tuple[torch.Tensor, float, float]:
-    """The strength whose map, fitted on `fit`, leaves the least of `held`'s error, and the map
-    fitted with it on both -> (weights (inputs + 1, outputs), strength, held-out error left)."""
+def _ridge(fit: _Sums, held: _Sums, judged: _Sums, strengths) -> tuple[torch.Tensor, float, float]:
+    """The strength whose map, fitted on `fit`, leaves the least of `judged`'s error (the held-out
+    takes' windows, unweighted), and the map fitted with it on `fit` and `held` -> (weights
+    (inputs + 1, outputs), strength, held-out error left)."""
     if fit.gram is None or held.gram is None:
         raise ValueError(
             f"the linear bank needs {HELD_OUT} training takes or more, each with room for a hole of every kind"
         )
-    left = {s: held.left(_solve(fit, s)) for s in strengths}
+    left = {s: judged.left(_solve(fit, s)) for s in strengths}
     best = min(left, key=left.get)
     return _solve(fit.plus(held), best), best, left[best]
 
 
 def _solve(sums: _Sums, strength: float) -> torch.Tensor:
-    """The ridge map of sums -> (inputs + 1, outputs), the last row the bias, which is not shrunk:
-    the features and targets centred on their means, the bias what the map leaves of the mean."""
+    """The weighted ridge map of sums -> (inputs + 1, outputs), the last row the bias, which is
+    not shrunk: the features and targets centred on their weighted means, the bias what the map
+    leaves of the mean."""
     gram, cross = sums.gram[:-1, :-1], sums.cross[:-1]
-    total, f_sum, y_sum = sums.gram[-1, -1], sums.gram[-1, :-1], sums.cross[-1]  # the count, sums of f, y
+    total, f_sum, y_sum = sums.gram[-1, -1], sums.gram[-1, :-1], sums.cross[-1]  # sums of w, w f, w y
     gram = gram - torch.outer(f_sum, f_sum) / total
     cross = cross - torch.outer(f_sum, y_sum) / total
     scale = torch.diagonal(sums.gram)[:-1].mean() / max(sums.count, 1)  # the features' mean square
