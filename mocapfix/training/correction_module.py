@@ -6,9 +6,11 @@ leg, 1 frame to max_hole_s long, data on both sides: corruption.training_holes),
 fills it, and the network learns what the base fill got wrong there. The loss is, per window, the
 squared error left over the base fill's (1 for an untrained network): squared, as the ridge
 regression that first showed a within-capture signal, and relative, so that short holes count
-as much as long ones. Validation logs the corrected fill beside its base on a
-full-body gap centred in each val window; `test` prints the XMAE paper's infilling tables
-(evaluation/tasks.py) with every classical fill beside it.
+as much as long ones. With `length_buckets`, the network's linear bank (one map per part and
+range of hole lengths) is fitted in closed form when training starts (training/ridge_bank.py),
+before the first step: the steps then train the MLP on what it leaves. Validation logs the
+corrected fill beside its base on a full-body gap centred in each val window; `test` prints
+the XMAE paper's infilling tables (evaluation/tasks.py) with every classical fill beside it.
 """
 
 from __future__ import annotations
