@@ -131,11 +131,13 @@ def test_a_bank_of_zeros_changes_nothing_and_a_fitted_one_survives_a_checkpoint(
     assert torch.equal(plain(base, hole), banked(base, hole))
     with torch.no_grad():
         banked.bank_0.normal_(0, 0.01)
+        banked.bank_fitted.fill_(True)  # a resumed run does not fit it again (on_train_start)
     values = checkpoint_entry("correction", banked.config)["config"]  # as a checkpoint stores it
     values["part_groups"] = [list(g) for g in values["part_groups"]]  # lists after a round trip
     again = build_model("correction", values)
     again.load_state_dict(banked.state_dict())
     assert torch.equal(again(base, hole), banked(base, hole)) and not torch.equal(banked(base, hole), base)
+    assert bool(again.bank_fitted)
 
 
 def test_the_bank_fitted_in_closed_form_takes_most_of_the_fills_error_off_new_windows():

@@ -151,16 +151,15 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
         # steps then learn what it leaves
         if self.hparams.length_buckets and not bool(self.net.bank_fitted):
             train = self.trainer.train_dataloader
-            lines = fit_bank(
+            fit_bank(
                 self.net,
                 lambda: ((batch["positions"].to(self.device), batch["clip_index"]) for batch in train),
                 self.hparams.bank_batches,
                 tuple(self.hparams.bank_strengths),
                 BASE_ERROR_FLOOR_M,
                 self._mirror(),
+                lambda line: print(line, file=sys.stderr, flush=True) if self.trainer.is_global_zero else None,
             )
-            if self.trainer.is_global_zero:
-                print("\n".join(lines), file=sys.stderr)
 
     def _mirror(self) -> list[int] | None:
         """Each joint's mirror partner, for the bank's mirrored windows; None where the skeleton's

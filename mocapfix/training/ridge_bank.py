@@ -44,6 +44,7 @@ def fit_bank(
     strengths: tuple[float, ...],
     floor_m: float,
     mirror: list[int] | None = None,
+    say: Callable[[str], None] | None = None,
 ) -> list[str]:
     """Fit every kind's map of net's bank (in place; bank_fitted set) -> a line per part group:
     the kinds' error left of the base fill's on the held-out takes, the strengths chosen, the time.
@@ -52,7 +53,8 @@ def fit_bank(
     floor_m: per hole token, added to the base fill's error a window's weight divides by (the
     module's BASE_ERROR_FLOOR_M); mirror: each joint's partner (data/augment.py: mirror_index):
     every window is also fitted mirrored (a left arm's hole learns from the right arm's motion
-    too), None: not."""
+    too), None: not; say: told each part's line as soon as it is fitted (a bank takes minutes).
+    A take played at another tempo (the data module's tempo_factors) is another take here."""
     cfg = net.config
     lines = []
     for g, joints in enumerate(net.groups):
@@ -80,6 +82,8 @@ def fit_bank(
             f"linear bank, {name} ({time.perf_counter() - began:.0f} s): held-out error left of the base fill's, "
             + "; ".join(cells)
         )
+        if say is not None:
+            say(lines[-1])
     net.bank_fitted.fill_(True)
     return lines
 
@@ -93,14 +97,14 @@ def _drawn(source: Callable[[], Iterator], count: int) -> Iterator:
     """count batches from source(), started again when it runs out (other holes each time round)."""
     it, drawn = source(), 0
     while drawn < count:
-        clean = next(it, None)
-        if clean is None:
+        batch = next(it, None)
+        if batch is None:
             it = source()
-            clean = next(it, None)
-            if clean is None:
+            batch = next(it, None)
+            if batch is None:
                 raise ValueError("the linear bank was given no windows to fit on")
         drawn += 1
-        yield clean
+        yield batch
 
 
 def _samples(net, clean, part, joints, shortest, longest, floor_m):
