@@ -21,8 +21,8 @@ training holes take, `part_groups`, and a range of lengths), fitted in closed fo
 regression (training/ridge_bank.py) before the MLP trains on what it leaves. One linear
 map over holes of every length and part learns next to nothing (the same features mean other
 things for a 3-frame arm hole and a 27-frame body hole: on Bandai's val windows 69.2 -> 67.3 mm
-at 0.9 s), one per kind takes half the limb fill's error off there (69.2 -> 36.1 mm); an MLP
-trained by gradient steps on a CPU budget found a fifth of it.
+at 0.9 s), one per kind (body holes of 25-30 frames) half of it (69.2 -> 36.1 mm), where the
+MLP, trained by gradient steps on a CPU budget, took a fifth off in whole takes.
 
 Shapes: x (B, T, J, 3) metres, z up, every token finite (holes filled by the base fill);
 hole (B, T, J) bool, the tokens the fill made. One hole per window is corrected: the longest run
