@@ -10,6 +10,7 @@ import pytest
 import torch
 from cli_utils import CONFIGS, QUIET, run_cli
 
+from mocapfix.data.augment import mirrored
 from mocapfix.data.corruption import training_holes
 from mocapfix.fills.classical import CLASSICAL, hermite_infill
 from mocapfix.fix.fixer import FixOptions
@@ -18,7 +19,7 @@ from mocapfix.io import read_motion
 from mocapfix.models.build import build_model
 from mocapfix.models.checkpoint import checkpoint_entry
 from mocapfix.models.correction import CorrectionConfig, base_fill, correction_fill, longest_run
-from mocapfix.training.ridge_bank import bucket_lengths, fit_bank, mirrored
+from mocapfix.training.ridge_bank import bucket_lengths, fit_bank
 
 
 def _config(**changes) -> CorrectionConfig:

@@ -75,6 +75,23 @@ def mirror_index(skeleton: Skeleton) -> list[int]:
     return out
 
 
+def mirror_of(skeleton: Skeleton) -> list[int] | None:
+    """mirror_index, or None for a skeleton whose sides do not pair up by name (nothing mirrored)."""
+    try:
+        return mirror_index(skeleton)
+    except ValueError:
+        return None
+
+
+def mirrored(x, partner):
+    """x: (..., J, 3), z up, numpy or torch -> its mirror image: each joint swapped with its partner
+    (mirror_index), x negated (a reflection in a vertical plane: any plane will do for a body that
+    may face any way)."""
+    out = x[..., partner, :]  # advanced indexing: a copy
+    out[..., 0] = -out[..., 0]
+    return out
+
+
 def _limb_of(skeleton: Skeleton) -> list[int]:
     """0 for the root, 1 arms (and shoulders), 2 legs, 3 spine, neck and head: each joint's
     part, from the skeleton's groups and the joints below the arms' first joints."""
@@ -124,8 +141,7 @@ class BodyAugmenter(torch.nn.Module):
             x = self._proportions(x, generator)
         if a.mirror_prob > 0:
             flip = uniform_like((B,), generator, x) < a.mirror_prob  # (B,)
-            mirrored = x[:, :, self.mirror] * torch.tensor([-1.0, 1.0, 1.0], dtype=x.dtype, device=x.device)
-            x = torch.where(flip[:, None, None, None], mirrored, x)
+            x = torch.where(flip[:, None, None, None], mirrored(x, self.mirror), x)
         if a.joint_shift_m > 0:
             # uniform in a ball: a direction, and a radius with density growing as r^2
             direction = torch.nn.functional.normalize(normal_like((B, 1, J, 3), generator, x), dim=-1)

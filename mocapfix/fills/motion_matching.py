@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.data.augment import mirror_index
+from mocapfix.data.augment import mirror_of, mirrored
 from mocapfix.fills.classical import Classical, hermite_infill, lerp_infill
 from mocapfix.fills.fill import Fill
 from mocapfix.fills.holes import runs
@@ -96,22 +96,6 @@ def _coordinates(frames: np.ndarray) -> _Coordinates:
 # the library's): on CMU 35-39, full-body 0.9-s holes 162.5 -> 145.0 mm (match_delta), 0.9-s leg
 # holes 227.9 -> 195.8, for 6x the frames searched.
 TEMPOS = (1.0, 0.85, 1.15)
-
-
-def mirror_of(skeleton: Skeleton) -> list[int] | None:
-    """Each joint's mirror partner (data/augment.py: mirror_index); None for a skeleton whose
-    sides do not pair up by name (it is searched as it is)."""
-    try:
-        return mirror_index(skeleton)
-    except ValueError:
-        return None
-
-
-def mirrored(x: np.ndarray, partner) -> np.ndarray:
-    """x: (T, J, 3), z up -> its mirror image: each joint swapped with its partner (data/augment.py:
-    mirror_index), x negated (a reflection in a vertical plane: any plane will do, the search
-    turns about z)."""
-    return x[:, partner] * np.array([-1.0, 1.0, 1.0], dtype=x.dtype)
 
 
 class Searchable(NamedTuple):

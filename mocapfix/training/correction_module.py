@@ -21,7 +21,7 @@ import lightning as L
 import torch
 import torch.nn as nn
 
-from mocapfix.data.augment import mirror_index
+from mocapfix.data.augment import mirror_of
 from mocapfix.data.corruption import available, infill_gap, training_holes
 from mocapfix.evaluation.harness import abs_and_rel, mpjpe_table
 from mocapfix.evaluation.metrics import MPJPE
@@ -157,17 +157,9 @@ class CorrectionModule(BuiltFromData, L.LightningModule):
                 self.hparams.bank_batches,
                 tuple(self.hparams.bank_strengths),
                 BASE_ERROR_FLOOR_M,
-                self._mirror(),
+                mirror_of(self.skeleton),  # None where the sides do not pair up by name
                 lambda line: print(line, file=sys.stderr, flush=True) if self.trainer.is_global_zero else None,
             )
-
-    def _mirror(self) -> list[int] | None:
-        """Each joint's mirror partner, for the bank's mirrored windows; None where the skeleton's
-        sides do not pair up by name."""
-        try:
-            return mirror_index(self.skeleton)
-        except ValueError:
-            return None
 
     # --- the objective ---
 

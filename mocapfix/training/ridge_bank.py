@@ -23,6 +23,7 @@ from collections.abc import Callable, Iterator
 
 import torch
 
+from mocapfix.data.augment import mirrored
 from mocapfix.data.corruption import available, training_holes
 from mocapfix.models.correction import CORRECTION_UNIT_M, CorrectionNet, at_frames, base_fill
 
@@ -86,11 +87,6 @@ def fit_bank(
             say(lines[-1])
     net.bank_fitted.fill_(True)
     return lines
-
-
-def mirrored(x: torch.Tensor, mirror: list[int]) -> torch.Tensor:
-    """x: (B, T, J, 3), z up -> its mirror image: each joint swapped with its partner, x negated."""
-    return x[:, :, mirror] * x.new_tensor([-1.0, 1.0, 1.0])
 
 
 def _drawn(source: Callable[[], Iterator], count: int) -> Iterator:
