@@ -268,32 +268,36 @@ def test_library_files_past_what_the_search_keeps_are_not_read(tmp_path, monkeyp
 
 def test_a_costly_fill_that_cannot_win_a_kind_is_screened_out_and_one_that_can_is_kept():
     """hopeless: paired per-hole errors against what choose() asks (MODEL_MARGIN / PREFERRED_MARGIN
-    x the preferred fill's): clearly above it, the fill stops measuring that kind; near it, not."""
+    x the preferred fill's): clearly above it, or ahead of it by less than SCREEN_TOLERANCE_M, the
+    fill stops measuring that kind; ahead by more, or too uncertain to tell, not."""
     from mocapfix.fills.errors import ErrorSums
-    from mocapfix.fills.policy import hopeless
+    from mocapfix.fills.policy import SCREEN_TOLERANCE_M, hopeless
 
     rng = np.random.default_rng(0)
     limb = 0.010 + 0.004 * rng.random(16)  # the holes differ far more than the fills on one hole
-    errors = ErrorSums([0.5, 0.9])
+    errors = ErrorSums([0.5, 0.7, 0.9])
     errors.holes = {
         ("full", 0.5, "limb"): list(limb),
         ("full", 0.5, "match"): list(1.5 * limb),  # far behind
         ("full", 0.5, "limb+match"): list(1.2 * limb),
         ("full", 0.5, "xmae"): list(0.99 * limb + 1e-5 * rng.random(16)),  # ahead, but not by 2 %
+        # ahead of 0.95 x the limb fill, but by far less than the tolerance: not worth measuring
+        ("full", 0.7, "limb"): list(limb),
+        ("full", 0.7, "match"): list(0.95 * limb - 0.1 * SCREEN_TOLERANCE_M + 1e-5 * rng.random(16)),
         ("full", 0.9, "limb"): list(limb),
         ("full", 0.9, "match"): list(1.5 * limb),
-        ("full", 0.9, "limb+match"): list(0.9 * limb + 0.002 * rng.standard_normal(16)),  # may win
+        ("full", 0.9, "limb+match"): list(0.85 * limb + 0.002 * rng.standard_normal(16)),  # may win
         ("full", 0.9, "xmae"): list(0.9 * limb),
     }
     out = hopeless(errors, [("match", "match_delta"), ("xmae",)])
-    assert out == {("full", 0.5): {"match", "match_delta", "xmae"}}
+    assert out == {("full", 0.5): {"match", "match_delta", "xmae"}, ("full", 0.7): {"match", "match_delta"}}
 
 
 def test_fills_screened_out_after_the_first_takes_are_not_run_on_the_others():
-    """measure_on_takes asks its screen once the first takes are measured; a costly fill it names
+    """measure_on_takes asks its screen after the first phase of takes; a costly fill it names
     is not run again on that kind, and its candidates are inf in the tables (not the val split's)."""
     from mocapfix.core.skeleton import preset
-    from mocapfix.fills.errors import measure_on_takes, screening_takes
+    from mocapfix.fills.errors import measure_on_takes, screening_phases
     from mocapfix.fills.fill import Fill
     from mocapfix.io.synthetic import generate_clips
     from mocapfix.rig.mapping import onto_skeleton
@@ -317,7 +321,7 @@ def test_fills_screened_out_after_the_first_takes_are_not_run_on_the_others():
     screened, cut2 = measure_on_takes(
         takes, body, (0.5,), cells, Counted(), screen=lambda e, costly: seen.append(costly) or {("full", 0.5): {"xmae"}}
     )
-    first = screening_takes([{("full", 0.5): cut[("full", 0.5)] // len(takes)}] * len(takes))
+    first = screening_phases([{("full", 0.5): cut[("full", 0.5)] // len(takes)}] * len(takes))[0]
     assert Counted.calls == len(first) < len(takes) and ("xmae",) in seen[0]
     assert cut2 == cut  # the same holes cut
     table = screened.tables()["full"]

@@ -17,7 +17,7 @@ from mocapfix.fills.fill import Fill, blends, components, made
 from mocapfix.fills.holes import PARTS, cut_holes, room_for_holes, share_holes
 from mocapfix.fills.motion_matching import MotionLibrary, MotionMatching, library_of
 
-# The costly fills (motion matching, a model) are screened on the first SCREEN_HOLES holes of a
+# The costly fills (motion matching, a model) are screened after every SCREEN_HOLES holes of a
 # kind (measure_on_takes' screen) and measured further only where they may still be chosen.
 SCREEN_HOLES = 16
 HOLES_PER_CELL = 64  # the budget of holes cut into the recording per (part, gap): a model pass each kind
@@ -131,57 +131,56 @@ def measure_on_takes(
     either way. The motion-matching fills search the takes (keys: one per take, as fix names them
     to its MotionLibrary; default their order), each take's own with its holes cut, and `library`
     (the user's other takes, fix --library).
-    screen(errors, costly) -> {(part, gap): fill names}: asked once the first takes
-    (screening_takes: SCREEN_HOLES holes of each kind, spread over the folder) are measured, with
-    the names of each costly fill (motion matching's, the model's); the fills it names are not run
-    on that kind's holes in the other takes, and their candidates are dropped from its tables
-    (policy.py: hopeless). None: every take measures every fill."""
+    screen(errors, costly) -> {(part, gap): fill names}: asked after each phase of takes
+    (screening_phases: SCREEN_HOLES more holes of each kind, spread over the folder) with the
+    errors so far and the names of each costly fill (motion matching's, the model's); the fills
+    it names are not run on that kind's holes in the later takes, and their candidates are
+    dropped from its tables (policy.py: hopeless). None: every take measures every fill."""
     errors = ErrorSums(gaps_s)
     keys = list(range(len(takes))) if keys is None else list(keys)
     library = library_of(takes, keys, skeleton, library)
     gaps = tuple(errors.gaps_s)
     budgets = hole_budgets(takes, skeleton, gaps, cells)
     jobs = [(x, fps, skeleton, gaps, cells, b, library, key) for (x, fps), key, b in zip(takes, keys, budgets)]
-    first = set(screening_takes(budgets) if screen is not None else range(len(jobs)))
-    rest = [i for i in range(len(jobs)) if i not in first]
+    phases = screening_phases(budgets) if screen is not None else [list(range(len(jobs)))]
+    costly = [f.names for f in take_fills(library, None, model_fill) if f.costly]
     cut: dict[tuple[str, float], int] = {}
-
-    def measured(work: list[tuple]) -> None:
+    skip: dict[tuple[str, float], set[str]] = {}
+    for k, phase in enumerate(phases):
+        work = [jobs[i] + ({cell: set(names) for cell, names in skip.items()},) for i in phase]
         results = [measure_take(*job, model_fill=model_fill) for job in work] if map_takes is None else map_takes(work)
         for take_errors, take_cut in results:
             errors.add(take_errors)
             for cell, n in take_cut.items():
                 cut[cell] = cut.get(cell, 0) + n
-
-    measured([jobs[i] for i in sorted(first)])
-    if rest:
-        costly = [f.names for f in take_fills(library, None, model_fill) if f.costly]
-        skip = screen(errors, costly)
-        for (part, gap), names in skip.items():
-            methods = {m for (p, g, m) in errors.sums if (p, g) == (part, gap) and set(components(m)) & set(names)}
-            errors.drop(part, gap, methods)
-        measured([jobs[i] + (skip,) for i in rest])
+        if k + 1 < len(phases):
+            for (part, gap), names in screen(errors, costly).items():
+                methods = {m for (p, g, m) in errors.sums if (p, g) == (part, gap) and set(components(m)) & set(names)}
+                errors.drop(part, gap, methods)
+                skip.setdefault((part, gap), set()).update(names)
     return errors, cut
 
 
-def screening_takes(budgets: list[dict[tuple[str, float], int]]) -> list[int]:
-    """The takes measured before the costly fills are screened (measure_on_takes): every fourth
-    take, then the ones between, until each kind has SCREEN_HOLES holes planned (all its holes
-    where it has fewer), so that the first holes come from across the folder -> take indices."""
+def screening_phases(budgets: list[dict[tuple[str, float], int]]) -> list[list[int]]:
+    """The takes in the phases measure_on_takes measures them in, the costly fills screened after
+    each: every fourth take, then the ones between (the first holes come from across the folder),
+    a phase ending where every kind has SCREEN_HOLES more holes planned (or all of its holes); the
+    last phase the takes left -> lists of take indices, each ascending."""
     order = [i for phase in range(4) for i in range(phase, len(budgets), 4)]
-    wanted: dict[tuple[str, float], int] = {}
+    total: dict[tuple[str, float], int] = {}
     for budget in budgets:
         for cell, n in budget.items():
-            wanted[cell] = wanted.get(cell, 0) + n
-    wanted = {cell: min(n, SCREEN_HOLES) for cell, n in wanted.items()}
-    first, have = [], dict.fromkeys(wanted, 0)
+            total[cell] = total.get(cell, 0) + n
+    phases: list[list[int]] = [[]]
+    have = dict.fromkeys(total, 0)
     for i in order:
-        if all(have[cell] >= n for cell, n in wanted.items()):
-            break
-        first.append(i)
+        phases[-1].append(i)
         for cell, n in budgets[i].items():
             have[cell] += n
-    return sorted(first)
+        wanted = SCREEN_HOLES * len(phases)
+        if all(have[cell] >= min(n, wanted) for cell, n in total.items()):
+            phases.append([])
+    return [sorted(phase) for phase in phases if phase]
 
 
 def hole_budgets(takes: list[tuple[np.ndarray, float]], skeleton, gaps_s, cells) -> list[dict[tuple[str, float], int]]:
