@@ -210,12 +210,13 @@ def test_a_perfect_model_needs_as_many_cut_holes_as_a_classical_fill_to_take_a_k
 
 
 def test_fix_library_takes_are_searched_and_the_recording_says_when_to_use_them(tmp_path, cmu_files, capsys):
-    from mocapfix.fix import load_fixer, map_joints
-
     """fix --library: the user's other takes. Here one of them is the take itself, turned 90
     degrees and moved 4 m: the motion-matching fill finds it, the holes cut into the recording
     (a 40-s CMU take: enough of them to overrule the preferred fill) say it is the best fill,
-    and the take's own holes come back exact; without it, not."""
+    and the take's own holes come back within a few mm (the 120-fps take is searched at 30 fps:
+    its copy is met within 1/60 s; motion_matching.SEARCH_FPS); without it, not."""
+    from mocapfix.fix import load_fixer, map_joints
+
     [clip] = read_motion(next(f for f in cmu_files if f.name == "06_13.bvh"))
     holes = np.zeros(clip.positions.shape[:2], dtype=bool)
     for start in range(5 * int(clip.fps), clip.num_frames - 60, 10 * int(clip.fps)):  # 0.5 s every 10 s
@@ -246,7 +247,7 @@ def test_fix_library_takes_are_searched_and_the_recording_says_when_to_use_them(
     error, report = fix()
     assert error > 10.0, report
     error, report = fix("--library", str(library))
-    assert error < 1.0 and "full 0.5s match" in report, report
+    assert error < 8.0 and "full 0.5s match" in report, report  # 5.8 mm
 
 
 def test_library_files_past_what_the_search_keeps_are_not_read(tmp_path, monkeypatch):

@@ -55,9 +55,27 @@ STRIDE_PER_HOLE = 16
 PROXY_BASINS = 64
 CHUNK = 16384  # starts scored at once (memory: CHUNK x 10 sums x the query's frames)
 LIBRARY_S = 600.0  # the most seconds of takes a library keeps (each hole's search scans them all)
+# The search reads a take and the library at about this rate (every search_step-th frame of the
+# take; the library resampled), whatever the take's own: the neighbours' mean motion is then
+# interpolated back to the take's frames, where the fills meet the data. Motion varies little
+# between 30-fps frames over the 0.2 s and more a hole must last to be searched, and a 120-fps
+# take searched at its own rate holds four times the library's frames in memory and in every
+# product (LIBRARY_S of takes, six copies each: ~180 MB at 120 fps). On the CMU strangers (120
+# fps) the searched `match_delta` cells came out lower than searching every frame, at 0.55x the
+# CPU. The price: a neighbour meets the hole within 1/60 s of its own timing, so an exact copy of
+# a 120-fps take fills its hole a few millimetres off, not exactly (5.8 mm on a CMU walk).
+# Moving each neighbour to the take's own frame (its stretch shifted by fractions of a searched
+# frame on the cubic) got that to 1.7 mm but changed no CMU cell by more than 0.3 mm, for a
+# third more CPU: not done.
+SEARCH_FPS = 30.0
 # Holes shorter than this keep the Hermite fill: at 0.1 s the cubic is as good (CMU strangers:
 # 3.1 mm, match_delta 3.2, match 4.1), and a take with many dropped frames would search once each.
 MIN_HOLE_S = 0.2
+
+
+def search_step(fps: float) -> int:
+    """Take frames per searched frame at `fps` (SEARCH_FPS): 1 at 24-44 fps, 4 at 120."""
+    return max(1, round(fps / SEARCH_FPS))
 
 
 class _Coordinates(NamedTuple):
@@ -181,8 +199,9 @@ class MotionLibrary:
         return self._at[fps]
 
     def without(self, key, fps: float) -> Searchable:
-        """The library at fps with the take of `key` (if it holds one) and its copies hidden."""
-        library, spans = self.frames(fps)
+        """The library as a take at `fps` searches it (at fps / search_step(fps)), with the take of
+        `key` (if it holds one) and its copies hidden."""
+        library, spans = self.frames(fps / search_step(fps))
         if key not in self.keys:
             return library
         return library._replace(hidden=spans[self.keys.index(key)])
@@ -409,6 +428,23 @@ def _proxy_frames(width: int, start: int, end: int, step: int) -> np.ndarray:
     return np.unique(np.array(picked, dtype=np.int64))
 
 
+def _upsampled(frames: np.ndarray, step: int) -> np.ndarray:
+    """frames: (W, J, 3), every step-th frame of a stretch -> ((W - 1) step + 1, J, 3), the frames
+    between them on a cubic through each frame at its central difference (Catmull-Rom: a linear
+    one cuts the corners of a hand's arc by millimetres at 30 fps)."""
+    if step == 1:
+        return frames
+    t = (np.arange(step) / step)[:, None, None, None]  # (step, 1, 1, 1)
+    slope = np.gradient(frames, axis=0)  # (W, J, 3) per searched frame
+    inner = (
+        (2 * t**3 - 3 * t**2 + 1) * frames[:-1]
+        + (t**3 - 2 * t**2 + t) * slope[:-1]
+        + (3 * t**2 - 2 * t**3) * frames[1:]
+        + (t**3 - t**2) * slope[1:]
+    )  # (step, W - 1, J, 3)
+    return np.concatenate([inner.transpose(1, 0, 2, 3).reshape(-1, *frames.shape[1:]), frames[-1:]])
+
+
 def match_fills(
     positions: np.ndarray,
     observed: np.ndarray,
@@ -419,9 +455,10 @@ def match_fills(
 ) -> dict[str, np.ndarray]:
     """positions: (T, J, 3) metres, NaN where missing; observed: (T, J) bool; hermite: (T, J, 3)
     its cubic Hermite fill (fills/classical.py), what a hole nothing matches keeps;
-    library: other takes at the same fps and joints (MotionLibrary.without, or (N, J, 3) frames),
-    the take itself is always searched (mirrored too where the library's takes are); fps: the
-    take's, for MIN_HOLE_S (None: every hole is searched); asked: (T, J) bool, the tokens whose
+    library: other takes at the same joints (MotionLibrary.without(key, fps): at this take's
+    search rate; or (N, J, 3) frames at its fps), the take itself is always searched (mirrored too
+    where the library's takes are); fps: the take's, for MIN_HOLE_S and the search's rate
+    (SEARCH_FPS; None: every hole is searched, every frame); asked: (T, J) bool, the tokens whose
     fill is wanted (None: all) -> {"match", "match_delta"}: (T, J, 3) each, observed tokens as
     given. A hole at the take's start or end (no data on one side), shorter than MIN_HOLE_S, or
     with no token asked for, keeps the Hermite fill's answer."""
@@ -429,70 +466,83 @@ def match_fills(
     x = np.where(observed[..., None], positions, np.nan).astype(np.float64)
     out = {name: hermite.astype(np.float64).copy() for name in FILLS}
     seen = observed.any(0)  # a joint never observed has nothing to match with
+    step_in = 1 if fps is None else search_step(fps)  # take frames per searched frame
     if isinstance(library, np.ndarray):
-        library = searchable(library)
+        library = searchable(library[::step_in])
     mirror = None if library is None else library.mirror
     takes = [x] + ([mirrored(x, mirror)] if mirror is not None else [])
-    sources: list[Searchable] = []  # made at the first hole searched
+    sources: dict[int, list[Searchable]] = {}  # per phase of the take's searched frames, made at its first hole
     for s, e in runs(~observed[:, seen].all(1)):
         if s == 0 or e == T or (fps is not None and e - s < MIN_HOLE_S * fps):
             continue
         if asked is not None and not asked[s:e].any():
             continue
-        n = e - s
         missing = ~observed[s:e].all(0) & seen  # (J,) observed at s - 1 and e (the run is maximal)
+        # The hole on the searched frames: every step_in-th frame of the take, in the phase that
+        # holds its observed frame before (s - 1); [hs, he) the hole there, he the first searched
+        # frame at or after e.
+        phase = (s - 1) % step_in
+        xs = x[phase::step_in]  # (Ts, J, 3)
+        hs, he = (s - 1 - phase) // step_in + 1, -(-(e - phase) // step_in)
+        if he >= len(xs):
+            continue  # no searched frame after the hole
+        n = he - hs
         context = max(MIN_CONTEXT, int(round(CONTEXT_RATIO * n)))
-        lo, hi = max(0, s - context), min(T, e + context)
-        f_ctx = np.concatenate([_spread(np.arange(lo, s), FRAMES_PER_SIDE), _spread(np.arange(e, hi), FRAMES_PER_SIDE)])
-        f_hole = _spread(np.arange(s, e), HOLE_FRAMES)
+        lo, hi = max(0, hs - context), min(len(xs), he + context)
+        before, after = _spread(np.arange(lo, hs), FRAMES_PER_SIDE), _spread(np.arange(he, hi), FRAMES_PER_SIDE)
+        f_ctx = np.concatenate([before, after])
+        f_hole = _spread(np.arange(hs, he), HOLE_FRAMES)
         frames = np.concatenate([np.repeat(f_ctx, J), np.repeat(f_hole, J)])
         joints = np.concatenate([np.tile(np.arange(J), len(f_ctx)), np.tile(np.arange(J), len(f_hole))])
-        query = x[frames, joints]
+        query = xs[frames, joints]
         ok = np.isfinite(query).all(-1)  # other holes near this one: compare what is there
         frames, joints, query = frames[ok] - lo, joints[ok], query[ok]
         if len(query) < 3:
             continue
         width = hi - lo
-        if not sources:
-            sources = [searchable(t) for t in takes]
-            sources += [library] if library is not None and library.num_frames else []
+        if phase not in sources:
+            sources[phase] = [searchable(t[phase::step_in]) for t in takes]
+            sources[phase] += [library] if library is not None and library.num_frames else []
         w = _weights(frames, joints, query, J)
         step = max(1, n // STRIDE_PER_HOLE)
-        at = _proxy_frames(width, s - lo, e - lo, step)
-        few = x[lo + at]  # (F, J, 3): every joint there that has data
+        at = _proxy_frames(width, hs - lo, he - lo, step)
+        few = xs[lo + at]  # (F, J, 3): every joint there that has data
         f_few, j_few = np.nonzero(np.isfinite(few).all(-1))
         proxy = _weights(at[f_few], j_few, few[f_few, j_few], J) if len(f_few) >= 3 else None
         # the best NEIGHBOURS of all sources, no two of a source within half the hole of each other
         found = [
             (d, i, start, a, c)
-            for i, source in enumerate(sources)
+            for i, source in enumerate(sources[phase])
             for d, start, a, c in _search(source, w, missing, width, NEIGHBOURS, n // 2, step, proxy)
         ]
         chosen = sorted(found, key=lambda f: f[0])[:NEIGHBOURS]
         if not chosen:
             continue
-        # the neighbours turned and shifted onto the query: (K, width, J, 3)
-        seg = np.stack([sources[i].stretch(start, width) for _, i, start, _, _ in chosen])  # (K, width, J, 3)
+        # Both fills of a neighbour are linear in its frames (an interpolation between the same
+        # observed tokens, per joint; the hole's joints are whole in every neighbour): the
+        # weighted mean of the neighbours' fills is the fill of their weighted mean. It is made on
+        # the take's own frames [a, b) (searched frame k is take frame phase + step_in k), where
+        # the fills meet the data.
+        a, b = phase + step_in * lo, phase + step_in * (hi - 1) + 1
+        seg = np.stack([sources[phase][i].stretch(start, width) for _, i, start, _, _ in chosen])  # (K, width, J, 3)
         angle = np.array([a for *_, a, _ in chosen])
         cos, sin = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
         centre = np.stack([c for *_, c in chosen])[:, None, None]  # (K, 1, 1, 2)
         xy = seg[..., :2] - centre
         xy = np.stack([cos * xy[..., 0] - sin * xy[..., 1], sin * xy[..., 0] + cos * xy[..., 1]], -1)
-        seg[..., :2] = xy + query[:, :2].mean(0)
+        seg[..., :2] = xy + query[:, :2].mean(0)  # the neighbours turned and shifted onto the query
         weight = 1.0 / (np.array([d for d, *_ in chosen]) + 1e-8)
-        # Both fills of a neighbour are linear in its frames (an interpolation between the same
-        # observed tokens, per joint; the hole's joints are whole in every neighbour): the
-        # weighted mean of the neighbours' fills is the fill of their weighted mean.
-        mean = torch.from_numpy(np.einsum("k,ktjc->tjc", weight / weight.sum(), seg))[None]  # (1, width, J, 3)
-        window = torch.from_numpy(x[lo:hi])[None]
-        obs = torch.from_numpy(observed[lo:hi])[None]
+        mean = _upsampled(np.einsum("k,ktjc->tjc", weight / weight.sum(), seg), step_in)  # (b - a, J, 3)
+        mean = torch.from_numpy(mean)[None]  # (1, b - a, J, 3)
+        window = torch.from_numpy(x[a:b])[None]
+        obs = torch.from_numpy(observed[a:b])[None]
         # match: the residual to the data at observed tokens, interpolated over the hole (meets both ends)
         match = (mean + lerp_infill(torch.where(obs[..., None], window - mean, torch.nan), obs))[0].numpy()
         # match_delta: the Hermite fill plus the neighbours' departure from their own Hermite fill
         own = hermite_infill(torch.where(obs[..., None], mean, torch.nan), obs)
-        delta = (mean - own)[0].numpy() + hermite[lo:hi]
-        hole = np.zeros((width, J), dtype=bool)
-        hole[s - lo : e - lo] = ~observed[s:e] & missing
-        out["match"][lo:hi][hole] = match[hole]
-        out["match_delta"][lo:hi][hole] = delta[hole]
+        delta = (mean - own)[0].numpy() + hermite[a:b]
+        hole = np.zeros((b - a, J), dtype=bool)
+        hole[s - a : e - a] = ~observed[s:e] & missing
+        out["match"][a:b][hole] = match[hole]
+        out["match_delta"][a:b][hole] = delta[hole]
     return {name: np.where(observed[..., None], positions, fill) for name, fill in out.items()}
