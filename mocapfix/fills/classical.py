@@ -103,14 +103,17 @@ def hermite_infill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Ten
 _SPLINES = {"spline": CubicSpline, "pchip": PchipInterpolator}
 
 
-def spline_infill(positions: torch.Tensor, observed: torch.Tensor, kind: str = "spline") -> torch.Tensor:
+def spline_infill(
+    positions: torch.Tensor, observed: torch.Tensor, kind: str = "spline", only: torch.Tensor | None = None
+) -> torch.Tensor:
     """Fill every unobserved token from a spline in time through the observed frames of the same
     joint: "spline" a cubic spline (scipy's CubicSpline, not-a-knot ends), "pchip" a monotone
     piecewise-cubic Hermite one. Same contract as lerp_infill, whose answer stands where a spline
     has nothing to add: gaps at the window's border hold the edge value (no extrapolation), and a
     joint seen in fewer than 3 frames of the window is interpolated linearly.
 
-    positions: (B, T, J, 3), observed: (B, T, J) bool -> (B, T, J, 3)
+    positions: (B, T, J, 3), observed: (B, T, J) bool; only: (J,) bool, the joints whose spline
+    is wanted (None: all; the others keep Lerp's answer: each spline is a scipy call) -> (B, T, J, 3)
     """
     spline = _SPLINES[kind]
     out = lerp_infill(positions, observed)
@@ -121,7 +124,8 @@ def spline_infill(positions: torch.Tensor, observed: torch.Tensor, kind: str = "
     t = np.arange(T)
     first, last = obs.argmax(axis=1), T - 1 - obs[:, ::-1].argmax(axis=1)  # (B*J,)
     inside = (t >= first[:, None]) & (t <= last[:, None])  # (B*J, T)
-    todo = np.flatnonzero((obs.sum(axis=1) >= 3) & (inside & ~obs).any(axis=1))
+    wanted = np.ones(B * J, dtype=bool) if only is None else np.tile(only.cpu().numpy(), B)  # (B*J,)
+    todo = np.flatnonzero(wanted & (obs.sum(axis=1) >= 3) & (inside & ~obs).any(axis=1))
     if todo.size == 0:
         return out
     # Sequences with the same observed frames share one spline call (vector-valued along axis 1):
@@ -164,15 +168,18 @@ def limb_infill(
     lengths: (B, 1, C) the bones' lengths (bone_lengths; None: measured in the window)
     -> (B, T, J, 3), observed tokens as given."""
     obs = observed.to(torch.bool) & ~torch.isnan(positions).any(dim=-1)
-    own = spline_infill(positions, obs)  # fallback for every joint
     p = torch.as_tensor(list(parents), device=positions.device)
     child = torch.nonzero(p >= 0).flatten()
     both = obs[:, :, child] & obs[:, :, p[child]]  # (B, T, C)
+    seen = both.any(dim=1)  # (B, C) the bone has a length
+    # the spline of a joint's own positions: the root's fill, and a joint's whose bone is never seen
+    own_wanted = p < 0
+    own_wanted[child] = ~seen.all(dim=0)
+    own = spline_infill(positions, obs, only=own_wanted)
     bone = positions[:, :, child] - positions[:, :, p[child]]  # (B, T, C, 3)
     bone = spline_infill(torch.where(both[..., None], bone, torch.nan), both)
     length = bone_lengths(positions, obs, parents) if lengths is None else lengths  # (B, 1, C)
     bone = bone * (length / bone.norm(dim=-1).clamp_min(1e-9))[..., None]
-    seen = both.any(dim=1)  # (B, C) the bone has a length
     out = own.clone()
     for k, j in enumerate(child.tolist()):  # parents before children: a parent is final before its child
         along = out[:, :, parents[j]] + bone[:, :, k]
