@@ -269,10 +269,10 @@ def test_library_files_past_what_the_search_keeps_are_not_read(tmp_path, monkeyp
 
 def test_a_costly_fill_that_cannot_win_a_kind_is_screened_out_and_one_that_can_is_kept():
     """hopeless: paired per-hole errors against what choose() asks (MODEL_MARGIN / PREFERRED_MARGIN
-    x the preferred fill's): clearly above it, or ahead of it by less than SCREEN_TOLERANCE_M, the
+    x the preferred fill's): clearly above it, or ahead of it by less than SCREEN_TOLERANCE of it, the
     fill stops measuring that kind; ahead by more, or too uncertain to tell, not."""
     from mocapfix.fills.errors import ErrorSums
-    from mocapfix.fills.policy import SCREEN_TOLERANCE_M, hopeless
+    from mocapfix.fills.policy import SCREEN_TOLERANCE, hopeless
 
     rng = np.random.default_rng(0)
     limb = 0.010 + 0.004 * rng.random(16)  # the holes differ far more than the fills on one hole
@@ -284,7 +284,7 @@ def test_a_costly_fill_that_cannot_win_a_kind_is_screened_out_and_one_that_can_i
         ("full", 0.5, "xmae"): list(0.99 * limb + 1e-5 * rng.random(16)),  # ahead, but not by 2 %
         # ahead of 0.95 x the limb fill, but by far less than the tolerance: not worth measuring
         ("full", 0.7, "limb"): list(limb),
-        ("full", 0.7, "match"): list(0.95 * limb - 0.1 * SCREEN_TOLERANCE_M + 1e-5 * rng.random(16)),
+        ("full", 0.7, "match"): list((0.95 - 0.1 * SCREEN_TOLERANCE) * limb + 1e-5 * rng.random(16)),
         ("full", 0.9, "limb"): list(limb),
         ("full", 0.9, "match"): list(1.5 * limb),
         ("full", 0.9, "limb+match"): list(0.85 * limb + 0.002 * rng.standard_normal(16)),  # may win
