@@ -75,6 +75,25 @@ def test_lerp_float32_and_observed_nan_treated_as_missing():
     np.testing.assert_allclose(out.numpy(), ref, rtol=1e-5, atol=1e-5)
 
 
+def test_lerp_at_the_missing_tokens_only_is_the_whole_take_lerp_bit_for_bit():
+    """On the CPU, a window whose every joint is observed somewhere is filled at its missing
+    tokens only (_lerp_missing); a joint never observed sends it down the whole-window path.
+    Both give the same bits: the same windows with a never-observed joint appended (which the
+    other joints' fills do not read) come out identical on the joints they share."""
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        B, T, J = int(rng.integers(1, 4)), int(rng.integers(2, 50)), int(rng.integers(1, 7))
+        dtype = torch.float64 if trial % 2 else torch.float32
+        x = torch.from_numpy(rng.normal(size=(B, T, J, 3))).to(dtype)
+        observed = torch.from_numpy(rng.random((B, T, J)) < rng.uniform(0.2, 0.9))
+        observed[:, 0] |= ~observed.any(dim=1)  # every joint observed somewhere: the sparse path
+        x[torch.from_numpy(rng.random((B, T, J)) < 0.05)] = float("nan")  # NaN under "observed" too
+        extra = torch.cat([x, torch.full((B, T, 1, 3), float("nan"), dtype=dtype)], dim=2)
+        whole = lerp_infill(extra, torch.cat([observed, torch.zeros(B, T, 1, dtype=torch.bool)], dim=2))
+        sparse = lerp_infill(x, observed)
+        assert torch.equal(sparse.nan_to_num(7.0), whole[:, :, :J].nan_to_num(7.0)), trial
+
+
 @pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_lerp_on_cuda():
