@@ -294,6 +294,20 @@ def test_a_costly_fill_that_cannot_win_a_kind_is_screened_out_and_one_that_can_i
     assert out == {("full", 0.5): {"match", "match_delta", "xmae"}, ("full", 0.7): {"match", "match_delta"}}
 
 
+def test_the_takes_are_measured_in_phases_of_sixteen_more_holes_spread_over_the_folder():
+    """screening_phases: every fourth take first, a phase closing where every kind has 16 more
+    holes planned (or all it has); takes left with no hole to cut join the last phase."""
+    from mocapfix.fills.errors import SCREEN_HOLES, screening_phases
+
+    assert SCREEN_HOLES == 16
+    budgets = [{("full", 0.5): 4} for _ in range(8)] + [{("full", 0.5): 0}] * 2  # 32 holes
+    # measured in the order 0 4 8 1 5 | 9 2 6 3 7
+    assert screening_phases(budgets) == [[0, 1, 4, 5, 8], [2, 3, 6, 7, 9]]
+    spread = [{("full", 0.5): 0 if i % 4 == 3 else 4, ("arm", 0.3): int(i == 0)} for i in range(12)]  # 36 and 1
+    # 0 4 8 1 | 5 9 2 6 | 10, then 3 7 11 (nothing to cut in them) with it, not a phase each
+    assert screening_phases(spread) == [[0, 1, 4, 8], [2, 5, 6, 9], [3, 7, 10, 11]]
+
+
 def test_fills_screened_out_after_the_first_takes_are_not_run_on_the_others():
     """measure_on_takes asks its screen after the first phase of takes; a costly fill it names
     is not run again on that kind, and its candidates are inf in the tables (not the val split's)."""

@@ -44,7 +44,7 @@ def lerp_infill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor
     obs = observed.to(torch.bool) & ~torch.isnan(positions).any(dim=-1)
     t, prev, nxt = _observed_neighbours(obs)
     if positions.device.type == "cpu" and bool(obs.any(dim=1).all()):
-        return _lerp_missing(positions, obs, t, prev, nxt)
+        return _lerp_missing(positions, obs, prev, nxt)
     has_prev, has_next = prev >= 0, nxt < T
     p_val = positions.gather(1, prev.clamp(0, T - 1)[..., None].expand(B, T, J, 3))
     n_val = positions.gather(1, nxt.clamp(0, T - 1)[..., None].expand(B, T, J, 3))
@@ -66,14 +66,12 @@ def lerp_infill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor
     return torch.where(obs[..., None], positions, filled)
 
 
-def _lerp_missing(
-    positions: torch.Tensor, obs: torch.Tensor, t: torch.Tensor, prev: torch.Tensor, nxt: torch.Tensor
-) -> torch.Tensor:
+def _lerp_missing(positions: torch.Tensor, obs: torch.Tensor, prev: torch.Tensor, nxt: torch.Tensor) -> torch.Tensor:
     """lerp_infill where every joint is observed somewhere in each window, computed at the missing
     tokens only (bit-identical: the same arithmetic on fewer tokens). On the CPU a take of `fix`
     is mostly observed, and the whole-take gathers and selections cost several milliseconds a
     call at 120 fps; on a GPU the indexing would wait for the device, so it keeps the full path.
-    positions: (B, T, J, 3); obs: (B, T, J) bool; t, prev, nxt: _observed_neighbours(obs)."""
+    positions: (B, T, J, 3); obs: (B, T, J) bool; prev, nxt: _observed_neighbours(obs)'s."""
     T = positions.shape[1]
     b, f, j = torch.nonzero(~obs, as_tuple=True)  # (M,) each: the missing tokens
     p, n = prev[b, f, j], nxt[b, f, j]

@@ -165,7 +165,8 @@ def screening_phases(budgets: list[dict[tuple[str, float], int]]) -> list[list[i
     """The takes in the phases measure_on_takes measures them in, the costly fills screened after
     each: every fourth take, then the ones between (the first holes come from across the folder),
     a phase ending where every kind has SCREEN_HOLES more holes planned (or all of its holes); the
-    last phase the takes left -> lists of take indices, each ascending."""
+    last phase the takes left once every kind has all its holes -> lists of take indices, each
+    ascending."""
     order = [i for phase in range(4) for i in range(phase, len(budgets), 4)]
     total: dict[tuple[str, float], int] = {}
     for budget in budgets:
@@ -178,7 +179,8 @@ def screening_phases(budgets: list[dict[tuple[str, float], int]]) -> list[list[i
         for cell, n in budgets[i].items():
             have[cell] += n
         wanted = SCREEN_HOLES * len(phases)
-        if all(have[cell] >= min(n, wanted) for cell, n in total.items()):
+        complete = all(have[cell] >= n for cell, n in total.items())
+        if not complete and all(have[cell] >= min(n, wanted) for cell, n in total.items()):
             phases.append([])
     return [sorted(phase) for phase in phases if phase]
 

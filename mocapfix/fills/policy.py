@@ -310,11 +310,10 @@ def hopeless(errors: ErrorSums, costly: list[tuple[str, ...]]) -> dict[tuple[str
     of hole can stop measuring (errors.measure_on_takes' screen) -> {(part, gap): names}. A fill
     goes where every candidate with it in (blends too), hole by hole over the holes measured so
     far, cannot gain more than SCREEN_TOLERANCE of the preferred fill's error over what choose()
-    asks of it: MODEL_MARGIN (a
-    model) or PREFERRED_MARGIN (a classical candidate) times the preferred fill's error (a
-    necessary condition of being chosen: the best classical fill is never worse than the preferred
-    one), but for a SCREEN_Z-standard-error chance. Paired per hole: the holes differ far more from
-    each other than the fills on one hole do."""
+    asks of it, MODEL_MARGIN (a model) or PREFERRED_MARGIN (a classical candidate) times the
+    preferred fill's error (a necessary condition of being chosen: the best classical fill is never
+    worse than the preferred one), but for a SCREEN_Z-standard-error chance. Paired per hole: the
+    holes differ far more from each other than the fills on one hole do."""
     out: dict[tuple[str, float], set[str]] = {}
     for part, gap in sorted({(p, g) for p, g, _ in errors.holes}):
         preferred = np.array(errors.holes.get((part, gap, PREFERRED), []))
