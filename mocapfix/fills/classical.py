@@ -45,16 +45,9 @@ def lerp_infill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor
     t, prev, nxt = _observed_neighbours(obs)
     if positions.device.type == "cpu" and bool(obs.any(dim=1).all()):
         return _lerp_missing(positions, obs, prev, nxt)
-    has_prev, has_next = prev >= 0, nxt < T
     p_val = positions.gather(1, prev.clamp(0, T - 1)[..., None].expand(B, T, J, 3))
     n_val = positions.gather(1, nxt.clamp(0, T - 1)[..., None].expand(B, T, J, 3))
-
-    # Weight of the next frame; one-sided gaps get 0 or 1 (hold the edge value).
-    span = (nxt - prev).clamp_min(1).to(positions.dtype)
-    w = (t - prev).to(positions.dtype) / span
-    w = torch.where(has_prev, torch.where(has_next, w, 0.0), 1.0)[..., None]
-    # the branch not taken may hold NaN (clamped gathers of missing tokens): where() keeps it out
-    filled = torch.where(w == 0, p_val, torch.where(w == 1, n_val, p_val + w * (n_val - p_val)))
+    filled = _between(p_val, n_val, t, prev, nxt, T)
 
     # Joints with no observation in the window: per-frame mean of the joints that have one.
     seen = obs.any(dim=1, keepdim=True)  # (B, 1, J)
@@ -66,6 +59,19 @@ def lerp_infill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor
     return torch.where(obs[..., None], positions, filled)
 
 
+def _between(
+    p_val: torch.Tensor, n_val: torch.Tensor, t: torch.Tensor, prev: torch.Tensor, nxt: torch.Tensor, T: int
+) -> torch.Tensor:
+    """Tokens at frames t (...,) between the observed values p_val at frame prev and n_val at
+    frame nxt (..., 3) -> (..., 3) linearly; a gap with no observed frame before (prev < 0) or
+    after (nxt == T) holds the edge value."""
+    span = (nxt - prev).clamp_min(1).to(p_val.dtype)
+    w = (t - prev).to(p_val.dtype) / span
+    w = torch.where(prev >= 0, torch.where(nxt < T, w, 0.0), 1.0)[..., None]
+    # the branch not taken may hold NaN (clamped gathers of missing tokens): where() keeps it out
+    return torch.where(w == 0, p_val, torch.where(w == 1, n_val, p_val + w * (n_val - p_val)))
+
+
 def _lerp_missing(positions: torch.Tensor, obs: torch.Tensor, prev: torch.Tensor, nxt: torch.Tensor) -> torch.Tensor:
     """lerp_infill where every joint is observed somewhere in each window, computed at the missing
     tokens only (bit-identical: the same arithmetic on fewer tokens). On the CPU a take of `fix`
@@ -75,13 +81,9 @@ def _lerp_missing(positions: torch.Tensor, obs: torch.Tensor, prev: torch.Tensor
     T = positions.shape[1]
     b, f, j = torch.nonzero(~obs, as_tuple=True)  # (M,) each: the missing tokens
     p, n = prev[b, f, j], nxt[b, f, j]
-    has_prev, has_next = (p >= 0)[:, None], (n < T)[:, None]
     p_val, n_val = positions[b, p.clamp(0, T - 1), j], positions[b, n.clamp(0, T - 1), j]  # (M, 3)
-    span = (n - p).clamp_min(1).to(positions.dtype)
-    w = ((f - p).to(positions.dtype) / span)[:, None]
-    w = torch.where(has_prev, torch.where(has_next, w, 0.0), 1.0)
     out = positions.clone()
-    out[b, f, j] = torch.where(w == 0, p_val, torch.where(w == 1, n_val, p_val + w * (n_val - p_val)))
+    out[b, f, j] = _between(p_val, n_val, f, p, n, T)
     return out
 
 
