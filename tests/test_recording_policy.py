@@ -262,8 +262,8 @@ def test_library_files_past_what_the_search_keeps_are_not_read(tmp_path, monkeyp
         write_positions(tmp_path / f"take{i}.npz", clip.positions, clip.fps, clip.skeleton)
     monkeypatch.setattr(fix_run, "LIBRARY_S", 6.0)
     err = io.StringIO()
-    read = fix_run._library_takes([str(tmp_path)], "auto", err, {})
-    assert [c[0].source.endswith(f"take{i}.npz") for i, c in enumerate(read)] == [True, True]
+    read, unread = fix_run._library_takes(fix_run._library_files([str(tmp_path)], "auto", err), "auto", err, {})
+    assert [c[0].source.endswith(f"take{i}.npz") for i, c in enumerate(read)] == [True, True] and unread == 1
     assert "2 files (0 min) read; 1 more not read" in err.getvalue()
 
 

@@ -98,6 +98,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="files or folders of other takes of the same performers and rig: holes are also filled "
         "from the moments of them that match (motion matching), where the recording says it is better",
     )
+    ap.add_argument(
+        "--library-index",
+        default=None,
+        metavar="FILE",
+        help="keep the --library takes, read and put on the model's joints, in FILE: a later run with the same "
+        "takes and model reads FILE instead (made again when a take changed)",
+    )
     ap.add_argument("--json", action="store_true", help="one JSON object per file instead of the report line")
     ap.add_argument(
         "--progress",
@@ -129,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
         shard = parse_shard(args.shard)
     except ValueError as e:
         ap.error(str(e))
+    if args.library_index and not args.library:
+        ap.error("--library-index keeps the takes of --library: name them too (--library TAKES)")
     if not 0.0 <= args.overlap < 1.0:
         ap.error("--overlap must be in [0, 1)")
     if args.device == "cuda" and not torch.cuda.is_available():
@@ -161,6 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         shard=shard,
         resume=args.resume,
         library=args.library,
+        library_index=args.library_index,
         **read_options(args),
     )
     return _until_stopped(run)

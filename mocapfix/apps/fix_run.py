@@ -19,10 +19,11 @@ from mocapfix.apps.fix_plan import RunPlan, plan_run
 from mocapfix.apps.processes import die_with_parent
 from mocapfix.core.clip import Clip, MotionFileError, shown
 from mocapfix.fills.errors import measure_take
-from mocapfix.fills.motion_matching import LIBRARY_S
+from mocapfix.fills.motion_matching import LIBRARY_S, MotionLibrary
 from mocapfix.fix import measure_recordings, motion_library
 from mocapfix.fix.fixer import Fixer
 from mocapfix.fix.fixers import load_fixer
+from mocapfix.fix.library_file import library_signature, load_library, save_library
 from mocapfix.fix.measure import model_fill
 from mocapfix.fix.output import FIXED
 from mocapfix.io import list_motion_files, read_motion
@@ -96,6 +97,7 @@ def fix_files(
     shard: tuple[int, int] = (0, 1),
     resume: bool = False,
     library: list[str] | None = None,
+    library_index: str | None = None,
     **read_options,
 ) -> int:
     """Fix every file; -> exit code (0 all written, 1 some failed). mode: MODES, None: the model's
@@ -106,7 +108,8 @@ def fix_files(
     file from the i-th (shard_of); resume: inputs whose output exists are skipped (outputs appear
     whole under their name, so it is complete). library: files or folders of other takes (the
     same performers, rig and studio) the motion-matching fills search besides the run's own
-    (fills/motion_matching.py)."""
+    (fills/motion_matching.py); library_index: a file the library is kept in between runs
+    (fix/library_file.py)."""
     out_stream, err = stdout or sys.stdout, stderr or sys.stderr
     fixer = _load(ckpt, device, precision, joint_map, joint_map_path, err)
     if fixer is None:
@@ -118,7 +121,8 @@ def fix_files(
         for line in problems:
             print(f"error: {line}", file=err)
         return 1
-    extra = _library_takes(library or [], source, err, read_options)
+    settings = {"source": source, "read_options": read_options, "joint_map": joint_map}
+    extra = _library(library or [], library_index, fixer, settings, err) if library else None
     mine = shard_of(files, shard)  # the policy below is the whole run's, whichever shard this is
     jobs = min(jobs, len(mine)) if jobs else default_jobs(device, len(mine))
     pool = None
@@ -271,17 +275,43 @@ def run_in_workers(pool: ProcessPoolExecutor, files, settings: RunSettings, err)
 POOLED_FILES = 32  # files of a run its fill policy is measured over (evenly spread)
 
 
-def _library_takes(paths: list[str], source: str, err, read_options: dict) -> list[list[Clip]]:
-    """The recordings of fix --library (files or folders); one that cannot be read is a warning
-    line and is left out (the library is evidence, not work to do), and so is a folder that cannot
-    be listed (the file system root, too many files: list_motion_files). Read in order until
-    LIBRARY_S seconds of takes: the search keeps no more (an hour-long library costs the reading
-    of its first 10 minutes), and a line says how many files were not read."""
+def _library(paths: list[str], index: str | None, fixer: Fixer, settings: dict, err) -> MotionLibrary | None:
+    """fix --library's takes at the model's joints (None where none maps), from the index file
+    when it was made from the same files and settings (fix/library_file.py), else read from them
+    (and saved into the index when one is named). settings: source, read_options, joint_map."""
+    files = _library_files(paths, settings["source"], err)
+    signature = library_signature(files, fixer.skeleton, settings) if index else None
+    if index:
+        try:
+            loaded = load_library(Path(index), signature, fixer.skeleton)
+        except MotionFileError as e:
+            print(f"warning: --library-index: {' '.join(str(e).split())}; read from the takes again", file=err)
+            loaded = None
+        if loaded is not None:
+            library, read, unread = loaded
+            minutes = sum(len(x) / fps for x, fps in library.takes) / 60
+            print(f"--library: {read} files ({minutes:.0f} min) from the index {shown(index)}", file=err)
+            return library
+    recordings, unread = _library_takes(files, settings["source"], err, settings["read_options"])
+    library = motion_library(recordings, fixer, settings["joint_map"]) if recordings else None
+    if index and library is not None:
+        try:
+            save_library(Path(index), library, signature, len(recordings), unread)
+            print(f"--library: index written to {shown(index)} (the next run with these takes reads it)", file=err)
+        except OSError as e:
+            print(f"warning: --library-index: {shown(index)}: cannot write it ({e.strerror or e}); not kept", file=err)
+    return library
+
+
+def _library_files(paths: list[str], source: str, err) -> list[Path]:
+    """The motion files of fix --library's files and folders, in order; a folder that cannot be
+    listed (the file system root, too many files: list_motion_files) is a warning line and is left
+    out (the library is evidence, not work to do)."""
 
     def left_out(e: MotionFileError) -> None:
         print(f"warning: --library: {' '.join(str(e).split())} (left out)", file=err)
 
-    recordings, seconds, unread = [], 0.0, 0
+    files: list[Path] = []
     for given in paths:
         try:
             listed = list_motion_files(given, source, on_error=left_out)
@@ -292,38 +322,49 @@ def _library_takes(paths: list[str], source: str, err, read_options: dict) -> li
             listed = [f for f in listed if not f.stem.endswith(FIXED)]
             if not listed:
                 left_out(MotionFileError(given, "no motion files in this folder"))
-        for path in listed:
-            if seconds >= LIBRARY_S:  # the search keeps no more (MotionLibrary): reading them is waste
-                unread += 1
-                continue
-            try:
-                clips = read_motion(path, source, **read_options)
-            except Exception as e:  # noqa: BLE001 -- any unreadable file: said in one line, left out
-                print(f"warning: --library: {_one_line(path, e)} (left out)", file=err)
-                continue
-            recordings.append(clips)
-            seconds += sum(c.duration_s for c in clips)
+        files += listed
+    return files
+
+
+def _library_takes(files: list[Path], source: str, err, read_options: dict) -> tuple[list[list[Clip]], int]:
+    """The recordings of fix --library's files -> (them, files not read); one that cannot be read
+    is a warning line and is left out. Read in order until LIBRARY_S seconds of takes: the search
+    keeps no more (an hour-long library costs the reading of its first 10 minutes), and a line
+    says how many files were not read."""
+    recordings, seconds, unread = [], 0.0, 0
+    for path in files:
+        if seconds >= LIBRARY_S:  # the search keeps no more (MotionLibrary): reading them is waste
+            unread += 1
+            continue
+        try:
+            clips = read_motion(path, source, **read_options)
+        except Exception as e:  # noqa: BLE001 -- any unreadable file: said in one line, left out
+            print(f"warning: --library: {_one_line(path, e)} (left out)", file=err)
+            continue
+        recordings.append(clips)
+        seconds += sum(c.duration_s for c in clips)
     if unread:
         print(
             f"--library: {len(recordings)} files ({seconds / 60:.0f} min) read; {unread} more not read: "
             f"motion matching searches the first {LIBRARY_S / 60:g} minutes of takes",
             file=err,
         )
-    return recordings
+    return recordings, unread
 
 
-def _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read_options, map_takes=None, extra=()):
+def _run_policy(
+    files, fixer, mode, source, overlap, batch_size, joint_map, read_options, map_takes=None, extra_library=None
+):
     """A run of several files (a folder of one performer or session): the fill policy measured
     over their holes together (fix/measure.py: measure_recordings), as each file
     alone has too few holes to rank the fills by (on 14 CMU takes, fix with each file's own
     policy was up to 2.7 mm above the best classical fill in 3 of 15 cells; pooled, within
     0.5 mm in all 15). None for a single file (it measures its own) or where no policy applies. A file that
-    cannot be read is left out here; its own turn reports it. extra: the --library recordings
-    -> (measured, the motion library of the same files and the extra ones: what every file's
-    motion-matching fills search)."""
+    cannot be read is left out here; its own turn reports it. extra_library: the --library takes
+    (_library) -> (measured, the motion library of the same files and then the extra ones: what
+    every file's motion-matching fills search)."""
     if not fixer.measures_policy or fixer.policy is None or mode == "denoise":
         return None, None
-    extra_library = motion_library(list(extra), fixer, joint_map) if extra else None
     if len(files) < 2:  # a single file measures its own policy, with the --library takes
         return None, extra_library
     recordings = []
@@ -337,4 +378,4 @@ def _run_policy(files, fixer, mode, source, overlap, batch_size, joint_map, read
     if not recordings:
         return None, extra_library
     measured = measure_recordings(recordings, fixer, mode, overlap, batch_size, joint_map, map_takes, extra_library)
-    return measured, motion_library(recordings + list(extra), fixer, joint_map)
+    return measured, motion_library(recordings, fixer, joint_map, extra_library) or extra_library

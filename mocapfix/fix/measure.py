@@ -110,10 +110,14 @@ def measure_views(
 
 
 def motion_library(
-    recordings: list[list[Clip]], fixer: Fixer, joint_map: dict[str, str] | None = None
+    recordings: list[list[Clip]],
+    fixer: Fixer,
+    joint_map: dict[str, str] | None = None,
+    library: MotionLibrary | None = None,
 ) -> MotionLibrary | None:
-    """The takes of several files (a run's) at the model's joints and their own fps, for the
-    motion-matching fills of every file of the run (fills/motion_matching.py); None where none maps."""
+    """The takes of several files (a run's) at the model's joints and their own fps, then
+    `library`'s (fix --library's), for the motion-matching fills of every file of the run
+    (fills/motion_matching.py); None where none maps."""
     takes, keys = [], []
     for clips in recordings:
         try:
@@ -122,4 +126,4 @@ def motion_library(
             continue
         takes += [(x, c.fps) for x, c in zip(view.x_in, clips)]
         keys += take_keys(clips)
-    return library_of(takes, keys, fixer.skeleton) if takes else None
+    return library_of(takes, keys, fixer.skeleton, library) if takes else None

@@ -11,6 +11,7 @@ position_fixer.py decides which passes a fix makes (the fill policy, jumps repla
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -32,8 +33,10 @@ from mocapfix.fix.write_back import clip_fixed
 
 
 def take_keys(clips: list[Clip]) -> list[tuple[str, int]]:
-    """What names each clip of a file in a MotionLibrary: (its file, its place in the file)."""
-    return [(c.source or c.name, i) for i, c in enumerate(clips)]
+    """What names each clip of a file in a MotionLibrary: (its file, its place in the file). The
+    file by its resolved path: `fix takes/a.bvh --library /data/takes` must know the library's
+    a.bvh for the take being fixed, or the policy's cut holes find their own truth there."""
+    return [(str(Path(c.source).resolve()) if c.source else c.name, i) for i, c in enumerate(clips)]
 
 
 def positions_pass(
