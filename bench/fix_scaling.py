@@ -8,6 +8,9 @@ wall seconds and peak resident memory. The policy is measured on every run (fix 
 
     python bench/fix_scaling.py                     # 4, 16, 64 copies (~15 min on 2 cores)
     python bench/fix_scaling.py --copies 1,4 --library /other/takes   # with fix --library
+    python bench/fix_scaling.py --copies 4,16 --library /other/takes --library-index
+        # the library read once into an index by a run on one take (its cost a row of its own),
+        # every timed run reading the index (fix --library-index)
 """
 
 from __future__ import annotations
@@ -85,10 +88,13 @@ def main(argv=None) -> int:
     ap.add_argument("--copies", default="4,16,64", help="comma-separated copies of the takes")
     ap.add_argument("--mode", default="infill", choices=("infill", "both"))
     ap.add_argument("--library", default=None, help="fix --library: a folder of other takes")
+    ap.add_argument("--library-index", action="store_true", help="with --library: read it once into an index")
     ap.add_argument("--json-out", default=None)
     args = ap.parse_args(argv)
+    if args.library_index and not args.library:
+        ap.error("--library-index needs --library")
     extra = ["--mode", args.mode] + (["--library", args.library] if args.library else [])
-    variant = args.mode + ("-library" if args.library else "")
+    variant = args.mode + ("-library" if args.library else "") + ("-index" if args.library_index else "")
     with tempfile.TemporaryDirectory(prefix="fix_scaling_") as tmp:
         work = Path(tmp)
         (work / "takes").mkdir()
@@ -98,6 +104,13 @@ def main(argv=None) -> int:
         rows: list[dict] = []
         result = {"env": describe(torch.device("cpu")), "data": args.data, "mode": args.mode, "library": args.library}
         result.update(rows=rows, stopped_early=True)
+        if args.library_index:  # made once, by a run on one take; every timed run below reads it
+            extra += ["--library-index", str(work / "library.index.npz")]
+            (work / "one").mkdir()
+            os.link(files[0], work / "one" / files[0].name)
+            build = fix(work / "one", work / "out_one", extra)
+            result["index_build"] = {k: round(v, 1) for k, v in build.items()}
+            print(f"index made by a run on one take: {result['index_build']}", flush=True)
         for copies in [int(c) for c in args.copies.split(",")]:
             folder = work / f"in{copies}"
             folder.mkdir()

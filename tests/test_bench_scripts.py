@@ -541,6 +541,10 @@ def test_fix_scaling(tmp_path, cmu_files):
     one, two = r["rows"]
     assert (one["files"], two["files"]) == (1, 2) and abs(two["minutes"] - 2 * one["minutes"]) < 0.02
     assert one["cpu_s"] > 0 and one["peak_mb"] > 50 and "marginal_cpu_s_per_min" in two
+    # with --library read once into an index, which the timed run reads
+    args = ["--copies", "1", "--library", tmp_path / "takes", "--library-index"]
+    r = bench("fix_scaling", "--data", tmp_path / "takes", "--min-seconds", "0", *args, tmp_path=tmp_path)
+    assert r["index_build"]["cpu_s"] > 0 and len(r["rows"]) == 1
 
 
 def test_match_search(tmp_path, cmu_files):
