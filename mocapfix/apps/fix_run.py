@@ -290,7 +290,8 @@ def _library(paths: list[str], index: str | None, fixer: Fixer, settings: dict, 
         if loaded is not None:
             library, read, unread = loaded
             minutes = sum(len(x) / fps for x, fps in library.takes) / 60
-            print(f"--library: {read} files ({minutes:.0f} min) from the index {shown(index)}", file=err)
+            more = f"; {unread} more not read: the search keeps {LIBRARY_S / 60:g} minutes" if unread else ""
+            print(f"--library: {read} files ({minutes:.0f} min) from the index {shown(index)}{more}", file=err)
             return library
     recordings, unread = _library_takes(files, settings["source"], err, settings["read_options"])
     library = motion_library(recordings, fixer, settings["joint_map"]) if recordings else None
