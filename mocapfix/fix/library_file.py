@@ -57,22 +57,19 @@ def library_signature(files: list[Path], skeleton: Skeleton, settings: dict) -> 
 
 
 def save_library(path: Path, library: MotionLibrary, signature: str, files_read: int, files_unread: int) -> None:
-    """The library's takes and keys into `path` (atomically: a run stopped while writing leaves the
-    previous file or none)."""
-    lengths = np.array([len(x) for x, _ in library.takes], dtype=np.int64)
-    J = library.takes[0][0].shape[1] if library.takes else 0
+    """The library's takes (at least one) and keys into `path` (atomically: a run stopped while
+    writing leaves the previous file or none)."""
     arrays = {
         "format": np.int64(INDEX_FORMAT),
         "signature": np.array(signature),
-        "positions": np.concatenate([x for x, _ in library.takes]) if library.takes else np.zeros((0, J, 3)),
-        "lengths": lengths,
+        "positions": np.concatenate([x for x, _ in library.takes]).astype(np.float32),  # (N, J, 3)
+        "lengths": np.array([len(x) for x, _ in library.takes], dtype=np.int64),
         "fps": np.array([fps for _, fps in library.takes], dtype=np.float64),
         "key_files": np.array([str(k[0]) for k in library.keys], dtype=str),
         "key_clips": np.array([int(k[1]) for k in library.keys], dtype=np.int64),
         "files_read": np.int64(files_read),
         "files_unread": np.int64(files_unread),
     }
-    arrays["positions"] = arrays["positions"].astype(np.float32)
     atomic_write(Path(path), lambda f: np.savez(f, **arrays))
 
 
