@@ -54,6 +54,19 @@ def test_spread_holes_are_at_the_same_places_for_every_part():
     assert starts.tolist() == [int((k + 1) * T / 5) - 7 for k in range(4)]
 
 
+def test_spread_holes_in_a_short_take_are_fewer_never_one_long_hole():
+    """Four 0.9-s holes in a 4.2-s take (125 frames at 30 fps) would touch: fewer are cut, each its
+    own 27 frames with data between; a take with room keeps four."""
+    from mocapfix.fills.holes import runs
+
+    short = spread_holes(125, SMPL.num_joints, 30.0, 0.9)
+    lengths = [e - s for s, e in runs(short.any(-1))]
+    assert lengths == [27, 27, 27]
+    gaps = np.diff([s for s, _ in runs(short.any(-1))]) - 27
+    assert gaps.min() >= 3  # 0.1 s of data between them
+    assert [e - s for s, e in runs(spread_holes(960, SMPL.num_joints, 120.0, 0.9).any(-1))] == [108] * 4
+
+
 def test_random_holes_cover_one_joint_each_and_repeat_with_the_seed():
     holes = random_holes(300, SMPL.num_joints, FPS, seed=3, count=5)
     assert holes.sum(-1).max() <= 5 and 15 <= holes.sum() <= 5 * 15

@@ -62,12 +62,20 @@ def corrupt_recording(
     return y, gap, displaced
 
 
-def spread_holes(num_frames: int, num_joints: int, fps: float, gap_s: float, joints=None, count=4) -> np.ndarray:
+def spread_holes(
+    num_frames: int, num_joints: int, fps: float, gap_s: float, joints=None, count=4, between_s=0.1
+) -> np.ndarray:
     """(T, J) bool: `count` holes of gap_s over `joints` (None: all), centred at 1/(count+1),
     2/(count+1), ... of the take: the same places for every part and length, so the cells of a
-    table differ by what is missing, not where."""
+    table differ by what is missing, not where. Fewer where the take cannot hold `count` with
+    between_s of data between them (the fill policy's own cut holes keep as much, fills/errors.py:
+    CONTEXT_S): four 0.9-s holes in a 4.2-s take would touch and make one 3.4-s hole, scored in
+    the 0.9-s cell (Bandai's test split had three such takes)."""
     mask = np.zeros((num_frames, num_joints), dtype=bool)
     n = max(1, int(round(gap_s * fps)))
+    between = max(1, int(round(between_s * fps)))
+    while count > 1 and num_frames / (count + 1) < n + between:
+        count -= 1
     for k in range(count):
         start = int((k + 1) * num_frames / (count + 1)) - n // 2
         mask[start : start + n, slice(None) if joints is None else list(joints)] = True
