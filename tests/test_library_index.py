@@ -90,6 +90,37 @@ def test_an_index_holding_a_pickle_is_refused_and_nothing_runs(tmp_path, monkeyp
     assert not (tmp_path / "SHOULD_NOT_EXIST").exists()
 
 
+def test_an_index_with_values_of_the_wrong_kind_is_one_clear_error(tmp_path):
+    from mocapfix.core.skeleton import preset
+    from mocapfix.fix.library_file import load_library
+
+    body = preset("body21")
+    good = {
+        "format": np.int64(1),
+        "signature": np.array("s"),
+        "positions": np.zeros((30, body.num_joints, 3), np.float32),
+        "lengths": np.array([30]),
+        "fps": np.array([30.0]),
+        "key_files": np.array(["a.npz"]),
+        "key_clips": np.array([0]),
+    }
+    broken = [
+        {"format": np.array("1")},
+        {"fps": np.array(["thirty"])},
+        {"fps": np.array([1e9])},
+        {"key_clips": np.array(["zero"])},
+        {"lengths": np.array([], dtype=np.int64), "positions": np.zeros((0, body.num_joints, 3), np.float32)},
+        {"lengths": np.array([29])},
+        {"positions": np.full((30, body.num_joints, 3), np.inf, np.float32)},
+    ]
+    for i, change in enumerate(broken):
+        np.savez(tmp_path / f"i{i}.npz", **{**good, **change})
+        with pytest.raises(MotionFileError, match=f"i{i}.npz"):
+            load_library(tmp_path / f"i{i}.npz", "s", body)
+    np.savez(tmp_path / "ok.npz", **good)
+    assert load_library(tmp_path / "ok.npz", "s", body)[0].keys == [("a.npz", 0)]
+
+
 def test_an_index_made_for_other_joints_or_takes_is_not_used(tmp_path):
     from mocapfix.core.skeleton import preset
     from mocapfix.fills.motion_matching import MotionLibrary

@@ -70,7 +70,7 @@ def spread_holes(
     table differ by what is missing, not where. Fewer where the take cannot hold `count` with
     between_s of data between them (the fill policy's own cut holes keep as much, fills/errors.py:
     CONTEXT_S): four 0.9-s holes in a 4.2-s take would touch and make one 3.4-s hole, scored in
-    the 0.9-s cell (Bandai's test split had three such takes)."""
+    the 0.9-s cell (four of Bandai's test takes had such holes)."""
     mask = np.zeros((num_frames, num_joints), dtype=bool)
     n = max(1, int(round(gap_s * fps)))
     between = max(1, int(round(between_s * fps)))

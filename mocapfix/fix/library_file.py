@@ -85,27 +85,34 @@ def load_library(path: Path, signature: str, skeleton: Skeleton) -> tuple[Motion
         if missing:
             raise MotionFileError(path, f"not a mocapfix library index (no {', '.join(sorted(missing))})")
         arrays = {key: npz_array(path, data, key) for key in data.files}
-    if arrays["format"].shape != () or int(arrays["format"]) != INDEX_FORMAT:
-        return None  # another version's: made again
-    if arrays["signature"].shape != () or str(arrays["signature"]) != signature:
-        return None
+
+    def whole(key: str) -> int | None:  # a scalar whole number, else None
+        a = arrays.get(key)
+        return int(a) if a is not None and a.shape == () and np.issubdtype(a.dtype, np.integer) else None
+
+    if whole("format") is None or arrays["signature"].shape != () or arrays["signature"].dtype.kind != "U":
+        raise MotionFileError(path, "not a mocapfix library index (its format or signature is not one)")
+    if whole("format") != INDEX_FORMAT or str(arrays["signature"]) != signature:
+        return None  # another version's, or made from other takes or settings: made again
     positions, lengths, fps = arrays["positions"], arrays["lengths"], arrays["fps"]
-    K, J = len(lengths), len(skeleton.joint_names)
+    J = len(skeleton.joint_names)
     if positions.dtype != np.float32 or positions.ndim != 3 or positions.shape[1:] != (J, 3):
         raise MotionFileError(path, f"positions {positions.dtype} {positions.shape}, expected float32 (N, {J}, 3)")
     if np.isinf(positions).any():
         raise MotionFileError(path, "positions hold infinite values")
-    if lengths.ndim != 1 or not np.issubdtype(lengths.dtype, np.integer) or (lengths < 1).any():
-        raise MotionFileError(path, "lengths are not positive whole numbers of frames")
+    if lengths.ndim != 1 or not len(lengths) or not np.issubdtype(lengths.dtype, np.integer) or (lengths < 1).any():
+        raise MotionFileError(path, "lengths are not one or more positive whole numbers of frames")
     if lengths.sum() != len(positions):
         raise MotionFileError(path, f"lengths add up to {lengths.sum()} frames, positions hold {len(positions)}")
-    for name in ("fps", "key_files", "key_clips"):
-        if arrays[name].shape != (K,):
-            raise MotionFileError(path, f"{name} has shape {arrays[name].shape}, expected ({K},)")
+    K = len(lengths)
+    kinds = {"fps": ("f", "frame rates"), "key_files": ("U", "file names"), "key_clips": ("i", "whole numbers")}
+    for name, (kind, what) in kinds.items():
+        if arrays[name].shape != (K,) or arrays[name].dtype.kind != kind:
+            a = arrays[name]
+            raise MotionFileError(path, f"{name} is {a.dtype} {a.shape}, expected {K} {what}, one per take")
     for rate in fps:
-        check_frame_rate(path, float(rate))
+        check_frame_rate(path, rate)
     ends = np.cumsum(lengths)
     takes = [(positions[e - n : e], float(rate)) for e, n, rate in zip(ends, lengths, fps)]
     keys = [(str(f), int(c)) for f, c in zip(arrays["key_files"], arrays["key_clips"])]
-    counts = [int(arrays[k]) if k in arrays and arrays[k].shape == () else 0 for k in ("files_read", "files_unread")]
-    return MotionLibrary(takes, keys, mirror_of(skeleton)), counts[0], counts[1]
+    return MotionLibrary(takes, keys, mirror_of(skeleton)), whole("files_read") or 0, whole("files_unread") or 0
