@@ -121,8 +121,8 @@ def fix_files(
         for line in problems:
             print(f"error: {line}", file=err)
         return 1
-    settings = {"source": source, "read_options": read_options, "joint_map": joint_map}
-    extra = _library(library or [], library_index, fixer, settings, err) if library else None
+    reading = {"source": source, "read_options": read_options, "joint_map": joint_map}
+    extra = _library(library or [], library_index, fixer, reading, err) if library else None
     mine = shard_of(files, shard)  # the policy below is the whole run's, whichever shard this is
     jobs = min(jobs, len(mine)) if jobs else default_jobs(device, len(mine))
     pool = None
@@ -275,12 +275,12 @@ def run_in_workers(pool: ProcessPoolExecutor, files, settings: RunSettings, err)
 POOLED_FILES = 32  # files of a run its fill policy is measured over (evenly spread)
 
 
-def _library(paths: list[str], index: str | None, fixer: Fixer, settings: dict, err) -> MotionLibrary | None:
+def _library(paths: list[str], index: str | None, fixer: Fixer, reading: dict, err) -> MotionLibrary | None:
     """fix --library's takes at the model's joints (None where none maps), from the index file
-    when it was made from the same files and settings (fix/library_file.py), else read from them
-    (and saved into the index when one is named). settings: source, read_options, joint_map."""
-    files = _library_files(paths, settings["source"], err)
-    signature = library_signature(files, fixer.skeleton, settings) if index else None
+    when it was made from the same files and reading settings (fix/library_file.py), else read from them
+    (and saved into the index when one is named). reading: source, read_options, joint_map."""
+    files = _library_files(paths, reading["source"], err)
+    signature = library_signature(files, fixer.skeleton, reading) if index else None
     if index:
         try:
             loaded = load_library(Path(index), signature, fixer.skeleton)
@@ -293,8 +293,8 @@ def _library(paths: list[str], index: str | None, fixer: Fixer, settings: dict, 
             more = f"; {unread} more not read: the search keeps {LIBRARY_S / 60:g} minutes" if unread else ""
             print(f"--library: {read} files ({minutes:.0f} min) from the index {shown(index)}{more}", file=err)
             return library
-    recordings, unread = _library_takes(files, settings["source"], err, settings["read_options"])
-    library = motion_library(recordings, fixer, settings["joint_map"]) if recordings else None
+    recordings, unread = _library_takes(files, reading["source"], err, reading["read_options"])
+    library = motion_library(recordings, fixer, reading["joint_map"]) if recordings else None
     if index and library is not None:
         try:
             save_library(Path(index), library, signature, len(recordings), unread)
