@@ -122,7 +122,7 @@ def fix_files(
             print(f"error: {line}", file=err)
         return 1
     reading = {"source": source, "read_options": read_options, "joint_map": joint_map}
-    extra = _library(library or [], library_index, fixer, reading, err) if library else None
+    extra = _library(library, library_index, fixer, reading, err) if library else None
     mine = shard_of(files, shard)  # the policy below is the whole run's, whichever shard this is
     jobs = min(jobs, len(mine)) if jobs else default_jobs(device, len(mine))
     pool = None

@@ -90,9 +90,10 @@ def load_library(path: Path, signature: str, skeleton: Skeleton) -> tuple[Motion
         a = arrays.get(key)
         return int(a) if a is not None and a.shape == () and np.issubdtype(a.dtype, np.integer) else None
 
-    if whole("format") is None or arrays["signature"].shape != () or arrays["signature"].dtype.kind != "U":
+    made_as = whole("format")
+    if made_as is None or arrays["signature"].shape != () or arrays["signature"].dtype.kind != "U":
         raise MotionFileError(path, "not a mocapfix library index (its format or signature is not one)")
-    if whole("format") != INDEX_FORMAT or str(arrays["signature"]) != signature:
+    if made_as != INDEX_FORMAT or str(arrays["signature"]) != signature:
         return None  # another version's, or made from other takes or settings: made again
     positions, lengths, fps = arrays["positions"], arrays["lengths"], arrays["fps"]
     J = len(skeleton.joint_names)
