@@ -66,6 +66,34 @@ def test_exchanges_of_3_to_30_frames_are_put_back(body21_takes):
     assert tried >= 30 and put_back >= 0.95 * tried
 
 
+def test_exchanges_under_a_trackers_jitter_are_put_back(body21_takes):
+    """25 mm of jitter per coordinate (a depth camera's): a frame-by-frame test against where the
+    limbs were heading put back 75 % of these on Bandai's takes; the whole-take labelling 98.6 %."""
+    rng = np.random.default_rng(2)
+    put_back = tried = 0
+    for x in body21_takes:
+        noisy = x + rng.normal(scale=0.025, size=x.shape)
+        for pair in (("left_arm", "right_arm"), ("left_leg", "right_leg")):
+            frames = int(rng.integers(3, 31))
+            if len(x) < frames + 20:
+                continue
+            start = int(rng.integers(10, len(x) - frames - 10))
+            y, runs, n = put_back_exchanges(exchange(noisy, pair, start, frames), BODY, 30.0)
+            tried += 1
+            put_back += bool(np.array_equal(y, noisy) and runs == 1 and n == frames)
+    assert tried >= 60 and put_back >= 0.95 * tried
+
+
+def test_an_absurd_first_frame_does_not_set_the_labels(body21_takes):
+    """A CMU take's first frame is a T-pose: whichever labelling it reads as, the take's own is
+    that of the frames after it, and an exchange later on is put back."""
+    x = body21_takes[1].copy()
+    x[0] = x[0, :1] + np.random.default_rng(3).normal(scale=0.5, size=x[0].shape)  # limbs anywhere
+    swapped = exchange(x, ("left_arm", "right_arm"), 30, 12)
+    y, runs, n = put_back_exchanges(swapped, BODY, 30.0)
+    assert runs == 1 and n == 12 and np.array_equal(y, x)
+
+
 def test_an_exchange_longer_than_the_limit_is_the_takes_own_labelling(body21_takes):
     x = max(body21_takes, key=len)
     swapped = exchange(x, ("left_leg", "right_leg"), 10, len(x) - 10)  # exchanged from frame 10 on
