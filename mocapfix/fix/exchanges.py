@@ -2,16 +2,16 @@
 which side is which), found and put back.
 
 Each pair of limbs (the arms, the legs: the skeleton's limb groups, top joint and below) gets a
-labelling per frame, as recorded or exchanged, chosen over the whole take at once (Viterbi over
-the two labellings): the labelling whose limbs move least from frame to frame (the mean joint
-distance between consecutive frames, as labelled), each change of labelling costing a switch.
-A frame-by-frame test against where the limbs were heading (constant velocity) needed a margin of
-the take's own misses, and under a tracker's 25 mm of jitter a heading misses by ~10 cm: it put
-back 75 % of the exchanges of 3-30 frames on Bandai's takes; the whole-take labelling, whose
-consecutive-frame distances carry half the jitter's spread and see the frames after a run too,
-puts back 98.6 % (bench/exchanges.py). The switch costs SWITCH_M or SWITCH_NOISE times the
-take's median frame-to-frame distance, whichever is more: under 6-12 cm of jitter on every joint
-a switch at 0.4 of it invented runs (3 in 228 takes), at 0.5 none.
+labelling per frame, as recorded or exchanged, chosen over the whole take at once (Viterbi over the
+two labellings): the labelling whose limbs move least from frame to frame (the mean joint distance
+between consecutive frames, as labelled), each change of labelling costing a switch. A frame-by-
+frame test against where the limbs were heading (constant velocity) needed a margin of the take's
+own misses, and under a tracker's 25 mm of jitter a heading misses by ~10 cm: it put back 75 % of
+the exchanges of 3-30 frames on Bandai's takes; the whole-take labelling, whose consecutive-frame
+distances carry sqrt(2) times the jitter (a heading sqrt(6)) and see the frames after a run too,
+puts back 98.6 % (bench/exchanges.py). The switch costs SWITCH_M or SWITCH_NOISE times the take's
+median frame-to-frame distance, whichever is more: under 6-12 cm of jitter on every joint a switch
+at 0.4 of it invented runs (3 in 228 takes), at 0.5 none.
 The take's own labelling is that of its first stretch of MIN_LABEL_S or more (a CMU take's first
 frame, a calibration pose 20-30 cm from the next, labels nothing). A run of the other labelling is
 put back only if it is short (MAX_EXCHANGE_S) and has frames of the take's own on both sides: a
