@@ -69,10 +69,10 @@ def read_options(args, fps: bool = True) -> dict:
 _EXTENSIONS = {
     "bvh": (".bvh",),
     "positions": (".npz", ".csv"),
-    "keypoints": (".npy", ".npz", ".skeleton", ".json"),  # .json: Azure Kinect's; not in auto's walks
+    "keypoints": (".npy", ".npz", ".skeleton", ".skl", ".json"),  # .json: Azure Kinect's; not in auto's walks
     "h36m": (".npz", ".txt"),  # .txt: the exponential-map files of the motion-prediction papers
     "amass": (".npz",),
-    "auto": (".bvh", ".csv", ".npz", ".npy", ".skeleton"),
+    "auto": (".bvh", ".csv", ".npz", ".npy", ".skeleton", ".skl"),
 }
 # AMASS folders keep each subject's betas in shape.npz beside the motions: not a motion.
 _NOT_MOTION = {"shape.npz"}
@@ -100,8 +100,8 @@ def _read_keypoints(
     path, layout=None, min_confidence: float = 0.0, unit="auto", up_axis="auto", fps=None, groups=None
 ) -> list[Clip]:
     """Keypoints as trackers hand them over: an array in a published layout (.npy/.npz,
-    io/keypoints.py), Kinect v2 skeleton text (.skeleton, io/kinect_skeleton.py) or Azure
-    Kinect body tracking (.json, io/azure_kinect.py)."""
+    io/keypoints.py), Kinect v2 skeleton text (.skeleton, io/kinect_skeleton.py), a Kinect body
+    log (.skl, io/kinect_log.py) or Azure Kinect body tracking (.json, io/azure_kinect.py)."""
     suffix = Path(path).suffix.lower()
     if suffix == ".skeleton":
         from mocapfix.io.kinect_skeleton import read_kinect_skeleton
@@ -111,6 +111,10 @@ def _read_keypoints(
         from mocapfix.io.azure_kinect import read_azure_kinect
 
         return read_azure_kinect(path, unit, fps, groups)
+    if suffix == ".skl":
+        from mocapfix.io.kinect_log import read_kinect_log
+
+        return read_kinect_log(path, min_confidence, unit, up_axis, fps, groups)
     from mocapfix.io.keypoints import read_keypoints
 
     return read_keypoints(path, layout, min_confidence, unit, up_axis, fps, groups)
@@ -136,7 +140,7 @@ def detect_source(path) -> str:
         return "bvh"
     if suffix == ".csv":
         return "positions"
-    if suffix in (".npy", ".skeleton", ".json"):  # a keypoint array; Kinect v2's text; Azure Kinect's JSON
+    if suffix in (".npy", ".skeleton", ".skl", ".json"):  # a keypoint array; Kinect text and logs; Azure's JSON
         return "keypoints"
     if suffix == ".txt":  # named alone: a folder's .txt files are listed only for --source h36m
         return "h36m"
@@ -162,7 +166,9 @@ def detect_source(path) -> str:
             "or poses+trans (AMASS)",
         )
     raise MotionFileError(
-        path, f"unknown file type {suffix or '(no extension)'!r}; known: .bvh, .csv, .npz, .npy, .skeleton, .json, .txt"
+        path,
+        f"unknown file type {suffix or '(no extension)'!r}; "
+        "known: .bvh, .csv, .npz, .npy, .skeleton, .skl, .json, .txt",
     )
 
 
