@@ -92,7 +92,7 @@ def bvh_with_channels(src: Path, dst: Path, kept: dict[str, list[str]], frames: 
 
 
 @fifos
-@pytest.mark.parametrize("name", ["take.bvh", "take.csv", "take.npz"])
+@pytest.mark.parametrize("name", ["take.bvh", "take.csv", "take.npz", "take.skl"])
 def test_a_fifo_as_input_is_refused_at_once(tmp_path, name):
     f = tmp_path / name
     os.mkfifo(f)
