@@ -4,6 +4,7 @@ none is invented in a clean take."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from cli_utils import run_mocapfix
 
 from mocapfix.core.skeleton import preset
@@ -51,28 +52,15 @@ def test_jitter_far_over_a_shoulders_width_invents_no_exchange(body21_takes):
     assert invented <= 1
 
 
-def test_exchanges_of_3_to_30_frames_are_put_back(body21_takes):
-    rng = np.random.default_rng(1)
-    put_back = tried = 0
-    for i, x in enumerate(body21_takes):
-        pair = (("left_arm", "right_arm"), ("left_leg", "right_leg"))[i % 2]
-        frames = int(rng.integers(3, 31))
-        if len(x) < frames + 20:
-            continue
-        start = int(rng.integers(10, len(x) - frames - 10))
-        y, runs, n = put_back_exchanges(exchange(x, pair, start, frames), BODY, 30.0)
-        tried += 1
-        put_back += bool(np.array_equal(y, x) and runs == 1 and n == frames)
-    assert tried >= 30 and put_back >= 0.95 * tried
-
-
-def test_exchanges_under_a_trackers_jitter_are_put_back(body21_takes):
-    """25 mm of jitter per coordinate (a depth camera's): a frame-by-frame test against where the
-    limbs were heading put back 75 % of these on Bandai's takes; the whole-take labelling 98.6 %."""
+@pytest.mark.parametrize("jitter_m", [0.0, 0.025])
+def test_exchanges_of_3_to_30_frames_are_put_back(body21_takes, jitter_m):
+    """Clean, and under 25 mm of jitter per coordinate (a depth camera's): a frame-by-frame test
+    against where the limbs were heading put back 75 % of these on Bandai's takes at 25 mm (58 of
+    these 90); the whole-take labelling 98.6 %."""
     rng = np.random.default_rng(2)
     put_back = tried = 0
     for x in body21_takes:
-        noisy = x + rng.normal(scale=0.025, size=x.shape)
+        noisy = x + rng.normal(scale=jitter_m, size=x.shape)
         for pair in (("left_arm", "right_arm"), ("left_leg", "right_leg")):
             frames = int(rng.integers(3, 31))
             if len(x) < frames + 20:

@@ -34,7 +34,7 @@ from mocapfix.io.files import atomic_write
 from mocapfix.io.keypoints import frame_slots, layout_skeleton_of
 from mocapfix.io.layouts import layout
 from mocapfix.io.positions import _check_fps, _clips, _fps_from_times
-from mocapfix.io.untrusted import read_bytes
+from mocapfix.io.untrusted import read_text_lines
 
 LAYOUTS = ("kinect25", "kinect20")  # v2 first: its joints include most of v1's names
 ALIASES = {"SpineShoulder": "ShoulderCenter"}  # a v2 joint some logs name as v1 did
@@ -77,12 +77,7 @@ def read_kinect_log(
     path, min_confidence: float = 0.0, unit: str = "auto", up_axis: str = "auto", fps: float | None = None, groups=None
 ) -> list[Clip]:
     path = Path(path)
-    try:
-        text = read_bytes(path, "Kinect log").decode("utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise MotionFileError(path, f"cannot read as text ({type(e).__name__})") from None
-    lines = text.splitlines()
-    newline = "\r\n" if "\r\n" in text else "\n"
+    lines, newline = read_text_lines(path, "Kinect log")
     header = lines[0].split("\t") if lines else []
     if "timestamp" not in header:
         raise MotionFileError(path, "not a Kinect body log: no tab-separated header with a 'timestamp' column")

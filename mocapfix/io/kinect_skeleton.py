@@ -31,7 +31,7 @@ from mocapfix.io.files import atomic_write
 from mocapfix.io.keypoints import layout_skeleton_of
 from mocapfix.io.layouts import layout
 from mocapfix.io.positions import _check_fps, _clips
-from mocapfix.io.untrusted import read_bytes
+from mocapfix.io.untrusted import read_text_lines
 
 KINECT_FPS = 30.0
 BODY_FIELDS, JOINT_FIELDS = 10, 12
@@ -78,12 +78,7 @@ def read_kinect_skeleton(
     path, min_confidence: float = 0.0, unit: str = "auto", up_axis: str = "auto", fps: float | None = None, groups=None
 ) -> list[Clip]:
     path = Path(path)
-    try:
-        text = read_bytes(path, "skeleton file").decode("utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise MotionFileError(path, f"cannot read as text ({type(e).__name__})") from None
-    lines = text.splitlines()
-    newline = "\r\n" if "\r\n" in text else "\n"
+    lines, newline = read_text_lines(path, "skeleton file")
     frames, bodies = _parse(path, lines)
     if not bodies:
         raise MotionFileError(path, f"{frames} frames and no body in any: nothing was tracked")

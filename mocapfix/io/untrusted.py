@@ -68,6 +68,16 @@ def read_bytes(path, what: str = "file", limit: int = MAX_TEXT_BYTES) -> bytes:
         return f.read(size)
 
 
+def read_text_lines(path, what: str) -> tuple[list[str], str]:
+    """A text file a writer puts back line by line -> (its lines, its newline: "\r\n" or "\n");
+    unreadable or not UTF-8: the file's one-line error."""
+    try:
+        text = read_bytes(path, what).decode("utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise MotionFileError(path, f"cannot read as text ({type(e).__name__})") from None
+    return text.splitlines(), "\r\n" if "\r\n" in text else "\n"
+
+
 def check_size(path, size: int, what: str, limit: int = MAX_TEXT_BYTES) -> None:
     if size > limit:
         raise MotionFileError(
