@@ -117,6 +117,16 @@ def frame_slots(path: Path, times: np.ndarray | None, rows: int, fps: float) -> 
     return slots
 
 
+def on_clock(rows: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """rows: (T, ...) the file's rows, slots: (T,) non-decreasing, the clock frame of each
+    (frame_slots) -> (N, ...) on the clock, NaN where no row falls; a row repeating its frame is
+    read once (the first)."""
+    first = np.concatenate([[True], slots[1:] != slots[:-1]])
+    clock = np.full((int(slots[-1]) + 1,) + rows.shape[1:], np.nan)
+    clock[slots[first]] = rows[first]
+    return clock
+
+
 def layout_skeleton_of(path: Path, lay, groups=None):
     """The layout's skeleton and order (layouts.layout_skeleton) with a user's limb groups; a
     group naming a joint the layout lacks is the file's one-line error."""
@@ -193,10 +203,9 @@ def read_keypoints(
                 path, f"no joint has a confidence above {min_confidence:g} in any frame: nothing was tracked"
             )
         xyz[~seen] = np.nan
-    first = np.concatenate([[True], slots[1:] != slots[:-1]])  # a row repeating a frame: read once
-    clock = np.full((raw.shape[0], int(slots[-1]) + 1) + xyz.shape[2:], np.nan)  # (P, N, J, 3)
-    clock[:, slots[first]] = xyz[:, first]
-    dropped, repeated = clock.shape[1] - int(first.sum()), int((~first).sum())
+    clock = on_clock(xyz.swapaxes(0, 1), slots).swapaxes(0, 1)  # (P, N, J, 3)
+    repeated = int((np.diff(slots) == 0).sum())
+    dropped = clock.shape[1] - (rows - repeated)
     if dropped or repeated:
         log.warning(
             "warning: %s: %d frames missing from the %g-fps clock (holes), %d rows repeating a frame (read once)",

@@ -31,7 +31,7 @@ import numpy as np
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
-from mocapfix.io.keypoints import frame_slots, layout_skeleton_of
+from mocapfix.io.keypoints import frame_slots, layout_skeleton_of, on_clock
 from mocapfix.io.layouts import layout
 from mocapfix.io.positions import _check_fps, _clips, _fps_from_times
 from mocapfix.io.untrusted import read_text_lines
@@ -114,10 +114,7 @@ def read_kinect_log(
     takes = []  # (its frames on the clock, the line of each row, the clock frame of each row)
     for a, b in zip(bounds[:-1], bounds[1:]):
         slots = frame_slots(path, seconds[a:b], b - a, fps)
-        first = np.concatenate([[True], slots[1:] != slots[:-1]])  # a line repeating a tick: read once
-        clock = np.full((int(slots[-1]) + 1, len(order), 3), np.nan)
-        clock[slots[first]] = xyz[a:b][first]
-        takes.append((clock, np.array(rows[a:b]), slots))
+        takes.append((on_clock(xyz[a:b], slots), np.array(rows[a:b]), slots))
     frames = max(len(c) for c, _, _ in takes)
     raw = np.full((len(takes), frames, len(order), 3), np.nan)  # (P, N, J, 3) padded to the longest take
     for p, (clock, _, _) in enumerate(takes):
