@@ -53,6 +53,7 @@ def test_a_v1_log_on_the_clock_and_fix_in_its_own_lines(tmp_path, body_take, cap
     assert clips[0].meta["layout"] == "kinect20"
     rc, out, err = run_mocapfix(["fix", path, "--model", "xmae-cpu-bandai"], capsys)
     assert rc == 0, err
+    assert "120 frames, 2 takes," in err + out  # the takes one after another, not two people at once
     back = (tmp_path / "walk.fixed.skl").read_bytes().decode()
     assert back.count("\r\n") == text.count("\r\n")
     before, after = text.splitlines(), back.splitlines()

@@ -18,6 +18,7 @@ from mocapfix.core.clip import MotionFileError, shown
 from mocapfix.fills.motion_matching import MotionLibrary
 from mocapfix.fix.files import FixedFile, fix_recording, read_recording
 from mocapfix.fix.fixer import Fixer, FixOptions
+from mocapfix.fix.report import ONE_AFTER_ANOTHER
 from mocapfix.io.files import check_output, claimed, staged, writing
 
 LONG_INPUT_S = 600.0  # progress is shown for inputs this long even when stderr is not a terminal
@@ -137,8 +138,7 @@ def report_text(fixed: FixedFile, seconds: float, as_json: bool) -> str:
         return json.dumps(
             {"input": str(path), "output": str(target), **fields, "seconds": round(seconds, 3), "notes": notes}
         )
-    h36m = fixed.inputs[0].meta.get("format") == "h36m"
-    kind = "sequences" if h36m else "person" if report.people == 1 else "people"
+    kind = ONE_AFTER_ANOTHER.get(fixed.inputs[0].meta.get("format")) or ("person" if report.people == 1 else "people")
     line = (
         f"{shown(path)} -> {shown(target)}: {report.frames} frames, {report.people} {kind}, "
         f"{report.filled} tokens filled, {report.replaced} replaced ({report.mode}, {report.model}), "

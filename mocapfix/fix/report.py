@@ -137,13 +137,21 @@ def who(clips: list[Clip]) -> Callable[[int], str]:
         c = clips[i]
         if len(clips) == 1:
             return ""
-        return f"sequence {c.name}: " if c.meta.get("format") == "h36m" else f"person {c.meta.get('person_id', i)}: "
+        if c.meta.get("format") == "h36m":
+            return f"sequence {c.name}: "
+        word = "take" if c.meta.get("format") in ONE_AFTER_ANOTHER else "person"
+        return f"{word} {c.meta.get('person_id', i)}: "
 
     return name
 
 
+# Formats whose clips follow one another in time, not people seen together: Human3.6M's sequences
+# of one subject, a Kinect log's takes between the pauses -> the word a report counts them by.
+ONE_AFTER_ANOTHER = {"h36m": "sequences", "keypoints-kinect-log": "takes"}
+
+
 def frames_and_people(clips: list[Clip]) -> tuple[int, int]:
-    """Frames per person and people, as a report gives them (Human3.6M's clips are sequences of one
-    subject, laid end to end, not people)."""
+    """Frames per person and people, as a report gives them (clips one after another,
+    ONE_AFTER_ANOTHER, add their frames up)."""
     total = sum(c.num_frames for c in clips)
-    return (total if clips[0].meta.get("format") == "h36m" else total // len(clips)), len(clips)
+    return (total if clips[0].meta.get("format") in ONE_AFTER_ANOTHER else total // len(clips)), len(clips)
