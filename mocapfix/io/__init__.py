@@ -69,7 +69,8 @@ def read_options(args, fps: bool = True) -> dict:
 _EXTENSIONS = {
     "bvh": (".bvh",),
     "positions": (".npz", ".csv"),
-    "keypoints": (".npy", ".npz", ".skeleton", ".skl", ".json"),  # .json: Azure Kinect's; not in auto's walks
+    # .json (Azure Kinect's, MediaPipe's) and .txt (UTKinect / MSR Action3D skeletons): not in auto's walks
+    "keypoints": (".npy", ".npz", ".skeleton", ".skl", ".json", ".txt"),
     "h36m": (".npz", ".txt"),  # .txt: the exponential-map files of the motion-prediction papers
     "amass": (".npz",),
     "auto": (".bvh", ".csv", ".npz", ".npy", ".skeleton", ".skl"),
@@ -101,8 +102,13 @@ def _read_keypoints(
 ) -> list[Clip]:
     """Keypoints as trackers hand them over: an array in a published layout (.npy/.npz,
     io/keypoints.py), Kinect v2 skeleton text (.skeleton, io/kinect_skeleton.py), a Kinect body
-    log (.skl, io/kinect_log.py) or Azure Kinect body tracking (.json, io/azure_kinect.py)."""
+    log (.skl, io/kinect_log.py), Azure Kinect body tracking (.json, io/azure_kinect.py) or the
+    action datasets' Kinect v1 skeleton text (.txt, io/kinect_text.py)."""
     suffix = Path(path).suffix.lower()
+    if suffix == ".txt":
+        from mocapfix.io.kinect_text import read_kinect_text
+
+        return read_kinect_text(path, unit, up_axis, fps, groups)
     if suffix == ".skeleton":
         from mocapfix.io.kinect_skeleton import read_kinect_skeleton
 
@@ -142,8 +148,8 @@ def detect_source(path) -> str:
         return "positions"
     if suffix in (".npy", ".skeleton", ".skl", ".json"):  # a keypoint array; Kinect text and logs; Azure's JSON
         return "keypoints"
-    if suffix == ".txt":  # named alone: a folder's .txt files are listed only for --source h36m
-        return "h36m"
+    if suffix == ".txt":  # named alone: a folder's .txt files are listed only for --source h36m / keypoints
+        return _text_source(path)
     if suffix == ".npz":
         from mocapfix.io.npz import listed_keys, load_npz
 
@@ -169,6 +175,27 @@ def detect_source(path) -> str:
         path,
         f"unknown file type {suffix or '(no extension)'!r}; "
         "known: .bvh, .csv, .npz, .npy, .skeleton, .skl, .json, .txt",
+    )
+
+
+def _text_source(path: Path) -> str:
+    """A .txt file's source by its first line: comma-separated exponential maps (Human3.6M) or a
+    Kinect skeleton's whitespace-separated numbers (UTKinect-Action3D, MSR Action3D)."""
+    from mocapfix.io.kinect_text import kinect_text_kind
+    from mocapfix.io.untrusted import open_regular
+
+    with open_regular(path, "text file") as f:
+        first = f.read(64 << 10).decode("utf-8", errors="replace").lstrip().split("\n", 1)[0]
+    if not first.strip():
+        raise MotionFileError(path, "empty file")
+    if "," in first:
+        return "h36m"
+    if kinect_text_kind(first) is not None:
+        return "keypoints"
+    raise MotionFileError(
+        path,
+        f"a .txt file of {len(first.split())} numbers a line: neither Human3.6M exponential maps (99, "
+        "comma-separated) nor a Kinect skeleton (UTKinect-Action3D 61, MSR Action3D 4)",
     )
 
 
