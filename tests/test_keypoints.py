@@ -137,6 +137,33 @@ def test_a_shape_no_layout_has_and_a_wrong_layout_are_one_line_errors(tmp_path):
         read_motion(path, layout="coco17")
 
 
+@pytest.mark.parametrize("face", [468, 478])
+def test_freemocaps_whole_skeleton_array_is_its_body_with_hands_and_face_carried(tmp_path, body_take, face, capsys):
+    """FreeMoCap's `mediapipe_skeleton_3d.npy`: body 33, right hand 21, left hand 21, face 468
+    (before 1.4) or 478, mm. The body is read as mediapipe33 and fixed; the other points come back
+    as read, NaN included."""
+    body = from_z_up(in_layout("mediapipe33", body_take), "y") * 1000.0
+    rng = np.random.default_rng(0)
+    rest = rng.normal(0.0, 100.0, (len(body), 42 + face, 3)) + body[:, :1]
+    rest[::7, :21] = np.nan  # the right hand not detected in every 7th frame
+    file = np.concatenate([body, rest], axis=1)
+    wrist = LAYOUTS["mediapipe33"].joint_names.index("left_wrist")
+    file[30:40, wrist] = np.nan
+    np.save(tmp_path / "mediapipe_skeleton_3d.npy", file)
+    (clip,) = read_motion(tmp_path / "mediapipe_skeleton_3d.npy", fps=30)
+    assert clip.meta["layout"] == "mediapipe33" and clip.skeleton.num_joints == 33
+    rc, out, err = run_mocapfix(
+        ["fix", tmp_path / "mediapipe_skeleton_3d.npy", "--fps", "30", "--model", "xmae-cpu-bandai"], capsys
+    )
+    assert rc == 0, err
+    back = np.load(tmp_path / "mediapipe_skeleton_3d.fixed.npy")
+    assert back.shape == file.shape and np.array_equal(back[:, 33:], file[:, 33:], equal_nan=True)
+    assert np.isfinite(back[30:40, wrist]).all()
+    assert np.linalg.norm(back[30:40, wrist] - body[30:40, wrist], axis=-1).mean() < 60.0  # mm
+    with pytest.raises(MotionFileError, match=f"layout coco17 has 17 joints, the file {75 + face}"):
+        read_motion(tmp_path / "mediapipe_skeleton_3d.npy", fps=30, layout="coco17")
+
+
 def test_kinect_v2_whose_tree_is_not_in_file_order_reads_in_a_parents_first_order():
     skeleton, order = layout_skeleton(LAYOUTS["kinect25"])
     assert order != list(range(25)) and sorted(order) == list(range(25))
@@ -293,13 +320,18 @@ def test_the_jitter_remover_leaves_a_limb_never_seen_missing(tmp_path, body_take
     assert np.isnan(back[:, arm, :3]).all() and np.isfinite(np.delete(back, arm, axis=1)).all()
 
 
-@pytest.mark.parametrize("case", [str.lower, str.upper])
+def body_prefixed(name: str) -> str:
+    return "body_" + name
+
+
+@pytest.mark.parametrize("case", [str.lower, str.upper, body_prefixed])
 def test_a_csv_named_with_a_layouts_joints_reads_as_that_layout_and_fixes_back_as_written(
     tmp_path, body_take, case, capsys
 ):
     """FreeMoCap's `mediapipe_body_3d_xyz.csv`: MediaPipe's 33 landmark names as `<name>_x,_y,_z`
-    columns, mm, no frame column, no tree. Read as the mediapipe33 layout (its tree and limbs) in
-    the file's own names, any case; `fix` fills a hole and writes the same columns and unit."""
+    columns (`body_<name>` since FreeMoCap 1.4), mm, no frame column, no tree. Read as the
+    mediapipe33 layout (its tree and limbs) in the file's own names, any case; `fix` fills a hole
+    and writes the same columns and unit."""
     lay = LAYOUTS["mediapipe33"]
     x = in_layout("mediapipe33", body_take)
     x = 1000.0 * x

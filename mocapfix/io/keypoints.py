@@ -36,7 +36,7 @@ import numpy as np
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
-from mocapfix.io.layouts import LAYOUTS, layout, layout_skeleton, layouts_for
+from mocapfix.io.layouts import BODY_FIRST, LAYOUTS, layout, layout_skeleton, layouts_for
 from mocapfix.io.npz import listed_keys, load_npz, npz_array, one_line
 from mocapfix.io.positions import _check_fps, _clips, _fps_from_times, _npz_scalar_str
 from mocapfix.io.untrusted import open_regular
@@ -141,16 +141,19 @@ def layout_skeleton_of(path: Path, lay, groups=None):
 
 def pick_layout(path: Path, name: str | None, num_joints: int):
     """The layout an array of num_joints joints is in: the one named, else the only one of that
-    many joints; a one-line error naming the candidates otherwise."""
+    many joints; a one-line error naming the candidates otherwise. An array of BODY_FIRST's size
+    is its body layout's (the array's first points; read_keypoints carries the others through)."""
     if name:
         try:
             lay = layout(name)
         except ValueError as e:
             raise MotionFileError(path, str(e)) from None
-        if len(lay.joint_names) != num_joints:
+        if len(lay.joint_names) != num_joints and BODY_FIRST.get(num_joints) != name:
             raise MotionFileError(path, f"layout {name} has {len(lay.joint_names)} joints, the file {num_joints}")
         return lay
     candidates = layouts_for(num_joints)
+    if num_joints in BODY_FIRST:
+        return layout(BODY_FIRST[num_joints])
     if len(candidates) == 1:
         return candidates[0]
     if candidates:
@@ -184,6 +187,8 @@ def read_keypoints(
     squeeze, dtype, columns = raw.ndim == 3, raw.dtype, raw.shape[-1]
     raw = raw[None] if squeeze else raw
     lay = pick_layout(path, layout, raw.shape[2])
+    carried = raw.shape[2] - len(lay.joint_names)  # points after the body (BODY_FIRST), written back as read
+    raw = raw[:, :, : len(lay.joint_names)]
     skeleton, order = layout_skeleton_of(path, lay, groups)
     rows = raw.shape[1]
     if fps is None:
@@ -212,7 +217,7 @@ def read_keypoints(
             path.name, dropped, fps, repeated,
         )  # fmt: skip
     meta = {"layout": lay.name, "joint_order": order, "squeeze": squeeze, "key": key, "dtype": dtype.str}
-    meta.update(columns=columns, slots=slots, times=times)
+    meta.update(columns=columns, slots=slots, times=times, carried=carried)
     people = [dict(meta, confidence=None if confidence is None else confidence[i]) for i in range(raw.shape[0])]
     fmt = "keypoints-npy" if key is None else "keypoints-npz"
     return _clips(path, clock[:, :, order], fps, skeleton, unit, file_unit, up_axis, None, fmt, people)
@@ -230,17 +235,21 @@ def write_keypoints(path, clips: list[Clip], inputs: list[Clip] | None = None) -
     out = np.empty_like(pos)
     out[:, :, order] = from_z_up(pos, m.get("up_axis", "z")) / metres_per_unit(m)  # file unit, axes, order
     out = out[:, slots]  # (P, T, J, 3) the file's rows
-    if inputs is not None:
-        raw = _load(Path(inputs[0].source)).raw
+    raw = None  # the file as read: its numbers where fix left a token alone, its points after the body
+    if inputs is not None or m.get("carried"):
+        raw = _load(Path((inputs or clips)[0].source)).raw
         raw = raw[None] if m["squeeze"] else raw
+    if inputs is not None:
         old = np.stack([c.positions for c in inputs])
         same = ((np.stack([c.positions for c in clips]) == old) & np.isfinite(old)).all(-1)  # (P, N, J) skeleton order
         keep = np.empty_like(same)
         keep[:, :, order] = same
         keep = keep[:, slots]  # a row repeating a frame keeps its own numbers where fix left the frame alone
-        out[keep] = raw[..., :3][keep]
+        out[keep] = raw[:, :, : out.shape[2], :3][keep]
     if m["columns"] == 4:
         out = np.concatenate([out, np.stack([c.meta["confidence"] for c in clips])[..., None]], axis=-1)
+    if m.get("carried"):
+        out = np.concatenate([out, raw[:, :, out.shape[2] :]], axis=2)
     dtype = np.dtype(m["dtype"])  # integers (a camera's mm) cannot hold a fill's fractions or a hole
     out = (out[0] if m["squeeze"] else out).astype(dtype if dtype.kind == "f" else np.float32)
     if m["key"] is None:

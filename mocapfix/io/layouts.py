@@ -180,6 +180,14 @@ LAYOUTS: dict[str, Layout] = {
 # fmt: on
 
 
+# Arrays whose first points are a layout's body and whose others are points no body model has:
+# FreeMoCap's output_data/mediapipe_skeleton_3d.npy, MediaPipe's body 33, right hand 21, left hand
+# 21 and face mesh (468 points before FreeMoCap 1.4, 478 with the irises after; freemocap
+# @a1cd374a, and the 2021 pre-alpha's real (T, 543, 3) outputs) -> the body's layout. The other
+# points are carried through as read.
+BODY_FIRST = {33 + 21 + 21 + 468: "mediapipe33", 33 + 21 + 21 + 478: "mediapipe33"}
+
+
 def layout(name: str) -> Layout:
     try:
         return LAYOUTS[name]

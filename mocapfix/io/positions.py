@@ -93,10 +93,15 @@ def skeleton_from(path: Path, joint_names, parents, num_joints: int, groups=None
 
 def _named_layout(path: Path, names: tuple[str, ...]) -> Skeleton | None:
     """The skeleton of the published keypoint layout whose joint names these are, in its order, any
-    case (io/layouts.py: FreeMoCap's `mediapipe_body_3d_xyz.csv` names MediaPipe's 33 landmarks),
-    under the file's own names; None where they are no layout's."""
+    case, or each after one prefix they share (io/layouts.py: FreeMoCap's `mediapipe_body_3d_xyz.csv`
+    names MediaPipe's 33 landmarks, `nose_x`, and since FreeMoCap 1.4 `body_nose_x`), under the
+    file's own names; None where they are no layout's."""
     lowered = tuple(n.lower() for n in names)
-    lay = next((lay for lay in LAYOUTS.values() if tuple(n.lower() for n in lay.joint_names) == lowered), None)
+    head = lowered[0].split("_", 1)[0] + "_"
+    readings = [lowered] + (
+        [tuple(n[len(head) :] for n in lowered)] if all(n.startswith(head) for n in lowered) else []
+    )
+    lay = next((lay for lay in LAYOUTS.values() if tuple(n.lower() for n in lay.joint_names) in readings), None)
     if lay is None:
         return None
     skel, order = layout_skeleton(lay)
