@@ -18,6 +18,7 @@ from mocapfix.io.keypoints import write_keypoints
 from mocapfix.io.kinect_log import write_kinect_log
 from mocapfix.io.kinect_skeleton import write_kinect_skeleton
 from mocapfix.io.kinect_text import write_kinect_text
+from mocapfix.io.mediapipe_json import write_mediapipe_json
 from mocapfix.io.npz import load_npz, npz_array
 from mocapfix.io.positions import write_clips, write_positions
 
@@ -91,6 +92,9 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
         return
     if fmt == "keypoints-text":
         write_kinect_text(target, clips, inputs)
+        return
+    if fmt == "keypoints-mediapipe-json":
+        write_mediapipe_json(target, clips, inputs)
         return
     if fmt == "keypoints-azure-json":
         write_azure_kinect(target, clips, inputs)

@@ -102,7 +102,8 @@ def _read_keypoints(
 ) -> list[Clip]:
     """Keypoints as trackers hand them over: an array in a published layout (.npy/.npz,
     io/keypoints.py), Kinect v2 skeleton text (.skeleton, io/kinect_skeleton.py), a Kinect body
-    log (.skl, io/kinect_log.py), Azure Kinect body tracking (.json, io/azure_kinect.py) or the
+    log (.skl, io/kinect_log.py), Azure Kinect body tracking or MediaPipe's world landmarks (.json,
+    io/azure_kinect.py, io/mediapipe_json.py) or the
     action datasets' Kinect v1 skeleton text (.txt, io/kinect_text.py)."""
     suffix = Path(path).suffix.lower()
     if suffix == ".txt":
@@ -114,9 +115,14 @@ def _read_keypoints(
 
         return read_kinect_skeleton(path, min_confidence, unit, up_axis, fps, groups)
     if suffix == ".json":
-        from mocapfix.io.azure_kinect import read_azure_kinect
+        from mocapfix.io.azure_kinect import is_azure_kinect, read_azure_kinect
+        from mocapfix.io.mediapipe_json import read_mediapipe_json
+        from mocapfix.io.untrusted import read_json
 
-        return read_azure_kinect(path, unit, fps, groups)
+        data = read_json(path, "JSON keypoints")
+        if is_azure_kinect(data):
+            return read_azure_kinect(path, unit, fps, groups, data)
+        return read_mediapipe_json(path, data, min_confidence, unit, fps, groups)
     if suffix == ".skl":
         from mocapfix.io.kinect_log import read_kinect_log
 

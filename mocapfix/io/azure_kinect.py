@@ -24,15 +24,14 @@ import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.io.body_ids import merged, one_person_chains
-from mocapfix.io.conventions import from_z_up, metres_per_unit
+from mocapfix.io.conventions import CAMERA_TO_Y_UP, from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
 from mocapfix.io.keypoints import frame_slots, layout_skeleton_of
 from mocapfix.io.layouts import layout
 from mocapfix.io.positions import _check_fps, _clips, _fps_from_times
-from mocapfix.io.untrusted import read_bytes
+from mocapfix.io.untrusted import read_json
 
 MAX_BODY_FRAMES = 1_000_000  # people x frames read; past it, a file is not one take
-CAMERA_TO_Y_UP = np.diag([1.0, -1.0, -1.0])  # y down, z away -> y up (its own inverse)
 
 
 def _bodies(path: Path, data) -> tuple[list[dict], dict]:
@@ -55,12 +54,17 @@ def _bodies(path: Path, data) -> tuple[list[dict], dict]:
     return frames, bodies
 
 
-def read_azure_kinect(path, unit: str = "auto", fps: float | None = None, groups=None) -> list[Clip]:
+def is_azure_kinect(data) -> bool:
+    """A JSON document (read_json) is the offline processor's: an object with a 'frames' list."""
+    if not (isinstance(data, dict) and isinstance(data.get("frames"), list)):
+        return False
+    return "joint_names" in data or any(isinstance(f, dict) and "bodies" in f for f in data["frames"][:10])
+
+
+def read_azure_kinect(path, unit: str = "auto", fps: float | None = None, groups=None, data=None) -> list[Clip]:
+    """data: the file's JSON document where the caller has read it (read_json), None: read here."""
     path = Path(path)
-    try:
-        data = json.loads(read_bytes(path, "body-tracking JSON").decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise MotionFileError(path, f"not readable JSON ({type(e).__name__})") from None
+    data = read_json(path, "body-tracking JSON") if data is None else data
     frames, bodies = _bodies(path, data)
     if not bodies:
         raise MotionFileError(path, f"{len(frames)} frames and no body in any: nothing was tracked")

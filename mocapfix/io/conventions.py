@@ -228,6 +228,11 @@ def stature_warning(stature: float, meta: dict, source) -> str | None:
 # --- up axis ---
 
 
+# A camera's axes (x right, y down, z away: Azure Kinect, MediaPipe's world landmarks) -> y up: a
+# half turn about x, (x, -y, -z); its own inverse.
+CAMERA_TO_Y_UP = np.diag([1.0, -1.0, -1.0])
+
+
 def to_z_up(x: np.ndarray, up_axis: str) -> np.ndarray:
     """x: (..., 3) in a right-handed frame with `up_axis` up -> the same points, z up."""
     if up_axis == "z":

@@ -9,6 +9,7 @@ regular file is that file.
 
 from __future__ import annotations
 
+import json
 import os
 import stat
 from typing import BinaryIO
@@ -76,6 +77,14 @@ def read_text_lines(path, what: str) -> tuple[list[str], str]:
     except (OSError, UnicodeDecodeError) as e:
         raise MotionFileError(path, f"cannot read as text ({type(e).__name__})") from None
     return text.splitlines(), "\r\n" if "\r\n" in text else "\n"
+
+
+def read_json(path, what: str):
+    """A JSON file's document; unreadable, not UTF-8 or not JSON: the file's one-line error."""
+    try:
+        return json.loads(read_bytes(path, what).decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+        raise MotionFileError(path, f"not readable JSON ({type(e).__name__})") from None
 
 
 def check_size(path, size: int, what: str, limit: int = MAX_TEXT_BYTES) -> None:
