@@ -164,6 +164,48 @@ def test_freemocaps_whole_skeleton_array_is_its_body_with_hands_and_face_carried
         read_motion(tmp_path / "mediapipe_skeleton_3d.npy", fps=30, layout="coco17")
 
 
+@pytest.mark.parametrize("name", ["h36m17", "mediapipe33"])
+def test_a_camera_space_array_y_down_is_read_standing_and_written_back_so(tmp_path, body_take, name, capsys):
+    """Video lifters (MotionBERT, MHFormer), MediaPipe's world landmarks and triangulation without a
+    floor give camera axes: x right, y down, z away. Read standing (the head above the pelvis; a
+    MediaPipe take whose legs are never seen by its shoulders above its hips) and written back
+    in the file's axes."""
+    body = in_layout(name, body_take)[:150]  # (T, J, 3) z up
+    camera = from_z_up(body, "-y")
+    if name == "mediapipe33":  # the legs out of the picture
+        legs = [
+            j for j, n in enumerate(LAYOUTS[name].joint_names) if any(w in n for w in ("knee", "ankle", "heel", "foot"))
+        ]
+        camera[:, legs] = np.nan
+    np.save(tmp_path / "camera.npy", camera)
+    (clip,) = read_motion(tmp_path / "camera.npy", fps=30, layout=name)
+    assert clip.meta["up_axis"] == "-y"
+    names = clip.skeleton.joint_names
+    expected = body[:, [LAYOUTS[name].joint_names.index(n) for n in names]]
+    seen = np.isfinite(expected).all(-1) & np.isfinite(
+        camera[:, [LAYOUTS[name].joint_names.index(n) for n in names]]
+    ).all(-1)
+    np.testing.assert_allclose((clip.positions + clip.origin)[seen], expected[seen], atol=1e-5)
+    rc, out, err = run_mocapfix(
+        [
+            "fix",
+            tmp_path / "camera.npy",
+            "--fps",
+            "30",
+            "--layout",
+            name,
+            "--model",
+            "jitter-many",
+            "--mode",
+            "denoise",
+        ],
+        capsys,
+    )
+    assert rc == 0, err
+    back = np.load(tmp_path / "camera.fixed.npy")
+    assert np.nanmean(np.linalg.norm(back - camera, axis=-1)) < 0.01  # the same axes: millimetres apart
+
+
 def test_kinect_v2_whose_tree_is_not_in_file_order_reads_in_a_parents_first_order():
     skeleton, order = layout_skeleton(LAYOUTS["kinect25"])
     assert order != list(range(25)) and sorted(order) == list(range(25))

@@ -72,12 +72,16 @@ def test_npz_people_mm_y_up(tmp_path):
     assert clips[0].meta["unit"] == "mm" and clips[0].meta["unit_source"] == "file"
 
 
-def test_axis_conversion_is_a_rotation_and_inverts():
+@pytest.mark.parametrize("up", ["y", "-y", "-z"])
+def test_axis_conversion_is_a_rotation_and_inverts(up):
     x = np.random.default_rng(1).normal(size=(10, 3))
-    z = to_z_up(x, "y")
+    z = to_z_up(x, up)
     np.testing.assert_allclose(np.linalg.norm(z, axis=-1), np.linalg.norm(x, axis=-1))
-    np.testing.assert_allclose(np.cross(z[0], z[1]), to_z_up(np.cross(x[0], x[1])[None], "y")[0])  # det +1
-    np.testing.assert_allclose(from_z_up(z, "y"), x)
+    np.testing.assert_allclose(np.cross(z[0], z[1]), to_z_up(np.cross(x[0], x[1])[None], up)[0])  # det +1
+    np.testing.assert_array_equal(from_z_up(z, up), x)
+    axis = {"y": 1, "-y": 1, "-z": 2}[up]
+    sign = -1.0 if up.startswith("-") else 1.0
+    np.testing.assert_array_equal(to_z_up(np.eye(3)[axis] * sign, up), [0.0, 0.0, 1.0])  # up is up
 
 
 @pytest.mark.parametrize("unit,scale", [("mm", 1000.0), ("cm", 100.0), ("m", 1.0)])
@@ -169,7 +173,7 @@ def test_csv_needs_fps(tmp_path):
 
 
 @pytest.mark.parametrize("ext", ["npz", "csv"])
-@pytest.mark.parametrize("unit,up", [("m", "z"), ("mm", "y"), ("cm", "z")])
+@pytest.mark.parametrize("unit,up", [("m", "z"), ("mm", "y"), ("cm", "z"), ("m", "-y")])
 def test_round_trip_in_the_input_layout(tmp_path, ext, unit, up):
     pos = _motion(P=2, T=5)
     pos[0, 1, 3] = np.nan

@@ -41,7 +41,9 @@ def add_read_arguments(parser, fps: bool = True) -> None:
         default="auto",
         help="the file's unit: m, cm, mm, inch or metres per file unit (0.0564); auto: from the body",
     )
-    parser.add_argument("--up-axis", default="auto", help="override the file's up axis: z, y")
+    parser.add_argument(
+        "--up-axis", default="auto", help="override the file's up axis: z, y, -y (y down: a camera's axes), -z"
+    )
     if fps:
         parser.add_argument("--fps", type=frame_rate, default=None, help="frame rate for files that lack one")
     parser.add_argument("--body-model", default=None, help="SMPL-H model file or folder (AMASS)")

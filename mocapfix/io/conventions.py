@@ -233,30 +233,52 @@ def stature_warning(stature: float, meta: dict, source) -> str | None:
 CAMERA_TO_Y_UP = np.diag([1.0, -1.0, -1.0])
 
 
+# The up axes a file's right-handed frame can have. "-y": y down, a camera's axes (x right, z away:
+# video lifters' camera-space outputs, MediaPipe, OpenCV triangulation); "-z": z down.
+UP_AXES = ("z", "y", "-y", "-z")
+
+
 def to_z_up(x: np.ndarray, up_axis: str) -> np.ndarray:
-    """x: (..., 3) in a right-handed frame with `up_axis` up -> the same points, z up."""
+    """x: (..., 3) in a right-handed frame with `up_axis` up -> the same points, z up (a rotation
+    about x: left stays left; coordinates moved and negated, never multiplied, so values and
+    NaN come through exactly)."""
     if up_axis == "z":
         return x
-    # y up (x right, z towards the viewer): rotate +90 deg about x, so y -> z and z -> -y.
-    return np.stack([x[..., 0], -x[..., 2], x[..., 1]], axis=-1)
+    a, b, c = x[..., 0], x[..., 1], x[..., 2]
+    if up_axis == "y":  # x right, z towards the viewer: +90 deg about x, y -> z and z -> -y
+        return np.stack([a, -c, b], axis=-1)
+    if up_axis == "-y":  # -90 deg about x: -y -> z, z -> y
+        return np.stack([a, c, -b], axis=-1)
+    if up_axis == "-z":  # a half turn about x
+        return np.stack([a, -b, -c], axis=-1)
+    raise ValueError(f"unknown up axis {up_axis!r}; known: {', '.join(UP_AXES)}")
 
 
 def from_z_up(x: np.ndarray, up_axis: str) -> np.ndarray:
     """Inverse of to_z_up."""
     if up_axis == "z":
         return x
-    return np.stack([x[..., 0], x[..., 2], -x[..., 1]], axis=-1)
+    a, b, c = x[..., 0], x[..., 1], x[..., 2]
+    if up_axis == "y":
+        return np.stack([a, c, -b], axis=-1)
+    if up_axis == "-y":
+        return np.stack([a, -c, b], axis=-1)
+    if up_axis == "-z":
+        return np.stack([a, -b, -c], axis=-1)
+    raise ValueError(f"unknown up axis {up_axis!r}; known: {', '.join(UP_AXES)}")
 
 
 def _find(names, pattern: str) -> int | None:
     return next((j for j, n in enumerate(names) if re.search(pattern, n, re.I)), None)
 
 
-def guess_up_axis(positions: np.ndarray, joint_names, parents, labels=None) -> str:
+def guess_up_axis(positions: np.ndarray, joint_names, parents, labels=None, signed: bool = False) -> str:
     """positions: (..., T, J, 3) in the file's axes -> 'y' or 'z': the axis along which the head
-    sits above the pelvis (or the pelvis above the feet) in the median frame; without such
-    joints (labels from the rig's structure, else names), the axis along which the body is
-    tallest in the median frame."""
+    sits above the pelvis (or the pelvis above the feet; the shoulders above the hips where
+    neither is seen) in the median frame; without such joints (labels from the rig's structure,
+    else names), the axis along which the body is tallest in the median frame. signed: '-y' or
+    '-z' where the body stands the other way along it (a camera's y down; BVH files are read
+    unsigned, their convention is y or z up)."""
     pos = np.asarray(positions, dtype=np.float64).reshape((-1,) + np.shape(positions)[-2:])  # (T, J, 3)
     pos = np.where(np.isfinite(pos), pos, np.nan)
     labels = list(labels) if labels else []
@@ -267,14 +289,25 @@ def guess_up_axis(positions: np.ndarray, joint_names, parents, labels=None) -> s
         pelvis = pelvis_joint(parents)
         head = _find(joint_names, r"head")
         head = _find(joint_names, r"neck") if head is None else head
+        head = _find(joint_names, r"nose|eye|ear") if head is None else head  # a face's landmarks (MediaPipe)
         foot = _find(joint_names, r"foot|ankle|toe")
+    d, by_joints = np.full(3, np.nan), True
+    tops = [
+        [labels.index(f"{side}_{part}") for side in ("left", "right") if f"{side}_{part}" in labels]
+        for part in ("upper_arm", "thigh")
+    ]
     with _quiet():
         if head is not None and head != pelvis:
             d = np.nanmedian(pos[:, head] - pos[:, pelvis], axis=0)
         elif foot is not None and foot != pelvis:
             d = np.nanmedian(pos[:, pelvis] - pos[:, foot], axis=0)
         else:
+            by_joints = False
+        if not np.isfinite(d[1:]).all() and all(tops):  # no head or feet seen: the shoulders above the hips
+            d = np.nanmedian(pos[:, tops[0]].mean(1) - pos[:, tops[1]].mean(1), axis=0)
+        if not np.isfinite(d[1:]).all() and not by_joints:
             d = np.nanmedian(np.nanmax(pos, axis=1) - np.nanmin(pos, axis=1), axis=0)  # extent per axis
     if not np.isfinite(d[1:]).all():
         return "y"  # the BVH default
-    return "z" if abs(d[2]) > abs(d[1]) else "y"
+    axis = 2 if abs(d[2]) > abs(d[1]) else 1
+    return ("-" if signed and d[axis] < 0 else "") + "yz"[axis - 1]

@@ -10,7 +10,7 @@ npz: keys
     parents     (J,) ints, parents[0] == -1, parent < child  parents and/or joint_names
     joint_names (J,) strings                                 (names alone must match a preset)
     unit        "m" | "cm" | "mm"                            optional (guessed from bone lengths)
-    up_axis     "z" | "y"                                    optional, default "z"
+    up_axis     "z" | "y" | "-y" | "-z"                      optional, default "z" ("-y": y down)
 
 csv: optional "# key=value" comment lines, then a header row, then one row per person and frame
     # fps=30 unit=m up_axis=z
@@ -42,7 +42,7 @@ import numpy as np
 
 from mocapfix.core.clip import NEAR_ORIGIN_M, Clip, MotionFileError, check_frame_rate, origin_near
 from mocapfix.core.skeleton import PRESETS, Skeleton
-from mocapfix.io.conventions import from_z_up, guess_up_axis, parse_unit, resolve_unit, to_z_up
+from mocapfix.io.conventions import UP_AXES, from_z_up, guess_up_axis, parse_unit, resolve_unit, to_z_up
 from mocapfix.io.files import atomic_write
 from mocapfix.io.layouts import LAYOUTS, layout_skeleton
 from mocapfix.io.npz import listed_keys, load_npz, npz_array
@@ -50,7 +50,6 @@ from mocapfix.io.npz import one_line as _one_line
 from mocapfix.io.untrusted import printable, quoted, read_bytes
 from mocapfix.rig.labels import guess_groups
 
-UP_AXES = ("z", "y")
 _SPECIAL_COLUMNS = ("person", "frame", "time")
 
 
@@ -115,9 +114,9 @@ def _resolve_up(path, up_opt, up_file, raw, skeleton) -> str:
         if up is not None and up != "auto":
             up = str(up).lower()
             if up not in UP_AXES:
-                raise MotionFileError(path, f"unknown up axis {quoted(up)} (from {source}); use 'z' or 'y'")
+                raise MotionFileError(path, f"unknown up axis {quoted(up)} (from {source}); use {', '.join(UP_AXES)}")
             return up
-    return guess_up_axis(raw, skeleton.joint_names, skeleton.parents)
+    return guess_up_axis(raw, skeleton.joint_names, skeleton.parents, skeleton.labels, signed=True)
 
 
 def _check_fps(path, fps) -> float:
