@@ -400,3 +400,70 @@ def test_a_csv_named_with_a_layout_whose_tree_is_out_of_file_order_asks_for_pare
     )
     with pytest.raises(MotionFileError, match="kinect25 layout's"):
         read_motion(tmp_path / "k.csv", fps=30.0)
+
+
+def test_a_landmark_csv_with_visibility_columns_holes_the_unseen_and_writes_them_back(tmp_path, body_take, capsys):
+    """MediaPipe landmark dumps: `frame,<name>_x,_y,_z,_visibility` per landmark, metres, camera
+    axes (y down). A landmark at or below --min-confidence is a hole fix fills; the output has the
+    same header and every visibility cell as written."""
+    lay = LAYOUTS["mediapipe33"]
+    x = from_z_up(in_layout("mediapipe33", body_take), "-y")[:90]
+    visibility = np.full((90, 33), 0.99)
+    wrist = lay.joint_names.index("left_wrist")
+    visibility[30:38, wrist] = 0.1
+    header = "frame," + ",".join(f"{n}_{a}" for n in lay.joint_names for a in ("x", "y", "z", "visibility"))
+    rows = [f"{t}," + ",".join(f"{v:.6f}" for j in range(33) for v in (*x[t, j], visibility[t, j])) for t in range(90)]
+    path = tmp_path / "landmarks.csv"
+    path.write_text(header + "\n" + "\n".join(rows) + "\n")
+    (clip,) = read_motion(path, fps=30, min_confidence=0.5)
+    assert clip.skeleton.name == "mediapipe33" and clip.meta["up_axis"] == "-y"
+    assert np.isnan(clip.positions[30:38, clip.skeleton.index("left_wrist")]).all()
+    args = [
+        "fix",
+        path,
+        "--fps",
+        "30",
+        "--min-confidence",
+        "0.5",
+        "--model",
+        "xmae-cpu-bandai",
+        "-o",
+        tmp_path / "o.csv",
+    ]
+    rc, out, err = run_mocapfix(args, capsys)
+    assert rc == 0, err
+    written = (tmp_path / "o.csv").read_text().splitlines()
+    assert written[0] == header and len(written) == 91
+    back = np.array([line.split(",")[1:] for line in written[1:]], dtype=float).reshape(90, 33, 4)
+    assert np.array_equal(back[..., 3], np.round(visibility, 6))  # the visibility cells as read
+    assert np.linalg.norm(back[30:38, wrist, :3] - x[30:38, wrist], axis=-1).mean() < 0.05  # filled near the wrist
+    (tmp_path / "mixed.csv").write_text("nose_x,nose_y,nose_z,nose_visibility,eye_x,eye_y,eye_z\n0,0,0,1,0,0,0\n")
+    with pytest.raises(MotionFileError, match="1 of 2 joints have a confidence column: every joint or none"):
+        read_motion(tmp_path / "mixed.csv", fps=30)
+
+
+def test_an_azure_kinect_csv_recorders_columns_read_as_azure32_and_come_back_as_written(tmp_path, body_take, capsys):
+    """Azure Kinect CSV recorders: `PELVIS.x,PELVIS.y,PELVIS.z,...` (k4abt's joint names), mm, the
+    depth camera's axes (y down), no frame column."""
+    lay = LAYOUTS["azure32"]
+    truth = from_z_up(in_layout("azure32", body_take), "-y")[:90] * 1000.0
+    wrist = lay.joint_names.index("WRIST_LEFT")
+    x = truth.copy()
+    x[40:50, wrist] = np.nan
+    header = ",".join(f"{n}.{a}" for n in lay.joint_names for a in "xyz")
+    rows = [",".join("" if np.isnan(v) else f"{v:.2f}" for v in row) for row in x.reshape(90, -1)]
+    path = tmp_path / "bodies.csv"
+    path.write_text(header + "\n" + "\n".join(rows) + "\n")
+    (clip,) = read_motion(path, fps=30)
+    assert clip.skeleton.name == "azure32" and clip.meta["up_axis"] == "-y" and clip.meta["unit"] == "mm"
+    rc, out, err = run_mocapfix(["fix", path, "--fps", "30", "--model", "xmae-cpu-bandai"], capsys)
+    assert rc == 0, err
+    written = (tmp_path / "bodies.fixed.csv").read_text().splitlines()
+    assert written[0] == header and len(written) == 91
+    back = np.array([[float(v) for v in line.split(",")] for line in written[1:]]).reshape(90, 32, 3)
+    seen = np.isfinite(x).all(-1)
+    assert np.allclose(back[seen], x[seen], atol=0.006)  # the file's numbers, mm, camera axes
+    assert np.linalg.norm(back[40:50, wrist] - truth[40:50, wrist], axis=-1).mean() < 20.0  # filled (mm)
+    (tmp_path / "both.csv").write_text("a_x,a_y,a_z,b.x,b.y,b.z\n0,0,0,0,0,0\n")
+    with pytest.raises(MotionFileError, match="joint columns named both <joint>_x and <joint>.x"):
+        read_motion(tmp_path / "both.csv", fps=30)

@@ -25,7 +25,10 @@ csv: optional "# key=value" comment lines, then a header row, then one row per p
     time they took, _fps_from_times); kept per frame (meta "times") and written back as read.
   - joint columns: <joint>_x, <joint>_y, <joint>_z, consecutive, in skeleton order; the
     joint names are the header's prefixes. An empty cell or "nan" is missing; a joint with
-    any missing coordinate is missing.
+    any missing coordinate is missing. `<joint>.x` (Azure Kinect's CSV recorders) reads the same.
+    A 4th column per joint, <joint>_visibility (or _confidence, _score: CONFIDENCE_WORDS; every
+    joint or none), is its confidence: at or below min_confidence the joint is missing in that
+    row (MediaPipe landmark dumps); it is written back as read.
 
 Readers return Clips in metres, z up (y-up data is turned by +90 degrees about x:
 (x, y, z) -> (x, -z, y)); the writers undo both so that `fix` writes outputs in the input's
@@ -51,6 +54,7 @@ from mocapfix.io.untrusted import printable, quoted, read_bytes
 from mocapfix.rig.labels import guess_groups
 
 _SPECIAL_COLUMNS = ("person", "frame", "time")
+CONFIDENCE_WORDS = ("visibility", "vis", "confidence", "conf", "score", "c")  # a joint's 4th column
 
 
 # --- skeleton from what a file gives ---
@@ -234,8 +238,9 @@ def _parse_comments(path, lines) -> tuple[dict, int]:
     return meta, i
 
 
-def _joint_columns(path, header: list[str]) -> tuple[dict, list[str], list[int]]:
-    """header -> ({special column: index}, joint names, [x column of each joint])."""
+def _joint_columns(path, header: list[str]) -> tuple[dict, list[str], list[int], list[int] | None, str]:
+    """header -> ({special column: index}, joint names, [x column of each joint], [confidence
+    column of each joint] or None, the separator before x/y/z: "_" or ".")."""
     special, rest = {}, []
     for c, h in enumerate(header):
         key = h.strip().lower()
@@ -247,16 +252,17 @@ def _joint_columns(path, header: list[str]) -> tuple[dict, list[str], list[int]]
             rest.append(c)
     if not rest:
         raise MotionFileError(path, "no joint columns (<joint>_x, <joint>_y, <joint>_z)")
-    names, x_cols = [], []
-    for k in range(0, len(rest), 3):
+    names, x_cols, conf_cols, seps = [], [], [], set()
+    k = 0
+    while k < len(rest):
         triple = rest[k : k + 3]
         cols = [header[c].strip() for c in triple]
-        m = re.fullmatch(r"(.+)_[xX]", cols[0])
+        m = re.fullmatch(r"(.+)([_.])[xX]", cols[0])
         ok = (
             len(triple) == 3
             and m is not None
             and triple == list(range(triple[0], triple[0] + 3))
-            and [c.lower() for c in cols[1:]] == [m.group(1).lower() + "_y", m.group(1).lower() + "_z"]
+            and [c.lower() for c in cols[1:]] == [(m.group(1) + m.group(2)).lower() + a for a in "yz"]
         )
         if not ok:
             raise MotionFileError(
@@ -265,10 +271,23 @@ def _joint_columns(path, header: list[str]) -> tuple[dict, list[str], list[int]]
             )
         names.append(m.group(1))
         x_cols.append(triple[0])
+        seps.add(m.group(2))
+        k += 3
+        prefix = (m.group(1) + m.group(2)).lower()
+        after = rest[k] if k < len(rest) else None  # a 4th column of this joint: its confidence
+        if after == triple[2] + 1 and header[after].strip().lower() in {prefix + w for w in CONFIDENCE_WORDS}:
+            conf_cols.append(after)
+            k += 1
     if len(set(names)) != len(names):
         twice = next(n for k, n in enumerate(names) if n in names[:k])
         raise MotionFileError(path, f"joint {quoted(twice)} appears twice in the header")
-    return special, names, x_cols
+    if len(seps) > 1:
+        raise MotionFileError(path, "joint columns named both <joint>_x and <joint>.x")
+    if conf_cols and len(conf_cols) != len(names):
+        raise MotionFileError(
+            path, f"{len(conf_cols)} of {len(names)} joints have a confidence column: every joint or none"
+        )
+    return special, names, x_cols, conf_cols or None, seps.pop()
 
 
 def _to_float(path, cells: np.ndarray, header: list[str], cols: list[int], lines: list[int]) -> np.ndarray:
@@ -351,7 +370,7 @@ def _frame_times(tt: np.ndarray, fps: float) -> np.ndarray | None:
 
 
 def read_positions_csv(
-    path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None, groups=None
+    path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None, groups=None, min_confidence: float = 0.0
 ) -> list[Clip]:
     path = Path(path)
     try:
@@ -376,7 +395,7 @@ def read_positions_csv(
     except csv.Error as e:  # a cell over csv's field limit (128 KiB), a NUL byte: never a table of numbers
         raise MotionFileError(path, f"line {start + reader.line_num}: not CSV ({printable(e, 60)})") from None
     header = [h.strip() for h in rows[0][1]]
-    special, names, x_cols = _joint_columns(path, header)
+    special, names, x_cols, conf_cols, separator = _joint_columns(path, header)
     data_rows = rows[1:]
     if not data_rows:
         raise MotionFileError(path, "no data rows after the header")
@@ -389,6 +408,12 @@ def read_positions_csv(
     coord_cols = [c + k for c in x_cols for k in range(3)]
     xyz = _to_float(path, cells[:, coord_cols], header, coord_cols, lines_of_rows).reshape(-1, J, 3)
     xyz[np.isnan(xyz).any(axis=-1)] = np.nan  # a joint with a missing coordinate is missing
+    if conf_cols is not None:
+        confidence = _to_float(path, cells[:, conf_cols], header, conf_cols, lines_of_rows)  # (N, J)
+        seen = confidence > min_confidence  # NaN: not seen
+        if not seen.any():
+            raise MotionFileError(path, f"no joint has a confidence above {min_confidence:g} in any row")
+        xyz[~seen] = np.nan
 
     # people: one clip per label, numeric labels in numeric order
     N = len(data_rows)
@@ -474,6 +499,15 @@ def read_positions_csv(
     if frame_times is not None:
         for i in range(P):
             layout[i]["times"] = frame_times[i].tolist()  # (T,) seconds, plain floats like the rest of meta
+    if separator != "_":
+        for i in range(P):
+            layout[i]["axis_separator"] = separator
+    if conf_cols is not None:  # each row's confidence cells as written, "" where a frame has no row
+        text = np.full((P * T, J), "", dtype=object)
+        text[key] = cells[:, conf_cols]
+        word = header[conf_cols[0]].strip()[len(names[0]) + 1 :]
+        for i in range(P):
+            layout[i].update(confidence_text=text.reshape(P, T, J)[i], confidence_word=word)
     return _clips(
         path,
         raw,
@@ -489,19 +523,20 @@ def read_positions_csv(
 
 
 def read_positions(
-    path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None, groups=None
+    path, unit: str = "auto", up_axis: str = "auto", fps: float | None = None, groups=None, min_confidence: float = 0.0
 ) -> list[Clip]:
     """A .npz or .csv positions file -> one Clip per person (metres, z up).
 
     unit / up_axis: "auto" takes the file's value (unit guessed from bone lengths when the file
     has none, up axis z); anything else overrides the file. fps overrides the file's too.
-    groups: {group name: [joint names or indices]} replacing the preset/guessed limb groups."""
+    groups: {group name: [joint names or indices]} replacing the preset/guessed limb groups.
+    min_confidence: a csv's confidence columns, at or below it a joint is missing in that row."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".npz":
         return read_positions_npz(path, unit, up_axis, fps, groups)
     if suffix == ".csv":
-        return read_positions_csv(path, unit, up_axis, fps, groups)
+        return read_positions_csv(path, unit, up_axis, fps, groups, min_confidence)
     raise MotionFileError(path, f"positions files are .npz or .csv, not {suffix or 'no extension'!r}")
 
 
@@ -564,6 +599,9 @@ def write_positions(
     times: np.ndarray | None = None,
     origin: np.ndarray | None = None,
     comment_lines: bool = True,
+    axis_separator: str = "_",
+    confidence: np.ndarray | None = None,
+    confidence_word: str = "visibility",
 ) -> Path:
     """Write positions (T, J, 3) or (P, T, J, 3), metres z up, NaN = missing, as .npz or .csv (by
     the path's extension) in `unit` (a name or metres per unit) and `up_axis`. The layout options
@@ -574,7 +612,9 @@ def write_positions(
     to (Clip.origin), added back in float64; npz positions are float32, or float64 where a value
     lies beyond NEAR_ORIGIN_M (float32 would round it by more than 4 um). comment_lines: csv,
     the `# fps= unit= up_axis=` and `# parents=` lines above the header (False: a file read
-    without them is written back without them; reading it again needs the same options)."""
+    without them is written back without them; reading it again needs the same options).
+    axis_separator: csv, "_" (<joint>_x) or "." (<joint>.x); confidence: csv, (P, T, J) the text
+    of each joint's confidence column, <joint>_<confidence_word> after its z (as read)."""
     path = Path(path)
     origin = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64).reshape(3)
     pos = np.asarray(positions, dtype=np.float64)
@@ -620,7 +660,11 @@ def write_positions(
             (["person"] if person_column else [])
             + (["frame"] if frame_column else [])
             + (["time"] if time_column else [])
-            + [f"{n}_{a}" for n in skeleton.joint_names for a in "xyz"]
+            + [
+                f"{n}{axis_separator}{a}"
+                for n in skeleton.joint_names
+                for a in ("x", "y", "z") + ((confidence_word,) if confidence is not None else ())
+            ]
         )
         lines = [
             *(
@@ -650,7 +694,10 @@ def write_positions(
                     + ([time_text[p][t]] if time_column else [])
                 )
                 r = (p * T + t) * C
-                lines.append(",".join(lead + cells[r : r + C]))
+                row = cells[r : r + C]
+                if confidence is not None:  # each joint's x, y, z, then its confidence as read
+                    row = [v for j in range(J) for v in (*row[3 * j : 3 * j + 3], str(confidence[p][t][j]))]
+                lines.append(",".join(lead + row))
         payload = ("\n".join(lines) + "\n").encode()
         atomic_write(path, lambda f: f.write(payload))
     else:
@@ -694,4 +741,7 @@ def write_clips(path, clips: list[Clip]) -> Path:
         times=times,
         origin=c0.origin,
         comment_lines=m.get("comment_lines", True) if from_csv else True,
+        axis_separator=m.get("axis_separator", "_") if from_csv else "_",
+        confidence=[c.meta["confidence_text"] for c in clips] if from_csv and "confidence_text" in m else None,
+        confidence_word=m.get("confidence_word", "visibility"),
     )
