@@ -33,6 +33,7 @@ from common import describe, print_table, write_result
 from keypoints_jitter import in_file_order
 from scipy.signal import butter, filtfilt
 
+from mocapfix.core.clip import MotionFileError  # noqa: E402
 from mocapfix.core.skeleton import preset  # noqa: E402
 from mocapfix.evaluation.recording import with_holes  # noqa: E402
 from mocapfix.fix import fix_clips  # noqa: E402
@@ -58,6 +59,7 @@ class Set(NamedTuple):
     fps: float | None  # None: from the file (its times)
     unit: str
     source: str  # where it was published
+    min_frames: int = MIN_FRAMES  # shorter takes are left out
 
 
 SETS = {
@@ -118,6 +120,25 @@ SETS = {
         30.0,
         "m",
         "tsaith/MHFormer@dd68391b demo/output/*/output_3D/ (rate not published: 30 assumed)",
+    ),
+    "UTKinect-Action3D (Kinect v1)": Set(
+        ("utkinect",),
+        "joints_s*.txt",
+        "native",
+        "kinect20",
+        30.0,  # the frame numbers' rate: the rows go on a 15-fps clock (io/kinect_text.py)
+        "m",
+        "the dataset's 20 joints_sXX_eXX.txt, as JeslieHCI/UTKinect_3@590aede4 data/UTKinect/joints/ holds them",
+    ),
+    "MSR Action3D (depth camera)": Set(
+        ("msr_action3d",),
+        "*_skeleton3D.txt",
+        "native",
+        "kinect20",
+        15.0,
+        "m",
+        "the dataset's 567 *_skeleton3D.txt, JeslieHCI/UTKinect_3@590aede4 data/MSRAction3D/real_world_coordinates/",
+        45,  # 3 s at 15 fps
     ),
 }
 
@@ -185,10 +206,16 @@ def set_row(name: str, s: Set, files: list[Path], fixer) -> dict:
     bones = [(p, j) for j, p in enumerate(lay.parents) if p in joints and j in joints]
     measured = {"input": [], "fix": [], "butterworth": []}
     moved = {"fix": [], "butterworth": []}
-    frames = 0
+    frames, refused = 0, []
     for f in files:
-        for clip in read_motion(f, layout=s.layout, fps=s.fps, unit=s.unit):
-            if clip.num_frames < MIN_FRAMES:
+        try:
+            clips = read_motion(f, layout=s.layout, fps=s.fps, unit=s.unit)
+        except MotionFileError as e:  # as fix would: said, and the set goes on
+            print(f"refused: {e}")
+            refused.append(f.name)
+            continue
+        for clip in clips:
+            if clip.num_frames < s.min_frames:
                 continue
             x = in_file_order(clip)
             seen = np.isfinite(x).all(-1)
@@ -200,6 +227,7 @@ def set_row(name: str, s: Set, files: list[Path], fixer) -> dict:
                     moved[key].append(np.linalg.norm(y - x, axis=-1)[:, joints][seen[:, joints]].mean() * 1000)
             frames += clip.num_frames
     row = {"set": name, "layout": s.layout, "takes": len(measured["input"]), "frames": frames, "source": s.source}
+    row["refused"] = refused
     if not row["takes"]:
         return row
     for key, values in measured.items():

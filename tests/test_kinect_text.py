@@ -50,7 +50,8 @@ def test_utkinect_rows_on_their_clock_and_written_back_in_place(tmp_path, body_t
     held = np.zeros(clip.num_frames, dtype=bool)
     held[clock] = True
     assert np.isnan(clip.positions[~held]).all() and np.isfinite(clip.positions[held]).all()  # holes between rows
-    # the writer: one joint of one frame moved 2 cm -> the two lines of that frame change there only
+    # the writer: one joint of one frame moved 2 cm -> the line read for that frame changes there
+    # only, not the line repeating its number (unread: sometimes another body)
     moved = clip.positions.copy()
     wrist, t = names.index("WristLeft"), clock[6]  # numbers[6] repeats numbers[5]
     moved[t, wrist, 0] += 0.02
@@ -58,7 +59,7 @@ def test_utkinect_rows_on_their_clock_and_written_back_in_place(tmp_path, body_t
     write_kinect_text(out, [clip.replace(positions=moved)], [clip])
     before, after = path.read_text().splitlines(), out.read_text().splitlines()
     changed = [i for i, (u, v) in enumerate(zip(before, after)) if u != v]
-    assert len(after) == len(before) and changed == [5, 6]
+    assert len(after) == len(before) and changed == [5]
     k = 1 + 3 * KINECT20.index("WristLeft")
     for i in changed:
         old, new = before[i].split(), after[i].split()
@@ -72,9 +73,15 @@ def test_msr_action3d_in_its_order_and_frame_and_fix_keeps_its_lines(tmp_path, b
     c = np.ones((90, 20))
     c[:, [KINECT20.index(n) for n in ("HipCenter", "Spine", "FootLeft")]] = 0.0  # not a tracking state
     path = tmp_path / "a01_s01_e01_skeleton3D.txt"
+    lost = camera.copy()
+    lost[:3] = 0.0  # frames the tracker lost: zeros
+    path.write_text(msr_text(lost, c))
+    (clip,) = read_motion(path, fps=15)
+    assert clip.fps == 15.0 and clip.num_frames == 90
+    assert np.isnan(clip.positions[:3]).all() and np.isfinite(clip.positions[3:]).all()
     path.write_text(msr_text(camera, c))
     (clip,) = read_motion(path, fps=15)
-    assert clip.fps == 15.0 and clip.num_frames == 90 and np.isfinite(clip.positions).all()
+    assert np.isfinite(clip.positions).all()
     names = clip.skeleton.joint_names
     truth = in_layout("kinect20", body_take)[:90][:, [KINECT20.index(n) for n in names]]
     # the right shoulder where the body's right shoulder is: MSR's left-handed x read negated
@@ -98,6 +105,9 @@ def test_what_is_not_a_kinect_skeleton_text_is_one_line_naming_the_problem(tmp_p
     with pytest.raises(MotionFileError, match="screen coordinates .* read the take's _skeleton3D.txt"):
         read_motion(path, fps=15)
     path = tmp_path / "take.txt"
+    path.write_text("".join("0.000000 0.000000 0.000000 0.000000\n" for _ in range(40)))
+    with pytest.raises(MotionFileError, match="no joint tracked in any frame"):
+        read_motion(path, fps=15)
     path.write_text("".join("0.1 0.2 0.3 1\n" for _ in range(30)))
     with pytest.raises(MotionFileError, match="30 joint lines: MSR Action3D has 20 a frame"):
         read_motion(path, fps=15)

@@ -36,8 +36,11 @@ MAX_EXCHANGE_S = 1.5  # longer runs are the take's labelling, not a slip
 
 def exchanged_frames(x: np.ndarray, left: list[int], right: list[int], fps: float) -> np.ndarray:
     """x: (T, J, 3) metres -> (T,) bool: the frames where the limbs `left` and `right` (joint
-    indices, in matching order) are exchanged from the take's own labelling. Frames where a limb
-    joint is missing are left out (False)."""
+    indices, in matching order) are exchanged from the take's own labelling. A frame where a limb
+    joint is missing takes the label of the frames seen on both sides where they agree, else is
+    left out (False): a run is as long as the time it spans, holes included (a depth camera's
+    take on a clock with a row every few frames, UTKinect's, is otherwise cut into runs of one
+    frame, each short enough to be put back)."""
     out = np.zeros(len(x), dtype=bool)
     n = len(left)
     limbs = x[:, left + right].astype(np.float64)  # (T, 2n, 3)
@@ -52,7 +55,11 @@ def exchanged_frames(x: np.ndarray, left: list[int], right: list[int], fps: floa
     switch = max(SWITCH_M, SWITCH_NOISE * float(np.median(same)))
     labels = _cheapest_labels(same.tolist(), (change + switch).tolist())  # (S,) 0/1
     own = _own_label(labels, seen, max(1, round(MIN_LABEL_S * fps)))
-    out[seen] = labels != own
+    exchanged = labels != own  # (S,)
+    out[seen] = exchanged
+    both = exchanged[:-1] & exchanged[1:]  # consecutive seen frames both exchanged: the frames between too
+    for a, b in zip(seen[:-1][both], seen[1:][both]):
+        out[a + 1 : b] = True
     return out
 
 

@@ -7,8 +7,10 @@ text (.txt), told apart by the numbers on a line:
   138 of them: 0.38 m/s at 30 fps), and the rows come irregularly, 2 to 12 frames apart (s01_e01:
   mostly 4), some repeated. The rows are put on a clock of the numbers' common step (their
   greatest common divisor: 2, so 15 fps): a row exactly where its number says, the frames
-  between rows holes fix fills (and does not write: the file has no line for them), a repeated
-  number read once. --fps is the frame numbers' rate (a Kinect's 30), asked for, never assumed.
+  between rows holes fix fills (and does not write: the file has no line for them). A repeated
+  number is read once, its first row (in 515 of the dataset's 542 repeats the first continues the
+  rows before; 4 repeats are another body 0.3 m or more away), and its other rows are written
+  back as they were. --fps is the frame numbers' rate (a Kinect's 30), asked for, never assumed.
 - MSR Action3D's `aXX_sXX_eXX_skeleton3D.txt` (4 numbers a line): 20 lines a frame, one a joint
   (x y z c) in the dataset's own order (MSR_ORDER, its drawskt.m), metres, y up, x along the
   depth image's columns: a left-handed frame, read with x negated (a body whose right shoulder
@@ -17,6 +19,8 @@ text (.txt), told apart by the numbers on a line:
   places, so it is kept as written and never makes a joint missing. fps: the dataset's paper
   says about 15. Its `_skeleton.txt` twin holds
   screen coordinates (pixels and depth), not positions: a one-line error names the 3D file.
+  A joint at 0, 0, 0 (the camera's own origin) was not tracked: missing in that frame (MSR
+  Action3D writes untracked frames as zeros: 20 of its 567 files, one of them all zeros).
 
 Both are one person, no timestamps. The writer puts fix's positions back into the file's lines:
 only the numbers of a joint fix changed are new, every other character is the file's.
@@ -125,6 +129,9 @@ def read_kinect_text(
         raise MotionFileError(path, f"a skeleton text file holds no frame rate: give --fps, {rate}")
     clock, slots, offsets, step = (_utkinect if kind == "utkinect" else _msr)(path, lines, rows)
     fps = _check_fps(path, fps / step)
+    clock[(clock == 0).all(-1)] = np.nan  # the camera's own origin: a joint not tracked (MSR's frames of zeros)
+    if np.isnan(clock).all():
+        raise MotionFileError(path, "no joint tracked in any frame (every position 0, 0, 0)")
     lay = layout("kinect20")
     names = lay.joint_names if kind == "utkinect" else MSR_ORDER
     to_layout = [names.index(n) for n in lay.joint_names]  # layout joint k is the file's joint to_layout[k]
@@ -132,7 +139,8 @@ def read_kinect_text(
     file_joint = [to_layout[j] for j in order]  # skeleton joint k's place in the file's order
     meta = {
         "layout": lay.name,
-        "joint_order": file_joint,
+        "joint_order": order,  # skeleton joint k is layout joint order[k], as for every keypoint reader
+        "file_joints": to_layout,
         "kind": kind,
         "lines": rows,
         "slots": slots.tolist(),
@@ -152,7 +160,7 @@ def write_kinect_text(path, clips: list[Clip], inputs: list[Clip]) -> Path:
     (clip,), (before,) = clips, inputs
     m = clip.meta
     lines = list(m["file_lines"])
-    file_joint = np.asarray(m["joint_order"])
+    file_joint = np.asarray(m["file_joints"])[np.asarray(m["joint_order"])]  # skeleton joint k's in the file
     now = np.full((clip.num_frames, len(file_joint), 3), np.nan)
     was = np.full_like(now, np.nan)
     now[:, file_joint], was[:, file_joint] = clip.positions, before.positions  # the file's joint order
@@ -163,6 +171,8 @@ def write_kinect_text(path, clips: list[Clip], inputs: list[Clip]) -> Path:
     rows, slots, offsets = m["lines"], m["slots"], m["field_offsets"]
     for r, k in enumerate(rows):
         if m["kind"] == "utkinect":
+            if r and slots[r] == slots[r - 1]:
+                continue  # a repeated number: not read (sometimes a second body), kept as written
             t, joints = slots[r], np.flatnonzero(changed[slots[r]])
         else:  # a line a joint
             t, j = divmod(r, 20)
