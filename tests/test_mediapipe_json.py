@@ -13,7 +13,7 @@ from test_keypoints import body_take, in_layout  # noqa: F401  (body_take: the f
 
 from mocapfix.core.clip import MotionFileError
 from mocapfix.io import read_motion
-from mocapfix.io.conventions import CAMERA_TO_Y_UP, from_z_up
+from mocapfix.io.conventions import from_z_up
 from mocapfix.io.layouts import layout
 
 NAMES = layout("mediapipe33").joint_names
@@ -22,7 +22,7 @@ NAMES = layout("mediapipe33").joint_names
 def world_landmarks(body) -> np.ndarray:
     """body (T, 21, 3) z up -> (T, 33, 3) as MediaPipe gives them: metres about the hips' midpoint,
     x right, y down, z away from the camera."""
-    x = from_z_up(in_layout("mediapipe33", body), "y") @ CAMERA_TO_Y_UP
+    x = from_z_up(in_layout("mediapipe33", body), "-y")
     hips = x[:, [NAMES.index("left_hip"), NAMES.index("right_hip")]].mean(1, keepdims=True)
     return x - hips
 

@@ -23,6 +23,17 @@ from mocapfix.io.npz import load_npz, npz_array
 from mocapfix.io.positions import write_clips, write_positions
 
 FIXED = ".fixed"  # default output: <stem>.fixed<ext> beside the input
+# A keypoint file's writer by its reader's format: each puts fix's positions back into the file's
+# own structure (path, clips, the clips as read).
+KEYPOINT_WRITERS = {
+    "keypoints-npy": write_keypoints,
+    "keypoints-npz": write_keypoints,
+    "keypoints-skeleton": write_kinect_skeleton,
+    "keypoints-kinect-log": write_kinect_log,
+    "keypoints-text": write_kinect_text,
+    "keypoints-mediapipe-json": write_mediapipe_json,
+    "keypoints-azure-json": write_azure_kinect,
+}
 
 
 def output_suffix(clips: list[Clip], path: Path, rotations: bool = False) -> str:
@@ -81,23 +92,8 @@ def write_output(target: Path, clips: list[Clip], inputs: list[Clip], path: Path
             tree.setdefault(c.meta["subject"], {})[c.meta["action"]] = (c.positions / scale).astype(np.float32)
         atomic_write(target, lambda f: np.savez_compressed(f, positions_3d=np.array(tree, dtype=object)))
         return
-    if fmt in ("keypoints-npy", "keypoints-npz"):
-        write_keypoints(target, clips, inputs)
-        return
-    if fmt == "keypoints-skeleton":
-        write_kinect_skeleton(target, clips, inputs)
-        return
-    if fmt == "keypoints-kinect-log":
-        write_kinect_log(target, clips, inputs)
-        return
-    if fmt == "keypoints-text":
-        write_kinect_text(target, clips, inputs)
-        return
-    if fmt == "keypoints-mediapipe-json":
-        write_mediapipe_json(target, clips, inputs)
-        return
-    if fmt == "keypoints-azure-json":
-        write_azure_kinect(target, clips, inputs)
+    if fmt in KEYPOINT_WRITERS:
+        KEYPOINT_WRITERS[fmt](target, clips, inputs)
         return
     m = clips[0].meta
     if fmt == "positions-npz" and metres_per_unit(m) != 1.0:

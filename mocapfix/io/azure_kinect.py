@@ -5,8 +5,8 @@
                  "bodies": [{"body_id": 1, "joint_positions": [[x, y, z] * 32],
                              "joint_orientations": [[w, x, y, z] * 32]}]}, ...]}
 
-Depth-camera space: millimetres, x right, y down, z away from the camera; read as y up (x, -y,
--z: a half turn about x) and put back as it was. Each person is one clip over the take's frames:
+Depth-camera space: millimetres, x right, y down, z away from the camera (up axis "-y",
+io/conventions.py) and put back as it was. Each person is one clip over the take's frames:
 a body ID that starts where another ended is the same person found again (io/body_ids.py). The
 frames' timestamps put them on the camera's clock (fps given, else told from the
 steps: 30, 15 or 5): a frame the processor dropped is a hole fix fills. The layout is azure32
@@ -24,7 +24,7 @@ import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.io.body_ids import merged, one_person_chains
-from mocapfix.io.conventions import CAMERA_TO_Y_UP, from_z_up, metres_per_unit
+from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
 from mocapfix.io.keypoints import frame_slots, layout_skeleton_of
 from mocapfix.io.layouts import layout
@@ -88,7 +88,7 @@ def read_azure_kinect(path, unit: str = "auto", fps: float | None = None, groups
     xyz = np.full((len(bodies), int(slots[-1]) + 1, len(lay.joint_names), 3), np.nan)  # (P, N, J, 3)
     for p, appearances in enumerate(bodies.values()):
         for i, positions in appearances:
-            xyz[p, slots[i]] = positions @ CAMERA_TO_Y_UP
+            xyz[p, slots[i]] = positions
     present = np.isfinite(xyz).all(-1).all(-1)  # (P, N)
     chains = one_person_chains(xyz[:, :, 0] / 1000.0, fps)  # by the pelvis, mm -> m
     xyz = merged(xyz, chains, present)
@@ -103,7 +103,7 @@ def read_azure_kinect(path, unit: str = "auto", fps: float | None = None, groups
         }
         for chain in chains
     ]
-    clips = _clips(path, xyz[:, :, order], fps, skeleton, unit, "mm", "y", "y", "keypoints-azure-json", people)
+    clips = _clips(path, xyz[:, :, order], fps, skeleton, unit, "mm", "-y", "-y", "keypoints-azure-json", people)
     for c in clips:
         c.meta["document"] = data  # one object for the file's people: the writer edits a copy
     return clips
@@ -118,7 +118,7 @@ def write_azure_kinect(path, clips: list[Clip], inputs: list[Clip]) -> Path:
         order = np.asarray(m["joint_order"])
         now, was = np.empty(c.positions.shape), np.empty(c.positions.shape)
         now[:, order], was[:, order] = c.positions, before.positions
-        out = (from_z_up(now + c.origin, "y") / metres_per_unit(m)) @ CAMERA_TO_Y_UP  # file order, mm, camera axes
+        out = from_z_up(now + c.origin, m["up_axis"]) / metres_per_unit(m)  # file order, mm, camera axes
         for i, body_id in m["bodies_at"]:
             t = m["slots"][i]
             body = next(b for b in data["frames"][i]["bodies"] if str(b["body_id"]) == body_id)

@@ -228,11 +228,6 @@ def stature_warning(stature: float, meta: dict, source) -> str | None:
 # --- up axis ---
 
 
-# A camera's axes (x right, y down, z away: Azure Kinect, MediaPipe's world landmarks) -> y up: a
-# half turn about x, (x, -y, -z); its own inverse.
-CAMERA_TO_Y_UP = np.diag([1.0, -1.0, -1.0])
-
-
 # The up axes a file's right-handed frame can have. "-y": y down, a camera's axes (x right, z away:
 # video lifters' camera-space outputs, MediaPipe, OpenCV triangulation); "-z": z down.
 UP_AXES = ("z", "y", "-y", "-z")

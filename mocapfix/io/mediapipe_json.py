@@ -12,8 +12,8 @@ with no entry is a hole fix fills, as when a script writes only the frames with 
 time itself (timestamp_ms; put on the clock at the fps given or told from the steps). An empty or
 null landmark list is a frame with nobody detected (a hole).
 
-World landmarks are metres about the hips' midpoint, x right, y down, z away from the camera (read
-as y up: a half turn about x, put back as it was). The image landmarks (pose_landmarks: x, y
+World landmarks are metres about the hips' midpoint, x right, y down, z away from the camera (up
+axis "-y", io/conventions.py; put back as it was). The image landmarks (pose_landmarks: x, y
 fractions of the image, z on x's scale) are no 3D positions: told by the key, or for a bare
 "landmarks" by where the hips are (world landmarks hold their midpoint at the origin), and
 refused in one line. visibility (the lower of it and presence where both are given) is the
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
-from mocapfix.io.conventions import CAMERA_TO_Y_UP, from_z_up, metres_per_unit
+from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
 from mocapfix.io.keypoints import frame_slots, layout_skeleton_of, on_clock
 from mocapfix.io.layouts import layout
@@ -168,10 +168,10 @@ def read_mediapipe_json(
     slots = frame_slots(path, times, T, fps)
     lay = layout("mediapipe33")
     skeleton, order = layout_skeleton_of(path, lay, groups)
-    clock = on_clock(xyz @ CAMERA_TO_Y_UP, slots)  # (N, 33, 3) y up
+    clock = on_clock(xyz, slots)  # (N, 33, 3) camera axes
     meta = {"layout": lay.name, "joint_order": order, "slots": slots.tolist(), "document": data}
     return _clips(
-        path, clock[None][:, :, order], fps, skeleton, unit, "m", "y", "y", "keypoints-mediapipe-json", [meta]
+        path, clock[None][:, :, order], fps, skeleton, unit, "m", "-y", "-y", "keypoints-mediapipe-json", [meta]
     )
 
 
@@ -186,7 +186,7 @@ def write_mediapipe_json(path, clips: list[Clip], inputs: list[Clip]) -> Path:
     now, was = np.empty(clip.positions.shape), np.empty(clip.positions.shape)
     now[:, order], was[:, order] = clip.positions, before.positions  # MediaPipe's order
     changed = np.isfinite(now).all(-1) & ~(now == was).all(-1)  # (N, 33)
-    out = (from_z_up(now + clip.origin, "y") / metres_per_unit(m)) @ CAMERA_TO_Y_UP  # camera axes
+    out = from_z_up(now + clip.origin, m["up_axis"]) / metres_per_unit(m)  # camera axes, the file's unit
     for i, entry in enumerate(entries):
         t = m["slots"][i]
         points, _ = _landmarks_of(Path(path), i, entry)
