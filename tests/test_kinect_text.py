@@ -114,7 +114,7 @@ def test_what_is_not_a_kinect_skeleton_text_is_one_line_naming_the_problem(tmp_p
     with pytest.raises(MotionFileError, match="no frame rate: give --fps, MSR Action3D's: 15"):
         read_motion(path)
     path.write_text("1 2 3 4 5 6 7\n")
-    with pytest.raises(MotionFileError, match="7 numbers a line: neither Human3.6M"):
+    with pytest.raises(MotionFileError, match="7 value.s. on its first line: neither Human3.6M"):
         read_motion(path)
     row = "  ".join(["0.5"] * 60)
     path.write_text(f"12 {row}\n10 {row}\n")

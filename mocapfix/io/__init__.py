@@ -202,8 +202,8 @@ def _text_source(path: Path) -> str:
         return "keypoints"
     raise MotionFileError(
         path,
-        f"a .txt file of {len(first.split())} numbers a line: neither Human3.6M exponential maps (99, "
-        "comma-separated) nor a Kinect skeleton (UTKinect-Action3D 61, MSR Action3D 4)",
+        f"a .txt file with {len(first.split())} value(s) on its first line: neither Human3.6M exponential maps "
+        "(99, comma-separated) nor a Kinect skeleton (UTKinect-Action3D 61, MSR Action3D 4)",
     )
 
 

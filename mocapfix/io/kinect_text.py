@@ -83,7 +83,7 @@ def _utkinect(path: Path, lines: list[str], rows: list[int]) -> tuple[np.ndarray
     number = values[:, 0]
     if not (np.isfinite(number) & (number == np.round(number)) & (np.abs(number) < 1e12)).all():
         bad = int(np.argmax(~(np.isfinite(number) & (number == np.round(number)) & (np.abs(number) < 1e12))))
-        raise MotionFileError(path, f"line {rows[bad] + 1}: the frame number is not a whole number")
+        raise MotionFileError(path, f"line {rows[bad] + 1}: not a frame number (a whole number under 10^12)")
     steps = np.diff(number)
     if (steps < 0).any():
         raise MotionFileError(path, f"line {rows[int(np.argmax(steps < 0)) + 1] + 1}: the frame number goes back")

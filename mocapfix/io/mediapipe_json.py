@@ -158,6 +158,8 @@ def read_mediapipe_json(
         times = (np.array(numbers) - numbers[0]) / rate  # a frame number's time at that rate
     elif all(s is not None for s in stamps) and T > 1:
         times = np.array(stamps) / 1000.0
+        if fps is None and file_fps is None and not (np.diff(times) > 0).any():
+            raise MotionFileError(path, "timestamp_ms never advances: no frame rate to tell from it; give --fps")
     if fps is None:
         fps = file_fps
     if fps is None and times is not None:
