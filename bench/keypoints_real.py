@@ -228,6 +228,7 @@ def set_row(name: str, s: Set, files: list[Path], fixer) -> dict:
             frames += clip.num_frames
     row = {"set": name, "layout": s.layout, "takes": len(measured["input"]), "frames": frames, "source": s.source}
     row["refused"] = refused
+    row["files"] = sorted(f.name for f in files)  # what was read: a later run on another fetch compares
     if not row["takes"]:
         return row
     for key, values in measured.items():
