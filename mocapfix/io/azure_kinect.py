@@ -55,7 +55,8 @@ def _bodies(path: Path, data) -> tuple[list[dict], dict]:
 
 
 def is_azure_kinect(data) -> bool:
-    """A JSON document (read_json) is the offline processor's: an object with a 'frames' list."""
+    """A JSON document (read_json) is the offline processor's: an object with a 'frames' list and
+    its 'joint_names', or frames holding 'bodies'."""
     if not (isinstance(data, dict) and isinstance(data.get("frames"), list)):
         return False
     return "joint_names" in data or any(isinstance(f, dict) and "bodies" in f for f in data["frames"][:10])
