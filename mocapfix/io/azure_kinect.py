@@ -24,9 +24,8 @@ import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.io.body_ids import merged, one_person_chains
-from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
-from mocapfix.io.keypoints import frame_slots, layout_skeleton_of
+from mocapfix.io.keypoints import file_tokens, frame_slots, layout_skeleton_of
 from mocapfix.io.layouts import layout
 from mocapfix.io.positions import _check_fps, _clips, _fps_from_times
 from mocapfix.io.untrusted import read_json
@@ -117,14 +116,11 @@ def write_azure_kinect(path, clips: list[Clip], inputs: list[Clip]) -> Path:
     for c, before in zip(clips, inputs):
         m = c.meta
         order = np.asarray(m["joint_order"])
-        now, was = np.empty(c.positions.shape), np.empty(c.positions.shape)
-        now[:, order], was[:, order] = c.positions, before.positions
-        out = from_z_up(now + c.origin, m["up_axis"]) / metres_per_unit(m)  # file order, mm, camera axes
+        out, changed = file_tokens(c, before, order)  # file order, mm, camera axes
         for i, body_id in m["bodies_at"]:
             t = m["slots"][i]
             body = next(b for b in data["frames"][i]["bodies"] if str(b["body_id"]) == body_id)
-            changed = np.isfinite(now[t]).all(-1) & ~(now[t] == was[t]).all(-1)
-            for j in np.nonzero(changed)[0]:
+            for j in np.nonzero(changed[t])[0]:
                 body["joint_positions"][j] = [float(v) for v in out[t, j]]
     atomic_write(path, lambda f: f.write(json.dumps(data, indent=1).encode("utf-8")))
     return Path(path)

@@ -127,6 +127,17 @@ def on_clock(rows: np.ndarray, slots: np.ndarray) -> np.ndarray:
     return clock
 
 
+def file_tokens(clip: Clip, before: Clip, order) -> tuple[np.ndarray, np.ndarray]:
+    """What a keypoint writer puts back: clip, fix's output; before, the clip as read; order: (J,)
+    the file's joint of each of the clip's joints -> ((N, J, 3) its positions in the file's joint
+    order, unit and axes; (N, J) bool, the tokens fix changed: the only ones a writer rewrites)."""
+    shape = (clip.num_frames, len(order), 3)
+    now, was = np.empty(shape), np.empty(shape)
+    now[:, order], was[:, order] = clip.positions, before.positions
+    changed = np.isfinite(now).all(-1) & ~(now == was).all(-1)
+    return from_z_up(now + clip.origin, clip.meta["up_axis"]) / metres_per_unit(clip.meta), changed
+
+
 def layout_skeleton_of(path: Path, lay, groups=None):
     """The layout's skeleton and order (layouts.layout_skeleton) with a user's limb groups; a
     group naming a joint the layout lacks is the file's one-line error."""

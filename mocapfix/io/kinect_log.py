@@ -29,9 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
-from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
-from mocapfix.io.keypoints import frame_slots, layout_skeleton_of, on_clock
+from mocapfix.io.keypoints import file_tokens, frame_slots, layout_skeleton_of, on_clock
 from mocapfix.io.layouts import layout
 from mocapfix.io.positions import _check_fps, _clips, _fps_from_times
 from mocapfix.io.untrusted import read_text_lines
@@ -140,11 +139,7 @@ def write_kinect_log(path, clips: list[Clip], inputs: list[Clip]) -> Path:
     for c, before in zip(clips, inputs):
         m = c.meta
         order, columns = np.asarray(m["joint_order"]), np.asarray(m["xyz_columns"])
-        now = np.empty(c.positions.shape)
-        was = np.empty(c.positions.shape)
-        now[:, order], was[:, order] = c.positions, before.positions  # file order
-        changed = np.isfinite(now).all(-1) & ~(now == was).all(-1)  # (N, J)
-        out = from_z_up(now + c.origin, m.get("up_axis", "y")) / metres_per_unit(m)
+        out, changed = file_tokens(c, before, order)  # (N, J, 3), (N, J) in the file's order
         for line, t in zip(m["lines"], m["slots"]):
             if changed[t].any():
                 cells = lines[line].split("\t")

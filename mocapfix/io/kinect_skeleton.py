@@ -26,9 +26,8 @@ import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.io.body_ids import merged, one_person_chains
-from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
-from mocapfix.io.keypoints import layout_skeleton_of
+from mocapfix.io.keypoints import file_tokens, layout_skeleton_of
 from mocapfix.io.layouts import layout
 from mocapfix.io.positions import _check_fps, _clips
 from mocapfix.io.untrusted import read_text_lines
@@ -126,12 +125,8 @@ def write_kinect_skeleton(path, clips: list[Clip], inputs: list[Clip]) -> Path:
     for c, before in zip(clips, inputs):
         m = c.meta
         order = np.asarray(m["joint_order"])
-        now = np.empty_like(c.positions, dtype=np.float64)
-        now[:, order] = c.positions.astype(np.float64)
-        was = np.empty_like(now)
-        was[:, order] = before.positions.astype(np.float64)
-        changed = np.isfinite(now).all(-1) & ~(now == was).all(-1) & (m["lines"] >= 0)  # (T, J) file order
-        out = from_z_up(now + c.origin, m.get("up_axis", "y")) / metres_per_unit(m)
+        out, changed = file_tokens(c, before, order)  # (T, J, 3), (T, J) in the file's order
+        changed &= m["lines"] >= 0
         for t, j in zip(*np.nonzero(changed)):
             fields = lines[m["lines"][t, j]].split()
             fields[:3] = [f"{v:.7g}" for v in out[t, j]]

@@ -34,9 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
-from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
-from mocapfix.io.keypoints import layout_skeleton_of, on_clock
+from mocapfix.io.keypoints import file_tokens, layout_skeleton_of, on_clock
 from mocapfix.io.layouts import layout
 from mocapfix.io.positions import _check_fps, _clips
 from mocapfix.io.untrusted import read_text_lines
@@ -81,8 +80,10 @@ def _utkinect(path: Path, lines: list[str], rows: list[int]) -> tuple[np.ndarray
     the camera frames a clock frame is)."""
     values = _numbers(path, lines, rows, UTKINECT_FIELDS)
     number = values[:, 0]
-    if not (np.isfinite(number) & (number == np.round(number)) & (np.abs(number) < 1e12)).all():
-        bad = int(np.argmax(~(np.isfinite(number) & (number == np.round(number)) & (np.abs(number) < 1e12))))
+    with np.errstate(invalid="ignore"):
+        whole = (number == np.round(number)) & (np.abs(number) < 1e12)  # NaN and inf: False
+    if not whole.all():
+        bad = int(np.argmax(~whole))
         raise MotionFileError(path, f"line {rows[bad] + 1}: not a frame number (a whole number under 10^12)")
     steps = np.diff(number)
     if (steps < 0).any():
@@ -163,11 +164,7 @@ def write_kinect_text(path, clips: list[Clip], inputs: list[Clip]) -> Path:
     m = clip.meta
     lines = list(m["file_lines"])
     file_joint = np.asarray(m["file_joints"])[np.asarray(m["joint_order"])]  # skeleton joint k's in the file
-    now = np.full((clip.num_frames, len(file_joint), 3), np.nan)
-    was = np.full_like(now, np.nan)
-    now[:, file_joint], was[:, file_joint] = clip.positions, before.positions  # the file's joint order
-    changed = np.isfinite(now).all(-1) & ~(now == was).all(-1)  # (N, J)
-    out = from_z_up(now + clip.origin, m.get("up_axis", "y")) / metres_per_unit(m)
+    out, changed = file_tokens(clip, before, file_joint)  # (N, J, 3), (N, J) in the file's joint order
     if m["kind"] == "msr":
         out[..., 0] *= -1
     rows, slots, offsets = m["lines"], m["slots"], m["field_offsets"]

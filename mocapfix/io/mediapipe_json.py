@@ -32,9 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
-from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
-from mocapfix.io.keypoints import frame_slots, layout_skeleton_of, on_clock
+from mocapfix.io.keypoints import file_tokens, frame_slots, layout_skeleton_of, on_clock
 from mocapfix.io.layouts import layout
 from mocapfix.io.positions import _check_fps, _clips, _fps_from_times
 
@@ -185,10 +184,7 @@ def write_mediapipe_json(path, clips: list[Clip], inputs: list[Clip]) -> Path:
     data = json.loads(json.dumps(m["document"]))  # a copy to edit
     entries, _ = _entries(Path(path), data)
     order = np.asarray(m["joint_order"])
-    now, was = np.empty(clip.positions.shape), np.empty(clip.positions.shape)
-    now[:, order], was[:, order] = clip.positions, before.positions  # MediaPipe's order
-    changed = np.isfinite(now).all(-1) & ~(now == was).all(-1)  # (N, 33)
-    out = from_z_up(now + clip.origin, m["up_axis"]) / metres_per_unit(m)  # camera axes, the file's unit
+    out, changed = file_tokens(clip, before, order)  # (N, 33, 3) camera axes, the file's unit; (N, 33)
     for i, entry in enumerate(entries):
         t = m["slots"][i]
         points, _ = _landmarks_of(Path(path), i, entry)
