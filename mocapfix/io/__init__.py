@@ -105,8 +105,8 @@ def _read_keypoints(
     """Keypoints as trackers hand them over: an array in a published layout (.npy/.npz,
     io/keypoints.py), Kinect v2 skeleton text (.skeleton, io/kinect_skeleton.py), a Kinect body
     log (.skl, io/kinect_log.py), Azure Kinect body tracking or MediaPipe's world landmarks (.json,
-    io/azure_kinect.py, io/mediapipe_json.py) or the
-    action datasets' Kinect v1 skeleton text (.txt, io/kinect_text.py)."""
+    io/azure_kinect.py, io/mediapipe_json.py) or the action datasets' Kinect v1 skeleton text
+    (.txt, io/kinect_text.py)."""
     suffix = Path(path).suffix.lower()
     if suffix == ".txt":
         from mocapfix.io.kinect_text import read_kinect_text
@@ -154,7 +154,7 @@ def detect_source(path) -> str:
         return "bvh"
     if suffix == ".csv":
         return "positions"
-    if suffix in (".npy", ".skeleton", ".skl", ".json"):  # a keypoint array; Kinect text and logs; Azure's JSON
+    if suffix in (".npy", ".skeleton", ".skl", ".json"):  # a keypoint array; Kinect text and logs; Azure's / MediaPipe's JSON
         return "keypoints"
     if suffix == ".txt":  # named alone: a folder's .txt files are listed only for --source h36m / keypoints
         return _text_source(path)
