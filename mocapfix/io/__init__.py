@@ -154,7 +154,7 @@ def detect_source(path) -> str:
         return "bvh"
     if suffix == ".csv":
         return "positions"
-    if suffix in (".npy", ".skeleton", ".skl", ".json"):  # a keypoint array; Kinect text and logs; Azure's / MediaPipe's JSON
+    if suffix in (".npy", ".skeleton", ".skl", ".json"):  # keypoint arrays; Kinect text, logs; JSON (Azure, MediaPipe)
         return "keypoints"
     if suffix == ".txt":  # named alone: a folder's .txt files are listed only for --source h36m / keypoints
         return _text_source(path)
