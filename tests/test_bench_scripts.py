@@ -548,12 +548,14 @@ def test_fix_scaling(tmp_path, cmu_files):
 
 
 def test_match_search(tmp_path, cmu_files):
-    """Motion matching's proxy search against the exact one on one CMU take, every cell."""
+    """Motion matching's library searched three ways (every start, the proxy, the frame index) on
+    one CMU take, every cell."""
     _one_take(tmp_path / "takes", cmu_files)
     r = bench("match_search", "--data", tmp_path / "takes", "--min-seconds", "0", tmp_path=tmp_path)
-    assert len(r["rows"]) == 12
+    assert len(r["rows"]) == 12 and r["queried"] == 1
     for row in r["rows"]:
-        assert 0 < row["match_delta exact"] < 1000 and row["largest difference mm"] >= 0
+        assert all(0 < row[f"match_delta {way}"] < 1000 for way in ("exact", "proxy", "index"))
+        assert row["largest difference mm proxy"] >= 0 and row["largest difference mm index"] >= 0
 
 
 def test_keypoints_real(tmp_path, bandai_files):

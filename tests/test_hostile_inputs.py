@@ -212,6 +212,25 @@ def test_a_single_joint_jump_of_metres_is_missing_on_reading(tmp_path, bandai):
     assert back.meta["absurd_joints"] == ["Hand_L"]
 
 
+def test_the_body_centre_is_numpys_nanmedian_bit_for_bit():
+    """The jump test's per-frame centre (io/absurd.py) is one sort, not nanmedian's per-frame
+    masking: it must give nanmedian's very numbers, missing joints, even and odd counts and
+    frames with nothing seen included."""
+    import warnings
+
+    from mocapfix.io.absurd import _median_over_joints
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        T, J = int(rng.integers(1, 40)), int(rng.integers(1, 25))
+        values = rng.normal(size=(T, J, 3)) * 10.0 ** rng.integers(-3, 3)
+        values[rng.random((T, J)) < rng.random()] = np.nan
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # frames with nothing seen
+            expected = np.nanmedian(values, axis=1)
+        assert np.array_equal(_median_over_joints(values), expected, equal_nan=True)
+
+
 def test_real_takes_lose_no_token_to_the_jump_test(bandai_files):
     """A fast take (dance, punches) is motion, not jumps: every 10th Bandai file, nothing flagged."""
     for f in bandai_files[::10]:

@@ -36,6 +36,7 @@ from mocapfix.data.augment import mirror_of, mirrored
 from mocapfix.fills.classical import Classical, hermite_infill, lerp_infill
 from mocapfix.fills.fill import Fill
 from mocapfix.fills.holes import runs
+from mocapfix.fills.motion_index import MotionIndex
 
 FILLS = ("match", "match_delta")
 # Context each side of a hole, as a fraction of its length (at least MIN_CONTEXT frames): on CMU
@@ -53,6 +54,11 @@ STRIDE_PER_HOLE = 16
 # query only around the PROXY_BASINS best places the proxy finds, half a hole either side of each
 # (bench/match_search.py: what it changes).
 PROXY_BASINS = 64
+# A library with an index (motion_index.py: where its skeleton's sides pair up) is scored instead
+# by its frames at the hole's two edges: the whole query scores every start within INDEX_NEAR
+# frames of the INDEX_BASINS best stretches the index finds, at least half a hole apart.
+INDEX_BASINS = 64
+INDEX_NEAR = 2
 CHUNK = 16384  # starts scored at once (memory: CHUNK x 10 sums x the query's frames)
 LIBRARY_S = 600.0  # the most seconds of takes a library keeps (each hole's search scans them all)
 # The search reads a take and the library at about this rate (every search_step-th frame of the
@@ -121,11 +127,12 @@ class Searchable(NamedTuple):
     frames themselves are not kept beside them: a library holds minutes of takes six times over),
     a span of frames never matched (first, end): a take hidden from its own search, and the joint
     partners its takes were mirrored by (MotionLibrary.mirror): the take being fixed is searched
-    mirrored too."""
+    mirrored too, and a library's index (motion_index.py), None where it has none."""
 
     coordinates: _Coordinates
     hidden: tuple[int, int] = (0, 0)
     mirror: list[int] | None = None
+    index: MotionIndex | None = None
 
     @property
     def num_frames(self) -> int:
@@ -195,7 +202,10 @@ class MotionLibrary:
                         n += len(y) + 1
                 spans.append((first, n - 1))
             frames = np.concatenate(parts) if parts else np.zeros((0, 0, 3), np.float32)
-            self._at[fps] = (searchable(frames)._replace(mirror=self.mirror), spans)
+            library = searchable(frames)
+            c, pairs = library.coordinates, self.mirror is not None and any(j != m for j, m in enumerate(self.mirror))
+            index = MotionIndex(c.x, c.y, c.z, c.missing, self.mirror) if pairs else None
+            self._at[fps] = (library._replace(mirror=self.mirror, index=index), spans)
         return self._at[fps]
 
     def without(self, key, fps: float) -> Searchable:
@@ -332,6 +342,7 @@ def _search(
     apart: int,
     step: int,
     proxy: _Weights | None = None,
+    starts: np.ndarray | None = None,
 ):
     """The k best stretches of `source` of `width` frames, their starts more than `apart` frames
     from each other -> list of (distance, start, angle, centre): distance the mean squared
@@ -340,7 +351,8 @@ def _search(
     stretch must hold in every frame. Starts `step` frames apart are scored (float32 sums), then
     every start around the best of them (float64: the distances returned). proxy: the query at
     a few of its frames (_proxy_frames): on a long source the grid is scored by it first, and
-    the full query scores only the grid's starts near the PROXY_BASINS best places it finds."""
+    the full query scores only the grid's starts near the PROXY_BASINS best places it finds.
+    starts: (M,) the starts to score instead of the grid (_index_starts)."""
     N = source.num_frames - width + 1
     if N <= 0:
         return []
@@ -366,7 +378,9 @@ def _search(
 
     count = (N - 1) // step + 1
     grid = step * np.arange(count)
-    if proxy is not None and count > 4 * PROXY_BASINS * max(1, apart // step):
+    if starts is not None:
+        score(starts, _sums_at(source.coordinates, w, starts), w.query, d)
+    elif proxy is not None and count > 4 * PROXY_BASINS * max(1, apart // step):
         rough = np.full(N, np.inf)
         score(grid, _correlate(source.coordinates, proxy, 0, count, step), proxy.query, rough)
         places = np.array(_best_apart(rough, PROXY_BASINS, apart), dtype=np.int64)  # (B,) starts
@@ -384,6 +398,42 @@ def _search(
         score(near, _sums_at(source.coordinates, w, near), w.query, d)
     middle = source.coordinates.middle  # the centres as Searchable.stretch gives the frames
     return [(float(d[i]), i, float(angle[i]), centre[i] + middle) for i in _best_apart(d, k, apart)]
+
+
+def _index_starts(
+    source: Searchable,
+    take: np.ndarray,
+    filled: np.ndarray,
+    hs: int,
+    he: int,
+    lo: int,
+    width: int,
+    apart: int,
+    step: int,
+) -> np.ndarray | None:
+    """The starts of `source` a hole's whole query scores where the source has an index
+    (MotionIndex) and is long enough for the proxy: every start within INDEX_NEAR frames of the
+    INDEX_BASINS stretches, more than `apart` from each other, whose frames at the hole's edges are
+    described most like the take's (take: (Ts, J, 3) the searched frames, NaN where missing;
+    filled: the same with its holes filled, what the frames near an edge are described by; the
+    hole [hs, he), its stretch from lo, `width` frames) -> (M,), or None: no index, a short
+    source, or a joint missing at an edge (the proxy scores the grid then)."""
+    N = source.num_frames - width + 1
+    if source.index is None or (N - 1) // step + 1 <= 4 * PROXY_BASINS * max(1, apart // step):
+        return None
+    if not (np.isfinite(take[hs - 1]).all() and np.isfinite(take[he]).all()):
+        return None
+    before, after = source.index.distances(filled, hs - 1, -1), source.index.distances(filled, he, 1)
+    if before is None or after is None:
+        return None
+    d = before[hs - 1 - lo : hs - 1 - lo + N] + after[he - lo : he - lo + N]  # (N,) by the stretch's start
+    first, end = source.hidden
+    d[max(0, first - width + 1) : end] = np.inf
+    picks = np.array(_best_apart(d, INDEX_BASINS, apart), dtype=np.int64)
+    if not len(picks):
+        return None
+    near = np.unique((picks[:, None] + np.arange(-INDEX_NEAR, INDEX_NEAR + 1)).ravel())
+    return near[(near >= 0) & (near < N)]
 
 
 def _best_apart(of: np.ndarray, n: int, apart: int) -> list[int]:
@@ -513,7 +563,17 @@ def match_fills(
         found = [
             (d, i, start, a, c)
             for i, source in enumerate(sources[phase])
-            for d, start, a, c in _search(source, w, missing, width, NEIGHBOURS, n // 2, step, proxy)
+            for d, start, a, c in _search(
+                source,
+                w,
+                missing,
+                width,
+                NEIGHBOURS,
+                n // 2,
+                step,
+                proxy,
+                _index_starts(source, xs, hermite[phase::step_in], hs, he, lo, width, n // 2, step),
+            )
         ]
         chosen = sorted(found, key=lambda f: f[0])[:NEIGHBOURS]
         if not chosen:

@@ -54,7 +54,7 @@ def absurd_mask(positions: np.ndarray, fps: float, stature_m: float = REFERENCE_
         return np.zeros((T, J), dtype=bool)
     with np.errstate(invalid="ignore", over="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # frames with no joint seen
-        centre = np.nanmedian(np.where(seen[:, body, None], pos[:, body], np.nan), axis=1)  # (T, 3)
+        centre = _median_over_joints(np.where(seen[:, body, None], pos[:, body], np.nan))  # (T, 3)
         far = np.linalg.norm(pos - centre[:, None], axis=-1) > max(MIN_REACH_M, 1.5 * stature)  # (T, J)
 
     # The running median over frames needs every frame: carry the centre over frames where the
@@ -71,6 +71,17 @@ def absurd_mask(positions: np.ndarray, fps: float, stature_m: float = REFERENCE_
     for j in np.nonzero(body)[0]:
         far[:, j] |= excursions(pos[:, j], seen[:, j] & ~far[:, j], fps, stature)
     return far & seen & body[None]
+
+
+def _median_over_joints(values: np.ndarray) -> np.ndarray:
+    """values: (T, J, 3), NaN where missing -> (T, 3) np.nanmedian over J (NaN where none): the
+    middle one or the mean of the two middle ones of the sorted seen values, as nanmedian takes
+    them, from one sort (nanmedian masks each frame apart: 4 ms for a 1,500-frame take)."""
+    ordered = np.sort(values, axis=1)  # NaN last
+    seen = np.isfinite(ordered).sum(1, keepdims=True)  # (T, 1, 3)
+    lower = np.take_along_axis(ordered, np.maximum(seen - 1, 0) // 2, axis=1)[:, 0]
+    upper = np.take_along_axis(ordered, seen // 2, axis=1)[:, 0]
+    return np.where(seen[:, 0] > 0, (lower + upper) / 2, np.nan)
 
 
 def excursions(track: np.ndarray, seen: np.ndarray, fps: float, stature_m: float) -> np.ndarray:

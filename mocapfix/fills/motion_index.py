@@ -1,0 +1,119 @@
+"""Where motion matching looks first in a long library: an index of its frames by the pose at a
+hole's edges.
+
+Scoring every stretch of a library against a hole's query reads all of it for every hole: ten
+minutes of takes, six copies each (mirrored, three tempos), J joints times five sums per frame,
+twice (a proxy of the query, then the whole query around its best places). That was most of
+`fix`'s time on a folder (issue 47). Here each library frame is described once by a short vector
+(DIMS numbers): its pose and the pose one frame before it (or after it), both seen from its own
+heading and over its own centre, reduced by a PCA of the library's frames. A hole's candidate
+stretches are those whose frame before the hole and frame after it are both near the take's
+(one matrix-vector product per edge over the library, N x DIMS numbers); motion matching then
+scores the whole query, exactly, only around the best of them (motion_matching._search).
+
+The pose at a hole's two edges is what a fill must meet, and the heading and centre of one frame
+stand in for the stretch's best turn and shift: on Bandai (40 takes, holes of the full body, a
+leg or an arm, 0.5 and 0.9 s, 10 minutes of other takes searched) the neighbours found this way
+filled the holes as well as scoring every stretch did (docs/results.md), for a third of the CPU.
+A frame's heading is its left-right axis (the sum over joint pairs of left minus right, in x, y;
+the pairs the library is mirrored by), so the index exists only for a library whose skeleton's
+sides pair up; a hole's search without one scores the library as before.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+DIMS = 16  # PCA coordinates per frame and edge (of 2 J 3 numbers: the pose and its neighbour's)
+AWAY = (2, 4)  # the other frames described with each edge frame, this many frames away from the hole
+FIT_ROWS = 4096  # frames the PCA is fitted on (evenly spread): the library's poses, not all of them
+CHUNK = 8192  # frames described at once (memory: CHUNK x 2 J 3 x 2 float32)
+
+
+def edge_features(here: np.ndarray, theres: list[np.ndarray], pairs: np.ndarray) -> np.ndarray:
+    """here: (M, J, 3) metres, NaN where missing; theres: each (M, J, 3), each frame's neighbour
+    (before it, after it); pairs: (P, 2) joints (left, right) -> per neighbour (M, 2 J 3) float32:
+    the frame's pose and its neighbour's, both turned so that the frame's left-right axis is +x
+    and shifted so that its joints' mean x, y is 0 (z as it is); NaN where either is not whole."""
+    across = (here[:, pairs[:, 0], :2] - here[:, pairs[:, 1], :2]).sum(1)  # (M, 2)
+    across /= np.maximum(np.linalg.norm(across, axis=-1, keepdims=True), 1e-9)
+    cos, sin = across[:, 0, None], across[:, 1, None]  # (M, 1): the turn taking it to +x
+    cx, cy = here[..., 0].mean(1, keepdims=True), here[..., 1].mean(1, keepdims=True)  # (M, 1)
+
+    def seen(pose: np.ndarray) -> np.ndarray:  # (M, J, 3) -> (M, J 3)
+        x, y = pose[..., 0] - cx, pose[..., 1] - cy
+        return np.stack([cos * x + sin * y, cos * y - sin * x, pose[..., 2]], -1).reshape(len(pose), -1)
+
+    return np.concatenate([seen(here)] + [seen(there) for there in theres], 1).astype(np.float32)
+
+
+class MotionIndex:
+    """A library's frames described for each edge of a hole: the frame before a hole (side -1:
+    its pose and the one before it) and the frame after it (side +1). Made with a library at one
+    search rate (MotionLibrary.frames), built at the first hole that asks (a short library is
+    scored whole and never asks), read by every hole's search after that.
+    x, y, z, missing: (J, N) the library's coordinates as motion matching keeps them (shifted over
+    the floor or not: each frame is described about its own centre); mirror: each joint's partner."""
+
+    def __init__(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, missing: np.ndarray, mirror: list[int]):
+        self.coordinates = (x, y, z, missing)
+        self.pairs = np.array([(j, m) for j, m in enumerate(mirror) if j < m], dtype=np.int64)  # (P, 2)
+        self.edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def _frames(self, a: int, b: int, every: int = 1) -> np.ndarray:
+        """Every `every`-th frame of [a, b), those outside the library NaN -> (M, J, 3) float32,
+        NaN where missing."""
+        x, y, z, missing = self.coordinates
+        at = np.arange(a, b, every)
+        inside = (at >= 0) & (at < x.shape[1])
+        i = np.clip(at, 0, x.shape[1] - 1)
+        out = np.stack([x[:, i].T, y[:, i].T, z[:, i].T], -1)
+        out[(missing[:, i].T > 0) | ~inside[:, None]] = np.nan
+        return out
+
+    def _described(self, a: int, b: int, every: int = 1) -> dict[int, np.ndarray]:
+        """side -> (M, 2 J 3) edge_features of every `every`-th frame of [a, b)."""
+        here = self._frames(a, b, every)
+        return {
+            side: edge_features(here, [self._frames(a + side * k, b + side * k, every) for k in AWAY], self.pairs)
+            for side in (-1, 1)
+        }
+
+    def _built(self) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """side -> (mean (2 J 3,), basis (2 J 3, D), coordinates (N, D) float32, their squared
+        norms (N,) float32, inf where not whole)."""
+        if not self.edges:
+            N = self.coordinates[0].shape[1]
+            # the PCA of FIT_ROWS frames evenly spread over the library (from their covariance)
+            fitted = {}
+            for side, sample in self._described(0, N, max(1, N // FIT_ROWS)).items():
+                sample = sample[np.isfinite(sample).all(1)].astype(np.float64)
+                mean = sample.mean(0) if len(sample) else np.zeros(sample.shape[1])
+                _, vectors = np.linalg.eigh((sample - mean).T @ (sample - mean))
+                fitted[side] = (mean, vectors[:, ::-1][:, :DIMS])  # (2 J 3,), (2 J 3, D): the largest first
+            coords = {side: np.zeros((N, basis.shape[1]), np.float32) for side, (_, basis) in fitted.items()}
+            norms = {side: np.full(N, np.inf, np.float32) for side in fitted}
+            for a in range(0, N, CHUNK):
+                b = min(N, a + CHUNK)
+                for side, rows in self._described(a, b).items():
+                    mean, basis = fitted[side]
+                    whole = np.isfinite(rows).all(1)
+                    at = (np.where(whole[:, None], rows, 0.0) - mean.astype(np.float32)) @ basis.astype(np.float32)
+                    coords[side][a:b] = np.where(whole[:, None], at, 0.0)
+                    norms[side][a:b] = np.where(whole, (at**2).sum(1), np.inf)
+            self.edges = {side: (*fitted[side], coords[side], norms[side]) for side in fitted}
+        return self.edges
+
+    def distances(self, take: np.ndarray, frame: int, side: int) -> np.ndarray | None:
+        """take: (T, J, 3) the hole's take at the library's rate, its other holes filled (the
+        frames AWAY from an edge may be in one; those beyond the take's ends are its first or last
+        frame); frame: an edge of a hole (the frame before it, side -1; the frame after it, side
+        +1) -> (N,) the squared distance of each library frame's description to the take's there
+        (inf where not whole), or None where the take's frames there are not whole."""
+        at = np.clip([frame] + [frame + side * k for k in AWAY], 0, len(take) - 1)
+        if not np.isfinite(take[at]).all():
+            return None
+        mean, basis, coords, norms = self._built()[side]
+        q = edge_features(take[at[:1]], [take[[f]] for f in at[1:]], self.pairs)[0].astype(np.float64)
+        q = ((q - mean) @ basis).astype(np.float32)
+        return norms - 2 * (coords @ q) + q @ q
