@@ -39,7 +39,7 @@ WAYS = ("exact", "proxy", "index")
 def searched(way: str, monkey: dict) -> None:
     """Set motion matching's module up for one way of searching (monkey: its settings as shipped)."""
     mm.PROXY_BASINS = 10**9 if way == "exact" else monkey["PROXY_BASINS"]  # no source long enough: all scored
-    mm._index_starts = monkey["_index_starts"] if way == "index" else (lambda *a: None)
+    mm._index_places = monkey["_index_places"] if way == "index" else (lambda *a: None)
 
 
 def main(argv=None) -> int:
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     extra = []
     if args.library:
         extra = [onto_skeleton(read_motion(f)[0], body) for f in list_motion_files(args.library, "bvh")]
-    shipped = {"PROXY_BASINS": mm.PROXY_BASINS, "_index_starts": mm._index_starts}
+    shipped = {"PROXY_BASINS": mm.PROXY_BASINS, "_index_places": mm._index_places}
     rows = []
     for part, group in PARTS.items():
         for gap in GAPS_S:
@@ -110,7 +110,8 @@ def main(argv=None) -> int:
         takes=len(takes),
         queried=len(queried),
         proxy_basins=shipped["PROXY_BASINS"],
-        index_basins=mm.INDEX_BASINS,
+        index_places=mm.INDEX_PLACES,
+        index_kept=mm.INDEX_KEPT,
         index_near=mm.INDEX_NEAR,
     )
     path = write_result("match_search", result, args.json_out, "library" if args.library else None)

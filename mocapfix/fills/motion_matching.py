@@ -14,8 +14,10 @@ out of one search (the recording's policy picks per kind of hole, policy.py):
 - "match_delta": the cubic Hermite fill plus how far each neighbour's motion departs from its own
   Hermite fill (the same hole cut into it): a correction to the interpolation, which shrinks
   to the interpolation where the neighbours disagree.
-Library takes are searched as recorded, mirrored and at other tempos (TEMPOS), every start of
-each (the distance of every stretch is a few correlations: _correlate). On CMU subjects 35-39
+Library takes are searched as recorded, mirrored and at other tempos (TEMPOS): the take's own
+stretches every one (the distance of every stretch is a few correlations: _correlate), a long
+library's around the places its frame index finds (motion_index.py; without one, around the best
+places of a proxy of the query). On CMU subjects 35-39
 (the PFNN capture: 4 full-body holes in each of 32 takes, the folder's other takes searched)
 the 0.5 / 0.9-s holes came out 10.1 / 63.8 mm for "match" against the cubic spline's
 25.7 / 200.5; on the CMU strangers with the same performers' other takes, "match_delta" wins
@@ -30,6 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
+from scipy.ndimage import minimum_filter1d
 
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.augment import mirror_of, mirrored
@@ -54,11 +57,17 @@ STRIDE_PER_HOLE = 16
 # query only around the PROXY_BASINS best places the proxy finds, half a hole either side of each
 # (bench/match_search.py: what it changes).
 PROXY_BASINS = 64
-# A library with an index (motion_index.py: where its skeleton's sides pair up) is scored instead
-# by its frames at the hole's two edges: the whole query scores every start within INDEX_NEAR
-# frames of the INDEX_BASINS best stretches the index finds, at least half a hole apart.
-INDEX_BASINS = 64
+# A library with an index (motion_index.py: where its skeleton's sides pair up) is looked up by the
+# frames at the hole's two edges (and, for a limb's hole, the body it leaves at its middle frame):
+# the INDEX_PLACES stretches lowest there within half a hole of them are ranked by the proxy, and
+# the whole query scores every start within INDEX_NEAR frames of the INDEX_KEPT best. On Bandai
+# (bench/match_search.py: 40 takes, 10 minutes of the others searched) the fills came out within
+# 0.2 mm of scoring every start in 10 of 12 cells (legs 0.7 s +0.3, arms 0.7 s +0.5 mm...) at a
+# third of its CPU; fewer places (64, edges only) lost 1-2 mm on the legs' holes.
+INDEX_PLACES = 512
+INDEX_KEPT = 64
 INDEX_NEAR = 2
+INSIDE_WEIGHT = 2.0  # a limb hole's middle frame against its two edges' (3 frames each) descriptions
 CHUNK = 16384  # starts scored at once (memory: CHUNK x 10 sums x the query's frames)
 LIBRARY_S = 600.0  # the most seconds of takes a library keeps (each hole's search scans them all)
 # The search reads a take and the library at about this rate (every search_step-th frame of the
@@ -159,7 +168,13 @@ class MotionLibrary:
     the first takes that fit are kept. mirror: each joint's partner (mirror_of), to search each
     take's mirror image too; None: not mirrored."""
 
-    def __init__(self, takes: list[tuple[np.ndarray, float]], keys: list | None = None, mirror=None):
+    def __init__(
+        self,
+        takes: list[tuple[np.ndarray, float]],
+        keys: list | None = None,
+        mirror=None,
+        torso: list[int] | None = None,
+    ):
         keys = list(range(len(takes))) if keys is None else list(keys)
         seconds = np.array([len(x) / fps for x, fps in takes])
         keep = np.arange(len(takes))
@@ -168,6 +183,7 @@ class MotionLibrary:
         self.takes = [(takes[i][0].astype(np.float32), float(takes[i][1])) for i in keep]
         self.keys = [keys[i] for i in keep]
         self.mirror = None if mirror is None else list(mirror)
+        self.torso = None if torso is None else list(torso)
         self._at: dict[float, tuple[Searchable, list[tuple[int, int]]]] = {}
 
     def __getstate__(self) -> dict:
@@ -181,7 +197,7 @@ class MotionLibrary:
         new = [(t, k) for t, k in zip(takes, keys) if k not in self.keys]
         if not new:
             return self
-        return MotionLibrary([t for t, _ in new] + self.takes, [k for _, k in new] + self.keys, self.mirror)
+        return MotionLibrary([t for t, _ in new] + self.takes, [k for _, k in new] + self.keys, self.mirror, self.torso)
 
     def frames(self, fps: float) -> tuple[Searchable, list[tuple[int, int]]]:
         """Every take at `fps` (then its mirror image, each at every tempo of TEMPOS), one after
@@ -204,7 +220,7 @@ class MotionLibrary:
             frames = np.concatenate(parts) if parts else np.zeros((0, 0, 3), np.float32)
             library = searchable(frames)
             c, pairs = library.coordinates, self.mirror is not None and any(j != m for j, m in enumerate(self.mirror))
-            index = MotionIndex(c.x, c.y, c.z, c.missing, self.mirror) if pairs else None
+            index = MotionIndex(c.x, c.y, c.z, c.missing, self.mirror, self.torso) if pairs else None
             self._at[fps] = (library._replace(mirror=self.mirror, index=index), spans)
         return self._at[fps]
 
@@ -222,7 +238,16 @@ def library_of(
 ) -> MotionLibrary:
     """A library of these takes (x (T, J, 3) at the skeleton's joints, fps) first, then `library`'s
     (the run's other files, fix --library), mirrored where the skeleton's sides pair up."""
-    return library.including(takes, keys) if library is not None else MotionLibrary(takes, keys, mirror_of(skeleton))
+    if library is not None:
+        return library.including(takes, keys)
+    return MotionLibrary(takes, keys, mirror_of(skeleton), torso_of(skeleton))
+
+
+def torso_of(skeleton: Skeleton) -> list[int]:
+    """The joints in none of the skeleton's limb groups (the root, spine, head, shoulders): what a
+    hole of one limb leaves, for the library's index to look inside such holes by."""
+    limbs = {j for members in skeleton.groups.values() for j in members}
+    return [j for j in range(skeleton.num_joints) if j not in limbs]
 
 
 class MotionMatching(Fill):
@@ -342,7 +367,7 @@ def _search(
     apart: int,
     step: int,
     proxy: _Weights | None = None,
-    starts: np.ndarray | None = None,
+    places: np.ndarray | None = None,
 ):
     """The k best stretches of `source` of `width` frames, their starts more than `apart` frames
     from each other -> list of (distance, start, angle, centre): distance the mean squared
@@ -352,7 +377,8 @@ def _search(
     every start around the best of them (float64: the distances returned). proxy: the query at
     a few of its frames (_proxy_frames): on a long source the grid is scored by it first, and
     the full query scores only the grid's starts near the PROXY_BASINS best places it finds.
-    starts: (M,) the starts to score instead of the grid (_index_starts)."""
+    places: (M,) starts of a long source its index found (_index_places): ranked by the proxy
+    instead of the grid, the full query scoring every start near the INDEX_KEPT best."""
     N = source.num_frames - width + 1
     if N <= 0:
         return []
@@ -378,8 +404,14 @@ def _search(
 
     count = (N - 1) // step + 1
     grid = step * np.arange(count)
-    if starts is not None:
-        score(starts, _sums_at(source.coordinates, w, starts), w.query, d)
+    if places is not None:  # the index's: ranked by the proxy, every start near the best scored
+        ranker = proxy if proxy is not None else w
+        rough = np.full(N, np.inf)
+        score(places, _sums_at(source.coordinates, ranker, places), ranker.query, rough)
+        near = [i + np.arange(-INDEX_NEAR, INDEX_NEAR + 1) for i in _best_apart(rough, INDEX_KEPT, apart)]
+        near = np.unique(np.concatenate(near + [np.zeros(0, np.int64)]))
+        near = near[(near >= 0) & (near < N)]
+        score(near, _sums_at(source.coordinates, w, near), w.query, d)
     elif proxy is not None and count > 4 * PROXY_BASINS * max(1, apart // step):
         rough = np.full(N, np.inf)
         score(grid, _correlate(source.coordinates, proxy, 0, count, step), proxy.query, rough)
@@ -400,7 +432,7 @@ def _search(
     return [(float(d[i]), i, float(angle[i]), centre[i] + middle) for i in _best_apart(d, k, apart)]
 
 
-def _index_starts(
+def _index_places(
     source: Searchable,
     take: np.ndarray,
     filled: np.ndarray,
@@ -411,13 +443,13 @@ def _index_starts(
     apart: int,
     step: int,
 ) -> np.ndarray | None:
-    """The starts of `source` a hole's whole query scores where the source has an index
-    (MotionIndex) and is long enough for the proxy: every start within INDEX_NEAR frames of the
-    INDEX_BASINS stretches, more than `apart` from each other, whose frames at the hole's edges are
-    described most like the take's (take: (Ts, J, 3) the searched frames, NaN where missing;
-    filled: the same with its holes filled, what the frames near an edge are described by; the
-    hole [hs, he), its stretch from lo, `width` frames) -> (M,), or None: no index, a short
-    source, or a joint missing at an edge (the proxy scores the grid then)."""
+    """Where the search of a long `source` with an index (MotionIndex) looks: the starts of the
+    INDEX_PLACES stretches whose frames at the hole's edges, and at its middle frame the joints a
+    limb's hole leaves, are described most like the take's, each the lowest within `apart` of it
+    (take: (Ts, J, 3) the searched frames, NaN where missing; filled: the same with its holes
+    filled, which describes the frames near an edge; the hole [hs, he), its stretch from lo,
+    `width` frames) -> (M,) sorted, or None: no index, a source the grid scores whole, or a joint
+    missing at an edge (the proxy scores the grid then)."""
     N = source.num_frames - width + 1
     if source.index is None or (N - 1) // step + 1 <= 4 * PROXY_BASINS * max(1, apart // step):
         return None
@@ -427,13 +459,18 @@ def _index_starts(
     if before is None or after is None:
         return None
     d = before[hs - 1 - lo : hs - 1 - lo + N] + after[he - lo : he - lo + N]  # (N,) by the stretch's start
+    mid = (hs + he) // 2
+    inside = source.index.distances_inside(take[mid]) if np.isfinite(take[mid]).any() else None
+    if inside is not None:  # a limb's hole: the body it leaves at its middle frame
+        d += INSIDE_WEIGHT * inside[mid - lo : mid - lo + N]
     first, end = source.hidden
     d[max(0, first - width + 1) : end] = np.inf
-    picks = np.array(_best_apart(d, INDEX_BASINS, apart), dtype=np.int64)
-    if not len(picks):
-        return None
-    near = np.unique((picks[:, None] + np.arange(-INDEX_NEAR, INDEX_NEAR + 1)).ravel())
-    return near[(near >= 0) & (near < N)]
+    # the lowest within `apart` of themselves, then the INDEX_PLACES lowest of those (picked one at
+    # a time, _best_apart, hundreds of places cost a millisecond or more)
+    lowest = np.flatnonzero((d == minimum_filter1d(d, 2 * apart + 1, mode="constant", cval=np.inf)) & np.isfinite(d))
+    if len(lowest) > INDEX_PLACES:
+        lowest = lowest[np.argpartition(d[lowest], INDEX_PLACES - 1)[:INDEX_PLACES]]
+    return np.sort(lowest) if len(lowest) else None
 
 
 def _best_apart(of: np.ndarray, n: int, apart: int) -> list[int]:
@@ -572,7 +609,7 @@ def match_fills(
                 n // 2,
                 step,
                 proxy,
-                _index_starts(source, xs, hermite[phase::step_in], hs, he, lo, width, n // 2, step),
+                _index_places(source, xs, hermite[phase::step_in], hs, he, lo, width, n // 2, step),
             )
         ]
         chosen = sorted(found, key=lambda f: f[0])[:NEIGHBOURS]

@@ -26,7 +26,7 @@ import numpy as np
 from mocapfix.core.clip import MotionFileError, check_frame_rate
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.data.augment import mirror_of
-from mocapfix.fills.motion_matching import LIBRARY_S, MotionLibrary
+from mocapfix.fills.motion_matching import LIBRARY_S, MotionLibrary, torso_of
 from mocapfix.io.files import atomic_write
 from mocapfix.io.npz import load_npz, npz_array
 
@@ -116,4 +116,5 @@ def load_library(path: Path, signature: str, skeleton: Skeleton) -> tuple[Motion
     ends = np.cumsum(lengths)
     takes = [(positions[e - n : e], float(rate)) for e, n, rate in zip(ends, lengths, fps)]
     keys = [(str(f), int(c)) for f, c in zip(arrays["key_files"], arrays["key_clips"])]
-    return MotionLibrary(takes, keys, mirror_of(skeleton)), whole("files_read") or 0, whole("files_unread") or 0
+    library = MotionLibrary(takes, keys, mirror_of(skeleton), torso_of(skeleton))
+    return library, whole("files_read") or 0, whole("files_unread") or 0
