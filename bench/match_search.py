@@ -75,6 +75,7 @@ def main(argv=None) -> int:
                 [(h, c.fps) for h, c in zip(holed, takes)] + [(e.positions, e.fps) for e in extra],
                 list(range(len(takes) + len(extra))),
                 mm.mirror_of(body),
+                mm.torso_of(body),
             )
             sums = {}
             for way in WAYS:

@@ -35,7 +35,7 @@ class Refused(Fill):
 
     names = ("pchip",)
 
-    def fill(self, positions, observed, fps, skeleton, asked=None):
+    def fill(self, positions, observed, fps, skeleton, asked=None, base=None):
         raise AssertionError("a fill the policy never chooses was run")
 
 
@@ -49,6 +49,30 @@ def test_every_fill_gives_its_named_candidates_with_observed_tokens_as_given():
         assert torch.equal(filled[obs], x[obs]), name
         if name not in ("xmae", "m"):
             assert torch.isfinite(filled).all(), name
+
+
+def test_fills_made_together_share_one_lerp_fill_and_give_what_each_gives_alone(monkeypatch):
+    """made() hands every fill the take's Lerp fill (each classical fill asked for a few holes
+    answers the others with it): each candidate is the very one the fill makes alone, asked or
+    not, and the whole take's Lerp fill is made once for all of them (and once by "lerp" itself)."""
+    import mocapfix.fills.classical as classical
+
+    x, observed = _take()
+    asked = ~observed & (torch.arange(x.shape[1]) < 60)[None, :, None]  # the leg's hole, not the body's
+    fills = classical_fills() + [MotionMatching(None)]
+    whole_takes = []
+    lerp = classical.lerp_infill
+    monkeypatch.setattr(classical, "lerp_infill", lambda p, o: whole_takes.append(p.shape == x.shape) or lerp(p, o))
+    for ask in (None, asked):
+        alone = {}
+        for f in fills:
+            alone.update(f.fill(x, observed, 30.0, BODY, ask))
+        whole_takes.clear()
+        together = made(fills, x, observed, 30.0, BODY, asked=ask)
+        assert together.keys() == alone.keys()
+        for name in alone:
+            assert torch.equal(together[name], alone[name]), name
+        assert ask is None or sum(whole_takes) == 2
 
 
 def test_transform_runs_only_the_fills_it_chooses_and_counts_what_each_filled():
@@ -79,7 +103,7 @@ class Asked(Fill):
     def __init__(self):
         self.asked = None
 
-    def fill(self, positions, observed, fps, skeleton, asked=None):
+    def fill(self, positions, observed, fps, skeleton, asked=None, base=None):
         self.asked = asked
         out = made(classical_fills(), positions, observed, fps, skeleton, {"hermite"})["hermite"]
         return {name: out for name in self.names}

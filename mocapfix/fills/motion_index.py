@@ -1,30 +1,32 @@
-"""Where motion matching looks first in a long library: an index of its frames by the pose at a
-hole's edges.
+"""Where motion matching looks in a long library: an index of its frames by the pose at a
+hole's edges, and by the body a limb's hole leaves.
 
 Scoring every stretch of a library against a hole's query reads all of it for every hole: ten
-minutes of takes, six copies each (mirrored, three tempos), J joints times five sums per frame,
-twice (a proxy of the query, then the whole query around its best places). That was most of
-`fix`'s time on a folder (issue 47). Here each library frame is described once by a short vector
-(DIMS numbers): its pose and the pose one frame before it (or after it), both seen from its own
-heading and over its own centre, reduced by a PCA of the library's frames. A hole's candidate
-stretches are those whose frame before the hole and frame after it are both near the take's
-(one matrix-vector product per edge over the library, N x DIMS numbers); motion matching then
-scores the whole query, exactly, only around the best of them (motion_matching._search).
+minutes of takes, six copies each (mirrored, three tempos), J joints times five sums per frame
+(a proxy of the query over every start, then the whole query around its best places). That was
+most of `fix`'s time on a folder (issue 47). Here each library frame is described once, by
+DIMS numbers each (a PCA of the library's frames):
+- for a hole's edges (side -1: the frame before a hole, +1: after it): its pose and the poses
+  AWAY frames further from the hole, all seen from its own heading and centre;
+- for a frame inside a limb's hole (side 0): its pose seen from its torso (the joints no limb's
+  hole takes), compared over the joints the take has there (the PCA basis's rows of those).
+A hole's places are the stretches whose descriptions at its edges (and middle frame) are nearest
+the take's, one matrix-vector product over the library per description (N x DIMS numbers);
+motion matching ranks them by the proxy and scores the whole query, exactly, around the best
+(motion_matching._search). The heading and centre of one frame stand in for the stretch's best
+turn and shift about z, which the whole query finds afterwards.
 
-The pose at a hole's two edges is what a fill must meet, and the heading and centre of one frame
-stand in for the stretch's best turn and shift: on Bandai (40 takes, holes of the full body, a
-leg or an arm, 0.5 and 0.9 s, 10 minutes of other takes searched) the neighbours found this way
-filled the holes as well as scoring every stretch did (docs/results.md), for a third of the CPU.
 A frame's heading is its left-right axis (the sum over joint pairs of left minus right, in x, y;
-the pairs the library is mirrored by), so the index exists only for a library whose skeleton's
-sides pair up; a hole's search without one scores the library as before.
+the pairs the library is mirrored by; the torso's pairs inside a hole), so the index exists only
+for a library whose skeleton's sides pair up, and looks inside a hole only where the torso holds a
+pair; a hole's search without it scores the library by the proxy, as before.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-DIMS = 16  # PCA coordinates per frame and edge (of 2 J 3 numbers: the pose and its neighbour's)
+DIMS = 16  # PCA coordinates per frame and description (of 3 J 3 numbers at an edge, J 3 inside)
 AWAY = (2, 4)  # the other frames described with each edge frame, this many frames away from the hole
 FIT_ROWS = 4096  # frames the PCA is fitted on (evenly spread): the library's poses, not all of them
 CHUNK = 8192  # frames described at once (memory: CHUNK x 7 J 3 float32)
