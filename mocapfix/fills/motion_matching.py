@@ -61,9 +61,10 @@ PROXY_BASINS = 64
 # frames at the hole's two edges (and, for a limb's hole, the body it leaves at its middle frame):
 # the INDEX_PLACES stretches lowest there within half a hole of them are ranked by the proxy, and
 # the whole query scores every start within INDEX_NEAR frames of the INDEX_KEPT best. On Bandai
-# (bench/match_search.py: 40 takes, 10 minutes of the others searched) the fills came out within
-# 0.2 mm of scoring every start in 10 of 12 cells (legs 0.7 s +0.3, arms 0.7 s +0.5 mm...) at a
-# third of its CPU; fewer places (64, edges only) lost 1-2 mm on the legs' holes.
+# (bench/match_search.py: 40 takes, 10 minutes of takes searched) `match_delta` came out within
+# 0.7 mm of scoring every start in 11 of 12 cells (arms 0.9 s +2.8) at 0.65x the proxy's CPU;
+# the edges alone and 64 places lost 0.8-1.7 mm on the legs' holes; 1,024 places gained up to
+# 0.45 mm for 1.5x the CPU, INDEX_NEAR 4 0.6 mm on arms 0.9 s, 128 kept nothing.
 INDEX_PLACES = 512
 INDEX_KEPT = 64
 INDEX_NEAR = 2
