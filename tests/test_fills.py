@@ -35,7 +35,7 @@ class Refused(Fill):
 
     names = ("pchip",)
 
-    def fill(self, positions, observed, fps, skeleton, asked=None, base=None):
+    def fill(self, positions, observed, fps, skeleton, asked=None, shared=None):
         raise AssertionError("a fill the policy never chooses was run")
 
 
@@ -103,7 +103,7 @@ class Asked(Fill):
     def __init__(self):
         self.asked = None
 
-    def fill(self, positions, observed, fps, skeleton, asked=None, base=None):
+    def fill(self, positions, observed, fps, skeleton, asked=None, shared=None):
         self.asked = asked
         out = made(classical_fills(), positions, observed, fps, skeleton, {"hermite"})["hermite"]
         return {name: out for name in self.names}

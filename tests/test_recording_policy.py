@@ -323,7 +323,7 @@ def test_fills_screened_out_after_the_first_takes_are_not_run_on_the_others():
     class Counted(Fill):
         names, costly, calls = ("xmae",), True, 0
 
-        def fill(self, positions, observed, fps, skeleton, asked=None, base=None):
+        def fill(self, positions, observed, fps, skeleton, asked=None, shared=None):
             Counted.calls += 1
             return {"xmae": positions.nan_to_num()}
 
@@ -413,7 +413,7 @@ def test_a_model_ahead_in_every_take_of_a_folder_takes_a_kind_with_fewer_cut_hol
     class Oracle(Fill):  # the take's truth, found by its observed tokens
         names, costly = ("xmae",), True
 
-        def fill(self, positions, observed, fps, skeleton, asked=None, base=None):
+        def fill(self, positions, observed, fps, skeleton, asked=None, shared=None):
             out = []
             for x, o in zip(positions, observed):
                 truth = next(t for t, _ in takes if len(t) == len(x) and np.allclose(t[o.numpy()], x[o].numpy()))

@@ -234,7 +234,7 @@ class Classical(Fill):
     def __init__(self, name: str):
         self.names = (name,)
 
-    def fill(self, positions, observed, fps, skeleton, asked=None, base=None) -> dict[str, torch.Tensor]:
+    def fill(self, positions, observed, fps, skeleton, asked=None, shared=None) -> dict[str, torch.Tensor]:
         name, parents = self.names[0], skeleton.parents
         spans = None
         if asked is not None and name != "lerp":
@@ -242,7 +242,12 @@ class Classical(Fill):
             spans = crop_spans(hole_frames_of(asked, seen, parents if name == "limb" else None), CROP_FRAMES)
         if spans is None or sum(e - s for _, s, e in spans) > 0.5 * asked.shape[0] * asked.shape[1]:
             return {name: CLASSICAL[name](positions, observed, parents)}  # the whole take: as cheap
-        out = lerp_infill(positions, observed) if base is None else base.clone()
+        if shared is None:
+            out = lerp_infill(positions, observed)
+        else:
+            if shared.lerp is None:
+                shared.lerp = lerp_infill(positions, observed)
+            out = shared.lerp.clone()
         if not spans:
             return {name: out}
         # the crops side by side, (S, W, J, 3), a shorter one padded with unobserved frames after

@@ -16,16 +16,25 @@ from mocapfix.core.skeleton import Skeleton
 BLEND = "+"  # "a+b": the mean of fills a and b
 
 
+class Shared:
+    """What the fills made together for the same takes share, made by the first fill that needs it
+    (made, made_for_choice): lerp, the takes' Lerp fill (B, T, J, 3), None until then. Each
+    classical fill asked for a few holes answers the others with it: made by each, five times per
+    kind of hole measured, it was 7 % of `fix --mode both`'s CPU."""
+
+    def __init__(self):
+        self.lerp: torch.Tensor | None = None
+
+
 class Fill:
     """One way to fill holes. names: the candidates it gives.
 
     fill(positions (B, T, J, 3) metres, NaN allowed at missing tokens; observed (B, T, J) bool;
     fps of the takes (None where unknown); skeleton; asked (B, T, J) bool, the missing tokens
-    whose fill is wanted, None: all; base (B, T, J, 3) the takes' Lerp fill where the caller made
-    it for several fills at once, None: made by a fill that needs it) -> name -> (B, T, J, 3).
-    Where nothing of a hole is asked for, a fill may skip its work and give a cheaper answer (a
-    policy measured on holes cut into a take asks for those, not for the take's own): the Lerp
-    fill, `base`."""
+    whose fill is wanted, None: all; shared: what the fills made together for these takes share,
+    None: nothing) -> name -> (B, T, J, 3). Where nothing of a hole is asked for, a fill may skip
+    its work and give a cheaper answer (a policy measured on holes cut into a take asks for
+    those, not for the take's own): the Lerp fill, `shared.lerp`."""
 
     names: tuple[str, ...] = ()
     costly = False  # its fill costs far more than a classical fill's: measured only while it may win
@@ -37,7 +46,7 @@ class Fill:
         fps: float | None,
         skeleton: Skeleton,
         asked: torch.Tensor | None = None,
-        base: torch.Tensor | None = None,
+        shared: Shared | None = None,
     ) -> dict[str, torch.Tensor]:
         raise NotImplementedError
 
@@ -49,7 +58,7 @@ class Made(Fill):
     def __init__(self, name: str, values: torch.Tensor):
         self.names, self.values = (name,), values
 
-    def fill(self, positions, observed, fps, skeleton, asked=None, base=None) -> dict[str, torch.Tensor]:
+    def fill(self, positions, observed, fps, skeleton, asked=None, shared=None) -> dict[str, torch.Tensor]:
         return {self.names[0]: self.values}
 
 
@@ -66,10 +75,10 @@ def made(
     too) are made of: a fill none of whose names is wanted is not run. asked: Fill.fill's."""
     needed = None if wanted is None else {c for m in wanted for c in components(m)}
     out: dict[str, torch.Tensor] = {}
-    base = _Base(positions, observed)
+    shared = Shared()
     for f in fills:
         if needed is None or needed & set(f.names):
-            out.update(f.fill(positions, observed, fps, skeleton, asked, base()))
+            out.update(f.fill(positions, observed, fps, skeleton, asked, shared))
     return out
 
 
@@ -87,29 +96,13 @@ def made_for_choice(
     not take may skip that hole's work (motion matching searches only the holes it fills). The
     tokens taken from each candidate are those of made(fills, ..., names)."""
     out: dict[str, torch.Tensor] = {}
-    base = _Base(positions, observed)
+    shared = Shared()
     for f in fills:
         uses = [i for i, m in enumerate(names) if set(components(m)) & set(f.names)]
         if uses:
             asked = ~observed & torch.isin(choice, torch.tensor(uses, device=choice.device))
-            out.update(f.fill(positions, observed, fps, skeleton, asked, base()))
+            out.update(f.fill(positions, observed, fps, skeleton, asked, shared))
     return out
-
-
-class _Base:
-    """The takes' Lerp fill, made at the first call and given to every fill after it: each
-    classical fill asked for a few holes answers the others with it (a whole take's Lerp fill a
-    fill, five times per kind of hole measured, was 7 % of `fix --mode both`'s CPU)."""
-
-    def __init__(self, positions: torch.Tensor, observed: torch.Tensor):
-        self.positions, self.observed, self.made = positions, observed, None
-
-    def __call__(self) -> torch.Tensor:
-        if self.made is None:
-            from mocapfix.fills.classical import lerp_infill  # classical.py builds on this module
-
-            self.made = lerp_infill(self.positions, self.observed)
-        return self.made
 
 
 def components(method: str) -> list[str]:

@@ -29,7 +29,7 @@ class ModelFill(Fill):
     def __init__(self, reconstruct: Reconstruct):
         self.reconstruct = reconstruct
 
-    def fill(self, positions, observed, fps, skeleton, asked=None, base=None) -> dict[str, torch.Tensor]:
+    def fill(self, positions, observed, fps, skeleton, asked=None, shared=None) -> dict[str, torch.Tensor]:
         return {self.names[0]: self.reconstruct(positions, observed)}
 
 

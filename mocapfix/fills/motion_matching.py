@@ -262,11 +262,11 @@ class MotionMatching(Fill):
     def __init__(self, library: MotionLibrary | None, key=None):
         self.library, self.key = library, key
 
-    def fill(self, positions, observed, fps, skeleton, asked=None, base=None) -> dict[str, torch.Tensor]:
+    def fill(self, positions, observed, fps, skeleton, asked=None, shared=None) -> dict[str, torch.Tensor]:
         searched = None if self.library is None else self.library.without(self.key, fps)
         # (B, T, J, 3): what a hole nothing matches keeps, and match_delta's base; asked for a
         # few holes (the policy's cut ones), made on crops around them as the classical fills are
-        hermite = Classical("hermite").fill(positions, observed, fps, skeleton, asked, base)["hermite"]
+        hermite = Classical("hermite").fill(positions, observed, fps, skeleton, asked, shared)["hermite"]
         asked = [None] * len(positions) if asked is None else asked.numpy()
         found = [
             match_fills(x.numpy(), o.numpy(), h.numpy(), searched, fps, a)

@@ -47,7 +47,7 @@ class TakeFill(Fill):
         xt = torch.from_numpy(x.astype(np.float64))[None]
         return np.where(np.isfinite(new), new, lerp_infill(xt, ~torch.isnan(xt).any(-1))[0].numpy())
 
-    def fill(self, positions, observed, fps, skeleton, asked=None, base=None) -> dict[str, torch.Tensor]:
+    def fill(self, positions, observed, fps, skeleton, asked=None, shared=None) -> dict[str, torch.Tensor]:
         frames = [None] * len(positions) if asked is None else asked.any(-1).numpy()  # (B, T)
         out = [torch.from_numpy(self(x.numpy(), fps, a)).double() for x, a in zip(positions, frames)]
         return {self.names[0]: torch.stack(out)}
