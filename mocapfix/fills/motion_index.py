@@ -79,7 +79,6 @@ class MotionIndex:
         inside = [] if torso is None else [(j, m) for j, m in self.pairs.tolist() if j in torso and m in torso]
         self.torso = np.array(torso if inside else [], dtype=np.int64)  # (K,) with a left-right pair in it
         self.torso_pairs = np.array(inside, dtype=np.int64).reshape(-1, 2)
-
         self.edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
         self._inside: dict[bytes, np.ndarray] = {}  # the joints a hole's frame has -> |B_seen c|^2 (N,)
 
