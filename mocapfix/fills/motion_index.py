@@ -79,7 +79,7 @@ class MotionIndex:
         inside = [] if torso is None else [(j, m) for j, m in self.pairs.tolist() if j in torso and m in torso]
         self.torso = np.array(torso if inside else [], dtype=np.int64)  # (K,) with a left-right pair in it
         self.torso_pairs = np.array(inside, dtype=np.int64).reshape(-1, 2)
-        self.edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.described: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
         self._inside: dict[bytes, np.ndarray] = {}  # the joints a hole's frame has -> |B_seen c|^2 (N,)
 
     @property
@@ -112,7 +112,7 @@ class MotionIndex:
     def _built(self) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
         """side -> (mean (F,), basis (F, D) orthonormal columns, coordinates (N, D) float32, their
         squared norms (N,) float32, inf where not whole)."""
-        if not self.edges:
+        if not self.described:
             N = self.coordinates[0].shape[1]
             # the PCA of FIT_ROWS frames evenly spread over the library (from their covariance)
             fitted = {}
@@ -131,8 +131,8 @@ class MotionIndex:
                     at = (np.where(whole[:, None], rows, 0.0) - mean.astype(np.float32)) @ basis.astype(np.float32)
                     coords[side][a:b] = np.where(whole[:, None], at, 0.0)
                     norms[side][a:b] = np.where(whole, (at**2).sum(1), np.inf)
-            self.edges = {side: (*fitted[side], coords[side], norms[side]) for side in fitted}
-        return self.edges
+            self.described = {side: (*fitted[side], coords[side], norms[side]) for side in fitted}
+        return self.described
 
     def distances(self, take: np.ndarray, frame: int, side: int) -> np.ndarray | None:
         """take: (T, J, 3) the hole's take at the library's rate, its other holes filled (the

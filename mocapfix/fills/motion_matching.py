@@ -413,7 +413,7 @@ def _search(
         near = np.unique(np.concatenate(near + [np.zeros(0, np.int64)]))
         near = near[(near >= 0) & (near < N)]
         score(near, _sums_at(source.coordinates, w, near), w.query, d)
-    elif proxy is not None and count > 4 * PROXY_BASINS * max(1, apart // step):
+    elif proxy is not None and _long(N, apart, step):
         rough = np.full(N, np.inf)
         score(grid, _correlate(source.coordinates, proxy, 0, count, step), proxy.query, rough)
         places = np.array(_best_apart(rough, PROXY_BASINS, apart), dtype=np.int64)  # (B,) starts
@@ -431,6 +431,12 @@ def _search(
         score(near, _sums_at(source.coordinates, w, near), w.query, d)
     middle = source.coordinates.middle  # the centres as Searchable.stretch gives the frames
     return [(float(d[i]), i, float(angle[i]), centre[i] + middle) for i in _best_apart(d, k, apart)]
+
+
+def _long(starts: int, apart: int, step: int) -> bool:
+    """Whether a source with this many starts is too long to score its whole grid (every `step`-th
+    start) with the whole query: its places come from the index or the proxy first."""
+    return (starts - 1) // step + 1 > 4 * PROXY_BASINS * max(1, apart // step)
 
 
 def _index_places(
@@ -452,7 +458,7 @@ def _index_places(
     `width` frames) -> (M,) sorted, or None: no index, a source the grid scores whole, or a joint
     missing at an edge (the proxy scores the grid then)."""
     N = source.num_frames - width + 1
-    if source.index is None or (N - 1) // step + 1 <= 4 * PROXY_BASINS * max(1, apart // step):
+    if source.index is None or not _long(N, apart, step):
         return None
     if not (np.isfinite(take[hs - 1]).all() and np.isfinite(take[he]).all()):
         return None
