@@ -69,6 +69,7 @@ INDEX_PLACES = 512
 INDEX_KEPT = 64
 INDEX_NEAR = 2
 INSIDE_WEIGHT = 2.0  # a limb hole's middle frame against its two edges' (3 frames each) descriptions
+WHOLE_KEPT = 8  # joint sets a source keeps its frames' wholeness for (_Coordinates.whole_before)
 CHUNK = 16384  # starts scored at once (memory: CHUNK x 10 sums x the query's frames)
 LIBRARY_S = 600.0  # the most seconds of takes a library keeps (each hole's search scans them all)
 # The search reads a take and the library at about this rate (every search_step-th frame of the
@@ -111,6 +112,20 @@ class _Coordinates(NamedTuple):
     squared: np.ndarray
     missing: np.ndarray
     middle: np.ndarray  # (2,) float64: the x, y taken off
+    # need (a (J,) bool's bytes) -> whole_before(need), for WHOLE_KEPT joint sets: a hole's search
+    # asks for one of a few (a part's joints), and each was a pass over the library per hole
+    whole: dict
+
+    def whole_before(self, need: np.ndarray) -> np.ndarray:
+        """need: (J,) bool -> (N + 1,) the count of frames holding every joint of `need` among the
+        first n: a stretch [a, b) holds them all where whole[b] - whole[a] == b - a."""
+        key = need.tobytes()
+        if key not in self.whole:
+            if len(self.whole) >= WHOLE_KEPT:
+                self.whole.pop(next(iter(self.whole)))
+            held = ~self.missing[need].any(0)
+            self.whole[key] = np.concatenate([[0], np.cumsum(held, dtype=np.int32)]).astype(np.int32)
+        return self.whole[key]
 
 
 def _coordinates(frames: np.ndarray) -> _Coordinates:
@@ -122,7 +137,7 @@ def _coordinates(frames: np.ndarray) -> _Coordinates:
     c[missing] = 0.0
     x, y, z = (np.ascontiguousarray(c[..., i].T, dtype=np.float32) for i in range(3))
     missing = np.ascontiguousarray(missing.T, dtype=np.float32)
-    return _Coordinates(x, y, z, x**2 + y**2 + z**2, missing, middle)
+    return _Coordinates(x, y, z, x**2 + y**2 + z**2, missing, middle, {})
 
 
 # Each library take is also searched mirrored (left and right swapped: a left leg's hole finds
@@ -383,14 +398,12 @@ def _search(
     N = source.num_frames - width + 1
     if N <= 0:
         return []
-    whole = ~source.coordinates.missing[need].any(0)  # (N + width - 1,)
-    whole[source.hidden[0] : source.hidden[1]] = False
-    run = np.concatenate([[0], np.cumsum(whole)])
-    d = np.full(N, np.inf)
-    angle, centre = np.zeros(N), np.zeros((N, 2))
+    whole = source.coordinates.whole_before(need)  # (N + width,)
+    first, end = source.hidden
 
-    def score(at: np.ndarray, sums: np.ndarray, query: np.ndarray, into: np.ndarray) -> None:
-        # at: (M,) starts, sums: (M, 9) theirs for `query` (P, 3) -> distances into `into`
+    def score(at: np.ndarray, sums: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, ...]:
+        # at: (M,) starts, sums: (M, 9) theirs for `query` (P, 3) -> distances (M,) (inf: a
+        # stretch missing a joint of `need`, or in the hidden span), angles (M,), centres (M, 2)
         P, q_xy = len(query), query[:, :2] - query[:, :2].mean(0)
         sx, dot_x, cross_x, sy, dot_y, cross_y, zq, squared, lost = sums.T
         dot, cross = dot_x + dot_y, cross_x + cross_y
@@ -398,38 +411,50 @@ def _search(
         # in x, y; z as it is
         dist = squared - (sx**2 + sy**2) / P + (q_xy**2).sum() - 2 * np.hypot(dot, cross)
         dist += -2 * zq + (query[:, 2] ** 2).sum()
-        dist[(lost > 0) | (run[at + width] - run[at] < width)] = np.inf
-        into[at] = np.maximum(dist, 0.0) / P
-        if into is d:
-            angle[at], centre[at] = np.arctan2(cross, dot), np.stack([sx, sy], -1) / P
+        dist[(lost > 0) | (whole[at + width] - whole[at] < width) | ((at < end) & (at + width > first))] = np.inf
+        return np.maximum(dist, 0.0) / P, np.arctan2(cross, dot), np.stack([sx, sy], -1) / P
+
+    middle = source.coordinates.middle  # the centres as Searchable.stretch gives the frames
+    if places is not None:  # the index's: ranked by the proxy, every start near the best scored
+        ranker = proxy if proxy is not None else w
+        rough, _, _ = score(places, _sums_at(source.coordinates, ranker, places), ranker.query)
+        best = places[_best_apart_of(places, rough, INDEX_KEPT, apart)]
+        near = np.unique((best[:, None] + np.arange(-INDEX_NEAR, INDEX_NEAR + 1)).ravel())
+        at = near[(near >= 0) & (near < N)]
+        d, angle, centre = score(at, _sums_at(source.coordinates, w, at), w.query)
+        if step > 1:  # every start around the best of them, as on the grid below
+            picks = at[_best_apart_of(at, d, 2 * k, apart)]
+            around = np.unique((picks[:, None] + np.arange(1 - step, step)).ravel())
+            around = np.setdiff1d(around[(around >= 0) & (around < N)], at, assume_unique=True)
+            more = score(around, _sums_at(source.coordinates, w, around), w.query)
+            at, d, angle, centre = (np.concatenate(v) for v in zip((at, d, angle, centre), (around, *more)))
+            order = np.argsort(at)
+            at, d, angle, centre = at[order], d[order], angle[order], centre[order]
+        return [(float(d[i]), int(at[i]), float(angle[i]), centre[i] + middle) for i in _best_apart_of(at, d, k, apart)]
+    d = np.full(N, np.inf)
+    angle, centre = np.zeros(N), np.zeros((N, 2))
+
+    def into_d(at: np.ndarray, sums: np.ndarray) -> None:
+        d[at], angle[at], centre[at] = score(at, sums, w.query)
 
     count = (N - 1) // step + 1
     grid = step * np.arange(count)
-    if places is not None:  # the index's: ranked by the proxy, every start near the best scored
-        ranker = proxy if proxy is not None else w
+    if proxy is not None and _long(N, apart, step):
         rough = np.full(N, np.inf)
-        score(places, _sums_at(source.coordinates, ranker, places), ranker.query, rough)
-        near = [i + np.arange(-INDEX_NEAR, INDEX_NEAR + 1) for i in _best_apart(rough, INDEX_KEPT, apart)]
-        near = np.unique(np.concatenate(near + [np.zeros(0, np.int64)]))
-        near = near[(near >= 0) & (near < N)]
-        score(near, _sums_at(source.coordinates, w, near), w.query, d)
-    elif proxy is not None and _long(N, apart, step):
-        rough = np.full(N, np.inf)
-        score(grid, _correlate(source.coordinates, proxy, 0, count, step), proxy.query, rough)
+        rough[grid] = score(grid, _correlate(source.coordinates, proxy, 0, count, step), proxy.query)[0]
         places = np.array(_best_apart(rough, PROXY_BASINS, apart), dtype=np.int64)  # (B,) starts
         if not len(places):
             return []
         near = (places[:, None] + step * np.arange(-(apart // step), apart // step + 1)).ravel()
         grid = np.unique(near[(near >= 0) & (near < N)])
-        score(grid, _sums_at(source.coordinates, w, grid), w.query, d)
+        into_d(grid, _sums_at(source.coordinates, w, grid))
     else:
-        score(grid, _correlate(source.coordinates, w, 0, count, step), w.query, d)
+        into_d(grid, _correlate(source.coordinates, w, 0, count, step))
     # every start around the best of them (with step 1 the best themselves), in float64 (_sums_at)
     picks = _best_apart(d, 2 * k, apart)
     if picks:
         near = np.unique(np.concatenate([np.arange(max(0, i - step + 1), min(N, i + step)) for i in picks]))
-        score(near, _sums_at(source.coordinates, w, near), w.query, d)
-    middle = source.coordinates.middle  # the centres as Searchable.stretch gives the frames
+        into_d(near, _sums_at(source.coordinates, w, near))
     return [(float(d[i]), i, float(angle[i]), centre[i] + middle) for i in _best_apart(d, k, apart)]
 
 
@@ -481,12 +506,20 @@ def _index_places(
 
 
 def _best_apart(of: np.ndarray, n: int, apart: int) -> list[int]:
-    """of: (N,) distances (inf: not a candidate) -> the indices of the n best, each more than
-    `apart` from every better one picked before it: the lowest, then the lowest more than `apart`
-    from it, ... (ties to the lower index). Each pick rules out at most 2 apart + 1 places, so
-    the picks are among the n (2 apart + 1) lowest: only those are sorted, not the whole source."""
+    """of: (N,) distances by start (inf: not a candidate) -> the starts of the n best, each more
+    than `apart` from every better one picked before it (_best_apart_of)."""
+    at = np.flatnonzero(np.isfinite(of))
+    return at[_best_apart_of(at, of[at], n, apart)].tolist()
+
+
+def _best_apart_of(starts: np.ndarray, of: np.ndarray, n: int, apart: int) -> np.ndarray:
+    """starts: (M,) ascending, distinct; of: (M,) their distances (inf: not a candidate) -> the
+    indices into starts of the n best, each more than `apart` frames from every better one picked
+    before it: the lowest, then the lowest more than `apart` from it, ... (ties to the lower
+    start). Each pick rules out at most 2 apart + 1 starts, so the picks are among the
+    n (2 apart + 1) lowest: only those are sorted, not every start."""
     if n <= 0:
-        return []
+        return np.zeros(0, np.int64)
     pool = np.flatnonzero(np.isfinite(of))
     m = n * (2 * apart + 1)
     if len(pool) > m:
@@ -494,14 +527,15 @@ def _best_apart(of: np.ndarray, n: int, apart: int) -> list[int]:
         pool = pool[of[pool] <= edge]  # ties at the edge kept
     pool = pool[np.lexsort((pool, of[pool]))]
     out: list[int] = []
-    blocked = np.zeros(len(of), dtype=bool)
+    blocked = np.zeros(len(starts), dtype=bool)
     for i in pool.tolist():
         if not blocked[i]:
             out.append(i)
             if len(out) == n:
                 break
-            blocked[max(0, i - apart) : i + apart + 1] = True
-    return out
+            lo, hi = np.searchsorted(starts, starts[i] - apart), np.searchsorted(starts, starts[i] + apart, "right")
+            blocked[lo:hi] = True
+    return np.array(out, dtype=np.int64)
 
 
 def _proxy_frames(width: int, start: int, end: int, step: int) -> np.ndarray:
