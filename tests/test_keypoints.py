@@ -4,6 +4,8 @@ joint order, unit, shape and file type."""
 
 from __future__ import annotations
 
+import zipfile
+
 import numpy as np
 import pytest
 from cli_utils import run_mocapfix
@@ -263,6 +265,7 @@ def test_a_lifters_npz_reads_under_its_own_key_and_is_written_back_under_it(tmp_
     with np.load(tmp_path / "lifted.fixed.npz") as back:
         assert back.files[0] == key and back[key].shape == file.shape and back[key].dtype == file.dtype
         assert 0 < np.abs(back[key] - file).max() < 0.05  # denoised, in the file's own metres
+        assert {m.compress_type for m in back.zip.infolist()} == {zipfile.ZIP_STORED}  # np.savez's, as read
     (again,) = read_motion(tmp_path / "lifted.fixed.npz", layout="h36m17")  # its fps and unit beside it now
     assert again.fps == 30.0 and again.meta["unit"] == "m"
 

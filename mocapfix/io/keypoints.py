@@ -37,7 +37,7 @@ from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.io.conventions import from_z_up, metres_per_unit
 from mocapfix.io.files import atomic_write
 from mocapfix.io.layouts import BODY_FIRST, LAYOUTS, layout, layout_skeleton, layouts_for
-from mocapfix.io.npz import listed_keys, load_npz, npz_array, one_line
+from mocapfix.io.npz import deflated, listed_keys, load_npz, npz_array, one_line
 from mocapfix.io.positions import _check_fps, _clips, _fps_from_times, _npz_scalar_str
 from mocapfix.io.untrusted import open_regular
 
@@ -59,6 +59,7 @@ class KeypointFile(NamedTuple):
     fps: float | None
     unit: str | None
     times: np.ndarray | None  # (T,) seconds of each row
+    compressed: bool = True  # an npz's arrays deflated (np.savez_compressed), not stored
 
 
 def _load(path: Path) -> KeypointFile:
@@ -94,7 +95,7 @@ def _load(path: Path) -> KeypointFile:
                 raise MotionFileError(
                     path, f"times must be finite seconds, one per row, got {times.dtype} {times.shape}"
                 )
-        return KeypointFile(raw, key, fps, _npz_scalar_str(path, data, "unit"), times)
+        return KeypointFile(raw, key, fps, _npz_scalar_str(path, data, "unit"), times, deflated(data))
 
 
 MAX_CLOCK_GROWTH = 20  # a clock this many times the rows is a wrong time unit, not dropped frames
@@ -188,7 +189,7 @@ def read_keypoints(
     """A keypoint array -> one Clip per person (metres, z up), on the layout's skeleton (parents
     before children: meta "joint_order" maps it back to the file's columns)."""
     path = Path(path)
-    raw, key, file_fps, file_unit, times = _load(path)
+    raw, key, file_fps, file_unit, times, compressed = _load(path)
     if raw.dtype.kind not in "iuf":
         raise MotionFileError(path, f"keypoints must be numbers, got dtype {raw.dtype}")
     if raw.ndim not in (3, 4) or raw.shape[-1] not in (3, 4) or 0 in raw.shape:
@@ -228,7 +229,7 @@ def read_keypoints(
             path.name, dropped, fps, repeated,
         )  # fmt: skip
     meta = {"layout": lay.name, "joint_order": order, "squeeze": squeeze, "key": key, "dtype": dtype.str}
-    meta.update(columns=columns, slots=slots, times=times, carried=carried)
+    meta.update(columns=columns, slots=slots, times=times, carried=carried, compressed=compressed)
     people = [dict(meta, confidence=None if confidence is None else confidence[i]) for i in range(raw.shape[0])]
     fmt = "keypoints-npy" if key is None else "keypoints-npz"
     return _clips(path, clock[:, :, order], fps, skeleton, unit, file_unit, up_axis, None, fmt, people)
@@ -269,5 +270,6 @@ def write_keypoints(path, clips: list[Clip], inputs: list[Clip] | None = None) -
         arrays = {m["key"]: out, "fps": np.float64(clips[0].fps), "unit": np.array(m["unit"])}
         if m["times"] is not None:
             arrays["times"] = m["times"]
-        atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+        save = np.savez_compressed if m.get("compressed", True) else np.savez
+        atomic_write(path, lambda f: save(f, **arrays))
     return path

@@ -46,6 +46,13 @@ def load_npz(path: Path, what: str = "npz file"):
         raise MotionFileError(path, f"not a readable npz file ({one_line(e)})") from None
 
 
+def deflated(data) -> bool:
+    """Whether an open archive's arrays are compressed (np.savez_compressed's) rather than stored
+    (np.savez's): a file written back keeps its reader's choice of size against speed (deflating
+    a take's float32 positions saves a fifth of its size for 14 times the time to write it)."""
+    return any(member.compress_type != zipfile.ZIP_STORED for member in data.zip.infolist())
+
+
 def npz_array(path: Path, data, key: str) -> np.ndarray:
     """data[key] of plain numbers or strings; a truncated or corrupt member, or an object array,
     is a MotionFileError, not a zlib traceback or a pickle."""

@@ -48,7 +48,7 @@ from mocapfix.core.skeleton import PRESETS, Skeleton
 from mocapfix.io.conventions import UP_AXES, from_z_up, guess_up_axis, parse_unit, resolve_unit, to_z_up
 from mocapfix.io.files import atomic_write
 from mocapfix.io.layouts import LAYOUTS, layout_skeleton
-from mocapfix.io.npz import listed_keys, load_npz, npz_array
+from mocapfix.io.npz import deflated, listed_keys, load_npz, npz_array
 from mocapfix.io.npz import one_line as _one_line
 from mocapfix.io.untrusted import printable, quoted, read_bytes
 from mocapfix.rig.labels import guess_groups
@@ -219,7 +219,8 @@ def read_positions_npz(
             names = [n.decode() if isinstance(n, bytes) else str(n) for n in names.tolist()]
         skel = skeleton_from(path, names, parents, J, groups)
         unit_file, up_file = _npz_scalar_str(path, data, "unit"), _npz_scalar_str(path, data, "up_axis")
-    layout = [{"squeeze": squeeze}] * raw.shape[0]
+        compressed = deflated(data)
+    layout = [{"squeeze": squeeze, "compressed": compressed}] * raw.shape[0]
     return _clips(path, raw, fps, skel, unit, unit_file, up_axis, up_file, "positions-npz", layout)
 
 
@@ -602,6 +603,7 @@ def write_positions(
     axis_separator: str = "_",
     confidence: np.ndarray | None = None,
     confidence_word: str = "visibility",
+    compressed: bool = True,
 ) -> Path:
     """Write positions (T, J, 3) or (P, T, J, 3), metres z up, NaN = missing, as .npz or .csv (by
     the path's extension) in `unit` (a name or metres per unit) and `up_axis`. The layout options
@@ -647,7 +649,7 @@ def write_positions(
             "unit": np.array(unit),
             "up_axis": np.array(up_axis),
         }
-        atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+        atomic_write(path, lambda f: (np.savez_compressed if compressed else np.savez)(f, **arrays))
     elif suffix == ".csv":
         bad = [n for n in skeleton.joint_names if re.search(r"[,\"\s]", n) or n.lower() in _SPECIAL_COLUMNS]
         if bad:
@@ -733,6 +735,7 @@ def write_clips(path, clips: list[Clip]) -> Path:
         unit,
         up,
         squeeze=m.get("squeeze"),
+        compressed=m.get("compressed", True),
         person_ids=[c.meta.get("person_id", i) for i, c in enumerate(clips)],
         person_column=m.get("person_column") if from_csv else None,
         frame_column=m.get("frame_column", True) if from_csv else True,
