@@ -344,6 +344,32 @@ def test_fills_screened_out_after_the_first_takes_are_not_run_on_the_others():
     assert np.isfinite(table["limb"][0])
 
 
+def test_a_kind_every_other_fill_left_is_settled_and_cuts_no_more_holes():
+    """A kind whose screen leaves the preferred fill alone has nothing left to rank: the later
+    takes cut none of its holes (the costly work saved is theirs), and its table holds that fill."""
+    from mocapfix.core.skeleton import preset
+    from mocapfix.fills.errors import measure_on_takes, screening_phases
+    from mocapfix.fills.policy import PREFERRED
+    from mocapfix.io.synthetic import generate_clips
+    from mocapfix.rig.mapping import onto_skeleton
+
+    body = preset("body21")
+    takes = [(onto_skeleton(c, body).positions.astype(np.float64), 30.0) for c in generate_clips(8, 8.0, 30.0, seed=2)]
+    cells = {("full", 0.5), ("arm", 0.5)}
+    _, cut = measure_on_takes(takes, body, (0.5,), cells, screen=lambda e, fills: {})
+    asked = []
+
+    def all_but_preferred(errors, fills):
+        asked.append(fills)
+        return {("full", 0.5): {n for names in fills for n in names if n != PREFERRED}}
+
+    settled, cut2 = measure_on_takes(takes, body, (0.5,), cells, screen=all_but_preferred)
+    first = screening_phases([{("full", 0.5): cut[("full", 0.5)] // len(takes)}] * len(takes))[0]
+    assert ("spline",) in asked[0] and len(first) < len(takes)
+    assert cut2[("arm", 0.5)] == cut[("arm", 0.5)] and 0 < cut2[("full", 0.5)] < cut[("full", 0.5)]
+    assert [m for m, e in settled.tables()["full"].items() if np.isfinite(e[0])] == [PREFERRED]
+
+
 def test_a_model_screened_out_on_the_recording_is_not_taken_on_its_val_split_numbers():
     """A kind the recording measured keeps the recording's verdict: a model screened out there is
     inf in the policy's tables, whatever its checkpoint's val split says."""
@@ -368,7 +394,7 @@ def test_a_model_screened_out_on_the_recording_is_not_taken_on_its_val_split_num
     x = takes[0][0].copy()
     x[60:75] = np.nan  # one 0.5-s full-body hole of its own
     policy, note = FillPolicy(gaps, val, None).fit(takes, body, far, holes_of=([x], 30.0))
-    assert "stopped measuring a costly fill" in note
+    assert "stopped measuring a fill early" in note
     assert policy.error_mm["full"]["xmae"][2] == float("inf") and not is_learned(policy.choose("full", 0.5))
 
 

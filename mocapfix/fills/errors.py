@@ -17,8 +17,8 @@ from mocapfix.fills.fill import Fill, blends, components, made
 from mocapfix.fills.holes import PARTS, cut_holes, room_for_holes, share_holes
 from mocapfix.fills.motion_matching import MotionLibrary, MotionMatching, library_of
 
-# The costly fills (motion matching, a model) are screened after every SCREEN_HOLES holes of a
-# kind (measure_on_takes' screen) and measured further only where they may still be chosen.
+# The fills are screened after every SCREEN_HOLES holes of a kind (measure_on_takes' screen) and
+# measured further only where they may still be chosen; a kind with one candidate left is settled.
 SCREEN_HOLES = 16
 HOLES_PER_CELL = 64  # the budget of holes cut into the recording per (part, gap): a model pass each kind
 # A hole is cut only where its joints are observed this long on both sides. Cut right next to
@@ -131,11 +131,13 @@ def measure_on_takes(
     either way. The motion-matching fills search the takes (keys: one per take, as fix names them
     to its MotionLibrary; default their order), each take's own with its holes cut, and `library`
     (the user's other takes, fix --library).
-    screen(errors, costly) -> {(part, gap): fill names}: asked after each phase of takes
+    screen(errors, fills) -> {(part, gap): fill names}: asked after each phase of takes
     (screening_phases: SCREEN_HOLES more holes of each kind, spread over the folder) with the
-    errors so far and the names of each costly fill (motion matching's, the model's); the fills
-    it names are not run on that kind's holes in the later takes, and their candidates are
-    dropped from its tables (policy.py: hopeless). None: every take measures every fill."""
+    errors so far and the names of each fill measured (a tuple per Fill: motion matching's two,
+    a model's, each classical fill's); the fills it names are not run on that kind's holes in
+    the later takes, and their candidates are dropped from its tables (policy.py: hopeless); a
+    kind left with one candidate is settled: no more holes of it are cut. None: every take
+    measures every fill."""
     errors = ErrorSums(gaps_s)
     keys = list(range(len(takes))) if keys is None else list(keys)
     library = library_of(takes, keys, skeleton, library)
@@ -143,7 +145,7 @@ def measure_on_takes(
     budgets = hole_budgets(takes, skeleton, gaps, cells)
     jobs = [(x, fps, skeleton, gaps, cells, b, library, key) for (x, fps), key, b in zip(takes, keys, budgets)]
     phases = screening_phases(budgets) if screen is not None else [list(range(len(jobs)))]
-    costly = [f.names for f in take_fills(library, None, model_fill) if f.costly]
+    measured = [f.names for f in take_fills(library, None, model_fill)]
     cut: dict[tuple[str, float], int] = {}
     skip: dict[tuple[str, float], set[str]] = {}
     for k, phase in enumerate(phases):
@@ -154,7 +156,7 @@ def measure_on_takes(
             for cell, n in take_cut.items():
                 cut[cell] = cut.get(cell, 0) + n
         if k + 1 < len(phases):
-            for (part, gap), names in screen(errors, costly).items():
+            for (part, gap), names in screen(errors, measured).items():
                 methods = {m for (p, g, m) in errors.sums if (p, g) == (part, gap) and set(components(m)) & set(names)}
                 errors.drop(part, gap, methods)
                 skip.setdefault((part, gap), set()).update(names)
@@ -238,7 +240,8 @@ def measure_take(
     cut into x (T, J, 3) and every fill's error there -> (ErrorSums, holes cut per (part, gap)).
     library: a MotionLibrary (its take `key` left out: this one is searched with its holes cut),
     None: no motion-matching fills; skip: per kind, the fills (by name) not run there (screened
-    out); model_fill: a Fill, or None."""
+    out; a kind left with fewer than two candidates is not cut: settled); model_fill: a Fill, or
+    None."""
     errors = ErrorSums(gaps_s)
     options = part_options(skeleton)
     observed = np.isfinite(x).all(-1)
@@ -249,6 +252,9 @@ def measure_take(
         for gap in gaps_s:
             if part not in options or (cells is not None and (part, gap) not in cells) or not budget.get((part, gap)):
                 continue
+            unskipped = [f for f in fills if not set(f.names) & (skip or {}).get((part, gap), set())]
+            if sum(len(f.names) for f in unskipped) < 2:
+                continue  # settled: one candidate left, nothing to rank
             hidden = cut_holes(
                 observed, options[part], max(1, round(gap * fps)), budget[(part, gap)], max(1, round(CONTEXT_S * fps))
             )
@@ -259,7 +265,6 @@ def measure_take(
             hole_of = torch.from_numpy(np.broadcast_to(np.cumsum(starts)[:, None], hidden.shape).copy())[None]
             holed = truth.masked_fill(torch.from_numpy(hidden)[None, ..., None], float("nan"))
             obs = torch.from_numpy(observed & ~hidden)[None]
-            unskipped = [f for f in fills if not set(f.names) & (skip or {}).get((part, gap), set())]
             # only the cut holes are scored: the fills that can skip the take's own holes do
             candidates = made(unskipped, holed, obs, fps, skeleton, asked=torch.from_numpy(hidden)[None])
             errors.add_fills(part, gap, candidates, truth, torch.from_numpy(hidden)[None], hole_of, key)

@@ -188,7 +188,11 @@ class FillPolicy:
         errors, cut = measure_on_takes(takes, skeleton, gaps, cells, model_fill, map_takes, keys, library, hopeless)
         measured = errors.tables() if errors.sums else None
         asked = sorted(cells) if cells is not None else [(p, g) for p in PARTS for g in gaps]
-        earned = {cell for cell in asked if cut.get(cell, 0) >= TRUSTED_HOLES}
+        # a kind every other fill left early (hopeless) has its choice, the preferred fill, on
+        # fewer holes: what the others' holes would have told is that they are behind
+        screened = {(p, g) for p, g, _ in errors.dropped}
+        settled = {cell for cell in screened if {m for p, g, m in errors.sums if (p, g) == cell} == {PREFERRED}}
+        earned = {cell for cell in asked if cut.get(cell, 0) >= TRUSTED_HOLES or cell in settled}
         ahead = proven(errors)
         base = self if earned or ahead else self._classical_only()
         tables = _with_measured(base.error_mm, measured or {}, gaps, asked, earned, cut, ahead)
@@ -207,9 +211,10 @@ class FillPolicy:
         few = [f"{p} {g:g}s" for p, g in asked if (p, g) not in earned and (p, g, out.choose(p, g)) in ahead]
         if few:
             evidence += f"; taken on fewer holes, ahead take by take over {TRUST_TAKES}+ takes: {', '.join(few)}"
-        screened = {(p, g) for p, g, _ in errors.dropped}
-        if screened:
-            evidence += f"; {len(screened)} kinds stopped measuring a costly fill early"
+        if screened - settled:
+            evidence += f"; {len(screened - settled)} kinds stopped measuring a fill early"
+        if settled:
+            evidence += f"; {len(settled)} kinds settled early (every other fill behind the {PREFERRED} fill)"
         return out, f"fill policy measured on this recording ({evidence}): {chosen or 'nothing could be cut'}"
 
     def _classical_only(self) -> FillPolicy:
@@ -305,21 +310,25 @@ SCREEN_Z = 2.0
 SCREEN_TOLERANCE = 0.01
 
 
-def hopeless(errors: ErrorSums, costly: list[tuple[str, ...]]) -> dict[tuple[str, float], set[str]]:
-    """The costly fills (each a tuple of candidate names: motion matching's, a model's) that a kind
-    of hole can stop measuring (errors.measure_on_takes' screen) -> {(part, gap): names}. A fill
-    goes where every candidate with it in (blends too), hole by hole over the holes measured so
-    far, cannot gain more than SCREEN_TOLERANCE of the preferred fill's error over what choose()
-    asks of it, MODEL_MARGIN (a model) or PREFERRED_MARGIN (a classical candidate) times the
-    preferred fill's error (a necessary condition of being chosen: the best classical fill is never
-    worse than the preferred one), but for a SCREEN_Z-standard-error chance. Paired per hole: the
-    holes differ far more from each other than the fills on one hole do."""
+def hopeless(errors: ErrorSums, fills: list[tuple[str, ...]]) -> dict[tuple[str, float], set[str]]:
+    """The fills (each a tuple of candidate names: motion matching's, a model's, a classical
+    fill's) that a kind of hole can stop measuring (errors.measure_on_takes' screen) -> {(part,
+    gap): names}; never the preferred fill. A fill goes where every candidate with it in (blends
+    too), hole by hole over the holes measured so far, cannot gain more than SCREEN_TOLERANCE of
+    the preferred fill's error over what choose() asks of it, MODEL_MARGIN (a model) or
+    PREFERRED_MARGIN (a classical candidate) times the preferred fill's error (a necessary
+    condition of being chosen: the best classical fill is never worse than the preferred one),
+    but for a SCREEN_Z-standard-error chance. Paired per hole: the holes differ far more from each
+    other than the fills on one hole do. A kind every other fill has left is settled: the preferred
+    fill is its choice, and no more holes of it are cut."""
     out: dict[tuple[str, float], set[str]] = {}
     for part, gap in sorted({(p, g) for p, g, _ in errors.holes}):
         preferred = np.array(errors.holes.get((part, gap, PREFERRED), []))
         if len(preferred) < 3:
             continue
-        for names in costly:
+        for names in fills:
+            if PREFERRED in names:
+                continue
             candidates = [m for p, g, m in errors.holes if (p, g) == (part, gap) and set(components(m)) & set(names)]
             if candidates and all(_behind(errors.holes[(part, gap, m)], preferred, m) for m in candidates):
                 out.setdefault((part, gap), set()).update(names)
