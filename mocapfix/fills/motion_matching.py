@@ -163,12 +163,13 @@ class Searchable(NamedTuple):
     def num_frames(self) -> int:
         return self.coordinates.x.shape[1]
 
-    def stretch(self, start: int, width: int) -> np.ndarray:
-        """Frames [start, start + width) -> (width, J, 3) metres, float64, NaN where missing."""
-        c = self.coordinates
-        out = np.stack([v[:, start : start + width].T for v in (c.x, c.y, c.z)], axis=-1).astype(np.float64)
+    def stretch(self, start: int, width: int, joints: np.ndarray | None = None) -> np.ndarray:
+        """Frames [start, start + width) of `joints` (None: all) -> (width, J', 3) metres, float64,
+        NaN where missing."""
+        c, rows = self.coordinates, slice(None) if joints is None else joints
+        out = np.stack([v[rows, start : start + width].T for v in (c.x, c.y, c.z)], axis=-1).astype(np.float64)
         out[..., :2] += c.middle
-        out[c.missing[:, start : start + width].T > 0] = np.nan
+        out[c.missing[rows, start : start + width].T > 0] = np.nan
         return out
 
 
@@ -662,7 +663,10 @@ def match_fills(
         # the take's own frames [a, b) (searched frame k is take frame phase + step_in k), where
         # the fills meet the data.
         a, b = phase + step_in * lo, phase + step_in * (hi - 1) + 1
-        seg = np.stack([sources[phase][i].stretch(start, width) for _, i, start, _, _ in chosen])  # (K, width, J, 3)
+        # only the hole's joints (each fill is per joint, and each of them is observed at both ends)
+        cols = np.flatnonzero(missing)  # (J',)
+        # (K, width, J', 3)
+        seg = np.stack([sources[phase][i].stretch(start, width, cols) for _, i, start, *_ in chosen])
         angle = np.array([a for *_, a, _ in chosen])
         cos, sin = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
         centre = np.stack([c for *_, c in chosen])[:, None, None]  # (K, 1, 1, 2)
@@ -670,17 +674,16 @@ def match_fills(
         xy = np.stack([cos * xy[..., 0] - sin * xy[..., 1], sin * xy[..., 0] + cos * xy[..., 1]], -1)
         seg[..., :2] = xy + query[:, :2].mean(0)  # the neighbours turned and shifted onto the query
         weight = 1.0 / (np.array([d for d, *_ in chosen]) + 1e-8)
-        mean = _upsampled(np.einsum("k,ktjc->tjc", weight / weight.sum(), seg), step_in)  # (b - a, J, 3)
-        mean = torch.from_numpy(mean)[None]  # (1, b - a, J, 3)
-        window = torch.from_numpy(x[a:b])[None]
-        obs = torch.from_numpy(observed[a:b])[None]
+        mean = _upsampled(np.einsum("k,ktjc->tjc", weight / weight.sum(), seg), step_in)  # (b - a, J', 3)
+        mean = torch.from_numpy(mean)[None]  # (1, b - a, J', 3)
+        window = torch.from_numpy(x[a:b, cols])[None]
+        obs = torch.from_numpy(observed[a:b, cols])[None]
         # match: the residual to the data at observed tokens, interpolated over the hole (meets both ends)
         match = (mean + lerp_infill(torch.where(obs[..., None], window - mean, torch.nan), obs))[0].numpy()
         # match_delta: the Hermite fill plus the neighbours' departure from their own Hermite fill
         own = hermite_infill(torch.where(obs[..., None], mean, torch.nan), obs)
-        delta = (mean - own)[0].numpy() + hermite[a:b]
-        hole = np.zeros((b - a, J), dtype=bool)
-        hole[s - a : e - a] = ~observed[s:e] & missing
-        out["match"][a:b][hole] = match[hole]
-        out["match_delta"][a:b][hole] = delta[hole]
+        delta = (mean - own)[0].numpy() + hermite[a:b, cols]
+        hole = ~observed[s:e, cols]  # (e - s, J') the hole's tokens
+        out["match"][s:e, cols] = np.where(hole[..., None], match[s - a : e - a], out["match"][s:e, cols])
+        out["match_delta"][s:e, cols] = np.where(hole[..., None], delta[s - a : e - a], out["match_delta"][s:e, cols])
     return {name: np.where(observed[..., None], positions, fill) for name, fill in out.items()}
