@@ -839,6 +839,12 @@ def test_the_model_asked_for_some_holes_runs_their_windows_only_and_fills_them_a
     x = torch.from_numpy(holed.astype(np.float64))[None]
     np.testing.assert_allclose(some[40:55], lerp_infill(x, ~torch.isnan(x).any(-1))[0].numpy()[40:55])
     assert np.abs(every[40:55] - some[40:55]).max() > 1e-3
+    # two takes at once (their windows in the same batches) get what each gets alone
+    other = np.zeros(len(take), dtype=bool)
+    other[40:55] = True
+    both = fill.takes([holed, holed], 30.0, [asked, other])
+    np.testing.assert_allclose(both[0], some, atol=1e-5)
+    np.testing.assert_allclose(both[1], fill(holed, 30.0, other), atol=1e-5)
 
 
 def test_the_model_runs_only_for_the_holes_its_policy_gives_it():

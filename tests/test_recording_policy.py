@@ -370,6 +370,28 @@ def test_a_kind_every_other_fill_left_is_settled_and_cuts_no_more_holes():
     assert [m for m, e in settled.tables()["full"].items() if np.isfinite(e[0])] == [PREFERRED]
 
 
+def test_the_kinds_of_a_take_filled_together_measure_what_each_filled_alone_measures(monkeypatch):
+    """measure_take fills a take's kinds of hole in one batch of the take's copies (each fill
+    called once, a model's windows in full batches): every fill must give each copy what it gives
+    that kind alone, and each kind's errors come out the same."""
+    from mocapfix.core.skeleton import preset
+    from mocapfix.fills import errors as errors_module
+    from mocapfix.fills.errors import measure_on_takes
+    from mocapfix.fills.motion_matching import MotionLibrary
+    from mocapfix.io.synthetic import generate_clips
+    from mocapfix.rig.mapping import onto_skeleton
+
+    body = preset("body21")
+    takes = [(onto_skeleton(c, body).positions.astype(np.float64), 30.0) for c in generate_clips(3, 8.0, 30.0, seed=5)]
+    library = MotionLibrary(takes[1:], ["a", "b"])
+    together, _ = measure_on_takes(takes[:1], body, (0.3, 0.7), None, keys=["own"], library=library)
+    monkeypatch.setattr(errors_module, "BATCH_FRAMES", 1)  # one kind a call
+    alone, _ = measure_on_takes(takes[:1], body, (0.3, 0.7), None, keys=["own"], library=library)
+    assert len(together.sums) >= 6 * 2 * 3 and together.sums.keys() == alone.sums.keys()
+    for key, (total, count) in alone.sums.items():
+        assert together.sums[key][1] == count and together.sums[key][0] == pytest.approx(total, rel=1e-9)
+
+
 def test_a_model_screened_out_on_the_recording_is_not_taken_on_its_val_split_numbers():
     """A kind the recording measured keeps the recording's verdict: a model screened out there is
     inf in the policy's tables, whatever its checkpoint's val split says."""

@@ -27,6 +27,9 @@ HOLES_PER_CELL = 64  # the budget of holes cut into the recording per (part, gap
 # context each side the mean of the limb fill and PCHIP came out 3 % ahead of the limb fill,
 # and was 2 % behind it on the recording's holes; with 0.1 s the limb fill ranked first, as there).
 CONTEXT_S = 0.1
+# The kinds of hole of a take filled in one call of each fill: at most this many frames of the
+# take's copies (each holding one kind's holes) at once, each a (B, T, J, 3) float64 per candidate.
+BATCH_FRAMES = 8192
 
 
 class ErrorSums:
@@ -247,6 +250,7 @@ def measure_take(
     observed = np.isfinite(x).all(-1)
     truth = torch.from_numpy(x.astype(np.float64))[None]
     fills = take_fills(library, key, model_fill)
+    kinds = []  # (part, gap, hidden (T, J) the cut holes' tokens, the fills run on them)
     cut: dict[tuple[str, float], int] = {}
     for part in PARTS:
         for gap in gaps_s:
@@ -258,14 +262,28 @@ def measure_take(
             hidden = cut_holes(
                 observed, options[part], max(1, round(gap * fps)), budget[(part, gap)], max(1, round(CONTEXT_S * fps))
             )
-            if not hidden.any():
-                continue
-            starts = np.diff(hidden.any(-1).astype(np.int64), prepend=0) == 1  # (T,) a cut hole's first frame
-            cut[(part, gap)] = int(starts.sum())
-            hole_of = torch.from_numpy(np.broadcast_to(np.cumsum(starts)[:, None], hidden.shape).copy())[None]
-            holed = truth.masked_fill(torch.from_numpy(hidden)[None, ..., None], float("nan"))
-            obs = torch.from_numpy(observed & ~hidden)[None]
-            # only the cut holes are scored: the fills that can skip the take's own holes do
-            candidates = made(unskipped, holed, obs, fps, skeleton, asked=torch.from_numpy(hidden)[None])
-            errors.add_fills(part, gap, candidates, truth, torch.from_numpy(hidden)[None], hole_of, key)
+            if hidden.any():
+                kinds.append((part, gap, hidden, unskipped))
+                cut[(part, gap)] = int((np.diff(hidden.any(-1).astype(np.int64), prepend=0) == 1).sum())
+    # The kinds that run the same fills are filled together, one copy of the take each in a batch
+    # (up to BATCH_FRAMES frames): each fill is called once for them, the model's windows of all
+    # their holes run in the same batches. Only the cut holes are filled: the fills that can skip
+    # the take's own holes do. (Each kind's sums are its own: the order they are added in does
+    # not change them.)
+    together: dict[tuple[int, ...], list[int]] = {}
+    for i, (*_, unskipped) in enumerate(kinds):
+        together.setdefault(tuple(id(f) for f in unskipped), []).append(i)
+    per_batch = max(1, BATCH_FRAMES // len(x))
+    for members in together.values():
+        for first in range(0, len(members), per_batch):
+            batch = [kinds[i] for i in members[first : first + per_batch]]
+            hidden = torch.from_numpy(np.stack([h for _, _, h, _ in batch]))  # (B, T, J)
+            holed = truth.expand(len(batch), -1, -1, -1).masked_fill(hidden[..., None], float("nan"))
+            obs = torch.from_numpy(observed)[None] & ~hidden
+            filled = made(batch[0][3], holed, obs, fps, skeleton, asked=hidden)
+            for k, (part, gap, h, _) in enumerate(batch):
+                starts = np.diff(h.any(-1).astype(np.int64), prepend=0) == 1  # (T,) a cut hole's first frame
+                hole_of = torch.from_numpy(np.broadcast_to(np.cumsum(starts)[:, None], h.shape).copy())[None]
+                mine = {name: fill[k : k + 1] for name, fill in filled.items()}
+                errors.add_fills(part, gap, mine, truth, hidden[k : k + 1], hole_of, key)
     return errors, cut

@@ -53,12 +53,15 @@ class Fill:
 
 class Made(Fill):
     """A fill already made elsewhere: (B, T, J, 3) under its name (fix's model fill, made by the
-    windows that fixed the take)."""
+    windows that fixed the take); one take's (B = 1) is every take's of a batch of its copies
+    (a policy's measurement fills one copy of a take per kind of hole cut into it)."""
 
     def __init__(self, name: str, values: torch.Tensor):
         self.names, self.values = (name,), values
 
     def fill(self, positions, observed, fps, skeleton, asked=None, shared=None) -> dict[str, torch.Tensor]:
+        if len(self.values) == 1 and len(positions) > 1:
+            return {self.names[0]: self.values.expand(len(positions), *self.values.shape[1:])}
         return {self.names[0]: self.values}
 
 

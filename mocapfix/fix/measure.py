@@ -35,22 +35,30 @@ class TakeFill(Fill):
 
     def __call__(self, x: np.ndarray, fps: float, asked: np.ndarray | None = None) -> np.ndarray:
         """x: (T, J, 3); asked: (T,) bool, the frames whose holes are wanted (None: all)."""
-        take = Clip(x.astype(np.float32), fps, self.fixer.skeleton)
-        view = model_view([take], self.fixer.skeleton, self.fixer.fps, None)
-        need_m = needed_frames([take], view, "infill", self.fixer.fps, None if asked is None else [asked])
-        (est,) = self.fixer.estimates([take], view, need_m, self.options).clips
+        return self.takes([x], fps, None if asked is None else [asked])[0]
+
+    def takes(self, xs: list[np.ndarray], fps: float, asked: list[np.ndarray] | None = None) -> list[np.ndarray]:
+        """__call__ of several takes at once, their windows run in the same batches: a policy's
+        measurement asks for a few holes of each kind, and a few windows a call cost the model
+        five times what a full batch costs a window on a CPU."""
         skeleton = self.fixer.skeleton
-        new = merge(est, view.x_in[0], view.index[0], "infill", None, fps, skeleton, {}, MotionMatching(None))
-        if asked is None:
-            return new
-        # the holes not asked for: no window ran there (est NaN); Lerp keeps the output finite
-        xt = torch.from_numpy(x.astype(np.float64))[None]
-        return np.where(np.isfinite(new), new, lerp_infill(xt, ~torch.isnan(xt).any(-1))[0].numpy())
+        takes = [Clip(x.astype(np.float32), fps, skeleton) for x in xs]
+        view = model_view(takes, skeleton, self.fixer.fps, None)
+        need_m = needed_frames(takes, view, "infill", self.fixer.fps, asked)
+        estimates = self.fixer.estimates(takes, view, need_m, self.options).clips
+        out = []
+        for k, (x, est) in enumerate(zip(xs, estimates)):
+            new = merge(est, view.x_in[k], view.index[k], "infill", None, fps, skeleton, {}, MotionMatching(None))
+            if asked is not None:  # the holes not asked for: no window ran there (est NaN); Lerp keeps it finite
+                xt = torch.from_numpy(x.astype(np.float64))[None]
+                new = np.where(np.isfinite(new), new, lerp_infill(xt, ~torch.isnan(xt).any(-1))[0].numpy())
+            out.append(new)
+        return out
 
     def fill(self, positions, observed, fps, skeleton, asked=None, shared=None) -> dict[str, torch.Tensor]:
-        frames = [None] * len(positions) if asked is None else asked.any(-1).numpy()  # (B, T)
-        out = [torch.from_numpy(self(x.numpy(), fps, a)).double() for x, a in zip(positions, frames)]
-        return {self.names[0]: torch.stack(out)}
+        frames = None if asked is None else list(asked.any(-1).numpy())  # (T,) per take
+        out = self.takes([x.numpy() for x in positions], fps, frames)
+        return {self.names[0]: torch.stack([torch.from_numpy(o).double() for o in out])}
 
 
 def model_fill(fixer: Fixer, overlap: float, batch_size: int) -> TakeFill:
