@@ -309,7 +309,7 @@ def test_the_takes_are_measured_in_phases_of_sixteen_more_holes_spread_over_the_
 
 
 def test_fills_screened_out_after_the_first_takes_are_not_run_on_the_others():
-    """measure_on_takes asks its screen after the first phase of takes; a costly fill it names
+    """measure_on_takes asks its screen after the first phase of takes; a fill it names
     is not run again on that kind, and its candidates are inf in the tables (not the val split's)."""
     from mocapfix.core.skeleton import preset
     from mocapfix.fills.errors import measure_on_takes, screening_phases
@@ -321,20 +321,20 @@ def test_fills_screened_out_after_the_first_takes_are_not_run_on_the_others():
     takes = [(onto_skeleton(c, body).positions.astype(np.float64), 30.0) for c in generate_clips(8, 8.0, 30.0, seed=2)]
 
     class Counted(Fill):
-        names, costly, calls = ("xmae",), True, 0
+        names, calls = ("xmae",), 0
 
         def fill(self, positions, observed, fps, skeleton, asked=None, shared=None):
             Counted.calls += 1
             return {"xmae": positions.nan_to_num()}
 
     cells = {("full", 0.5)}
-    errors, cut = measure_on_takes(takes, body, (0.5,), cells, Counted(), screen=lambda e, costly: {})
+    errors, cut = measure_on_takes(takes, body, (0.5,), cells, Counted(), screen=lambda e, fills: {})
     every = Counted.calls
     assert every == len(takes) and np.isfinite(errors.tables()["full"]["xmae"][0])
     Counted.calls = 0
     seen = []
     screened, cut2 = measure_on_takes(
-        takes, body, (0.5,), cells, Counted(), screen=lambda e, costly: seen.append(costly) or {("full", 0.5): {"xmae"}}
+        takes, body, (0.5,), cells, Counted(), screen=lambda e, fills: seen.append(fills) or {("full", 0.5): {"xmae"}}
     )
     first = screening_phases([{("full", 0.5): cut[("full", 0.5)] // len(takes)}] * len(takes))[0]
     assert Counted.calls == len(first) < len(takes) and ("xmae",) in seen[0]
@@ -404,10 +404,7 @@ def test_a_model_screened_out_on_the_recording_is_not_taken_on_its_val_split_num
     body = preset("body21")
     takes = [(onto_skeleton(c, body).positions.astype(np.float64), 30.0) for c in generate_clips(8, 8.0, 30.0, seed=4)]
 
-    class Far(Made):  # a model metres off, costly as models are
-        costly = True
-
-    far = Far("xmae", torch.zeros(1, len(takes[0][0]), body.num_joints, 3, dtype=torch.float64))
+    far = Made("xmae", torch.zeros(1, len(takes[0][0]), body.num_joints, 3, dtype=torch.float64))  # metres off
     gaps = [0.1, 0.3, 0.5, 0.7, 0.9]
     val = {
         p: {m: [50.0] * 5 for m in ("lerp", "limb", "spline", "pchip")} | {"xmae": [1.0] * 5}
@@ -459,7 +456,7 @@ def test_a_model_ahead_in_every_take_of_a_folder_takes_a_kind_with_fewer_cut_hol
     takes = [(onto_skeleton(c, body).positions.astype(np.float64), 30.0) for c in generate_clips(10, 4.0, 30.0, seed=8)]
 
     class Oracle(Fill):  # the take's truth, found by its observed tokens
-        names, costly = ("xmae",), True
+        names = ("xmae",)
 
         def fill(self, positions, observed, fps, skeleton, asked=None, shared=None):
             out = []

@@ -36,7 +36,7 @@ class ErrorSums:
     """Each candidate's error summed per (part, gap) over filled tokens with truth -> the error
     tables of a fill policy (tables: part -> method -> mean error in mm per gap); where the holes
     are told apart (add_fills' hole_of), each hole's mean error too, in the order measured, and
-    the take it was cut into: the paired evidence policy.py screens costly candidates out on
+    the take it was cut into: the paired evidence policy.py screens candidates out on
     (hopeless) and lets a candidate take a kind on fewer holes by (proven)."""
 
     def __init__(self, gaps_s):
@@ -167,7 +167,7 @@ def measure_on_takes(
 
 
 def screening_phases(budgets: list[dict[tuple[str, float], int]]) -> list[list[int]]:
-    """The takes in the phases measure_on_takes measures them in, the costly fills screened after
+    """The takes in the phases measure_on_takes measures them in, the fills screened after
     each: every fourth take, then the ones between (the first holes come from across the folder),
     a phase ending where every kind has SCREEN_HOLES more holes planned (or all of its holes); the
     last phase the takes left once every kind has all its holes -> lists of take indices, each

@@ -37,7 +37,6 @@ class Fill:
     those, not for the take's own): the Lerp fill, `shared.lerp`."""
 
     names: tuple[str, ...] = ()
-    costly = False  # its fill costs far more than a classical fill's: measured only while it may win
 
     def fill(
         self,

@@ -24,7 +24,6 @@ class ModelFill(Fill):
     the replace threshold reads them)."""
 
     names = ("xmae",)
-    costly = True
 
     def __init__(self, reconstruct: Reconstruct):
         self.reconstruct = reconstruct

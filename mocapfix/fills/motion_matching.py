@@ -124,7 +124,7 @@ class _Coordinates(NamedTuple):
             if len(self.whole) >= WHOLE_KEPT:
                 self.whole.pop(next(iter(self.whole)))
             held = ~self.missing[need].any(0)
-            self.whole[key] = np.concatenate([[0], np.cumsum(held, dtype=np.int32)]).astype(np.int32)
+            self.whole[key] = np.concatenate([np.zeros(1, np.int32), np.cumsum(held, dtype=np.int32)])
         return self.whole[key]
 
 
@@ -273,7 +273,6 @@ class MotionMatching(Fill):
     None: the take itself only)."""
 
     names = FILLS
-    costly = True
 
     def __init__(self, library: MotionLibrary | None, key=None):
         self.library, self.key = library, key

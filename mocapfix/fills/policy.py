@@ -178,8 +178,9 @@ class FillPolicy:
         others keep this policy's numbers, the classical ones only where nothing of the recording
         could be measured. A kind with fewer than TRUSTED_HOLES cut holes gets the preferred
         classical fill (neither the model nor another classical fill has earned its place there)
-        unless a candidate is ahead of it take by take (proven); the costly candidates are
-        screened after the first holes (hopeless).
+        unless a candidate is ahead of it take by take (proven); every candidate but the preferred
+        fill is screened after the first holes (hopeless), and a kind left with the preferred fill
+        alone is settled (no more of its holes cut; it counts as earned).
         map_takes, keys, library: errors.measure_on_takes'."""
         gaps = tuple(self.gaps_s)
         cells = None if holes_of is None else hole_kinds(holes_of[0], skeleton, holes_of[1], gaps)
@@ -297,7 +298,7 @@ def _with_measured(base: dict, measured: dict, gaps, asked, earned, cut, ahead=f
     return tables
 
 
-# A costly candidate is screened out of a kind of hole (hopeless) where, by its holes so far, what
+# A candidate is screened out of a kind of hole (hopeless) where, by its holes so far, what
 # it could gain over what it must beat is below SCREEN_TOLERANCE of the preferred fill's error at
 # SCREEN_Z standard errors of the paired per-hole differences: it is either behind, or so near
 # that choosing it would change the fill's error by less than that. On the 16 holed CMU takes and

@@ -27,8 +27,6 @@ class TakeFill(Fill):
     (the ones a policy is measured on), it runs the windows those need and no others: a hole of
     the take's own keeps the Lerp fill there."""
 
-    costly = True
-
     def __init__(self, fixer: Fixer, overlap: float, batch_size: int):
         self.fixer, self.options = fixer, FixOptions("infill", overlap, batch_size)
         self.names = (fixer.candidate,)
@@ -39,8 +37,8 @@ class TakeFill(Fill):
 
     def takes(self, xs: list[np.ndarray], fps: float, asked: list[np.ndarray] | None = None) -> list[np.ndarray]:
         """__call__ of several takes at once, their windows run in the same batches: a policy's
-        measurement asks for a few holes of each kind, and a few windows a call cost the model
-        five times what a full batch costs a window on a CPU."""
+        measurement asks for a few holes of each kind, and on a CPU a call of a few windows costs
+        the model nearly three times a window what a full batch does (5 against 1.8 ms)."""
         skeleton = self.fixer.skeleton
         takes = [Clip(x.astype(np.float32), fps, skeleton) for x in xs]
         view = model_view(takes, skeleton, self.fixer.fps, None)
