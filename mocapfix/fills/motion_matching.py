@@ -112,6 +112,10 @@ class _Coordinates(NamedTuple):
     squared: np.ndarray
     missing: np.ndarray
     middle: np.ndarray  # (2,) float64: the x, y taken off
+    # (N, 5, J) float32: x, y, z, squared, missing again, frame by frame: what _sums_at gathers
+    # (a start's frames are a few contiguous rows here, against 5 J scattered reads joints first:
+    # 1.3-2.5x faster per call), for a copy of the source's memory
+    by_frame: np.ndarray
     # need (a (J,) bool's bytes) -> whole_before(need), for WHOLE_KEPT joint sets: a hole's search
     # asks for one of a few (a part's joints), and each was a pass over the library per hole
     whole: dict
@@ -137,7 +141,9 @@ def _coordinates(frames: np.ndarray) -> _Coordinates:
     c[missing] = 0.0
     x, y, z = (np.ascontiguousarray(c[..., i].T, dtype=np.float32) for i in range(3))
     missing = np.ascontiguousarray(missing.T, dtype=np.float32)
-    return _Coordinates(x, y, z, x**2 + y**2 + z**2, missing, middle, {})
+    squared = x**2 + y**2 + z**2
+    by_frame = np.ascontiguousarray(np.stack([x, y, z, squared, missing]).transpose(2, 0, 1))
+    return _Coordinates(x, y, z, squared, missing, middle, by_frame, {})
 
 
 # Each library take is also searched mirrored (left and right swapped: a left leg's hole finds
@@ -366,11 +372,13 @@ def _sums_at(source: _Coordinates, w: _Weights, starts: np.ndarray) -> np.ndarra
     its copy elsewhere must come out ~0 apart, not float32's rounding of the sums)."""
     J, U = source.x.shape[0], len(w.offsets)
     sums, chunk = np.zeros((len(starts), 9)), max(1, CHUNK // U)
+    # each sum's weights offset-major, as the gathered frames are: (U J, outputs)
+    weights = {name: getattr(w, name).transpose(1, 0, 2).reshape(U * J, -1) for _, name, _ in _SUMS}
     for a in range(0, len(starts), chunk):
         rows = starts[a : a + chunk, None] + w.offsets  # (M, U) frames
-        for name, weights, cols in _SUMS:
-            values = getattr(source, name)[:, rows].transpose(1, 0, 2).reshape(len(rows), J * U)  # (M, J U)
-            sums[a : a + len(rows), cols] += values.astype(np.float64) @ getattr(w, weights).reshape(J * U, -1)
+        values = np.ascontiguousarray(source.by_frame[rows].transpose(2, 0, 1, 3), dtype=np.float64)  # (5, M, U, J)
+        for k, (_, name, cols) in enumerate(_SUMS):
+            sums[a : a + len(rows), cols] += values[k].reshape(len(rows), U * J) @ weights[name]
     return sums
 
 
