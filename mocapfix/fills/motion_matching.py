@@ -112,7 +112,7 @@ class _Coordinates(NamedTuple):
     squared: np.ndarray
     missing: np.ndarray
     middle: np.ndarray  # (2,) float64: the x, y taken off
-    # (N, 5, J) float32: x, y, z, squared, missing again, frame by frame: what _sums_at gathers
+    # (N, 5, J) float32: x, y, z, squared, missing again (_SUMS's order), frame by frame: what _sums_at gathers
     # (a start's frames are a few contiguous rows here, against 5 J scattered reads joints first:
     # 1.3-2.5x faster per call), for a copy of the source's memory
     by_frame: np.ndarray
@@ -141,9 +141,9 @@ def _coordinates(frames: np.ndarray) -> _Coordinates:
     c[missing] = 0.0
     x, y, z = (np.ascontiguousarray(c[..., i].T, dtype=np.float32) for i in range(3))
     missing = np.ascontiguousarray(missing.T, dtype=np.float32)
-    squared = x**2 + y**2 + z**2
-    by_frame = np.ascontiguousarray(np.stack([x, y, z, squared, missing]).transpose(2, 0, 1))
-    return _Coordinates(x, y, z, squared, missing, middle, by_frame, {})
+    named = {"x": x, "y": y, "z": z, "squared": x**2 + y**2 + z**2, "missing": missing}
+    by_frame = np.ascontiguousarray(np.stack([named[name] for name, _, _ in _SUMS]).transpose(2, 0, 1))  # _SUMS's order
+    return _Coordinates(**named, middle=middle, by_frame=by_frame, whole={})
 
 
 # Each library take is also searched mirrored (left and right swapped: a left leg's hole finds
