@@ -250,7 +250,8 @@ def measure_take(
     observed = np.isfinite(x).all(-1)
     truth = torch.from_numpy(x.astype(np.float64))[None]
     fills = take_fills(library, key, model_fill)
-    kinds = []  # (part, gap, hidden (T, J) the cut holes' tokens, the fills run on them)
+    # (part, gap, hidden (T, J) the cut holes' tokens, (T,) each frame's cut hole numbered from 1, the fills run)
+    kinds = []
     cut: dict[tuple[str, float], int] = {}
     for part in PARTS:
         for gap in gaps_s:
@@ -263,27 +264,28 @@ def measure_take(
                 observed, options[part], max(1, round(gap * fps)), budget[(part, gap)], max(1, round(CONTEXT_S * fps))
             )
             if hidden.any():
-                kinds.append((part, gap, hidden, unskipped))
-                cut[(part, gap)] = int((np.diff(hidden.any(-1).astype(np.int64), prepend=0) == 1).sum())
+                starts = np.diff(hidden.any(-1).astype(np.int64), prepend=0) == 1  # (T,) a cut hole's first frame
+                numbered = np.cumsum(starts)
+                kinds.append((part, gap, hidden, numbered, unskipped))
+                cut[(part, gap)] = int(numbered[-1])
     # The kinds that run the same fills are filled together, one copy of the take each in a batch
     # (up to BATCH_FRAMES frames): each fill is called once for them, the model's windows of all
     # their holes run in the same batches. Only the cut holes are filled: the fills that can skip
     # the take's own holes do. (Each kind's sums are its own: the order they are added in does
     # not change them.)
-    together: dict[tuple[int, ...], list[int]] = {}
+    together: dict[tuple[Fill, ...], list[int]] = {}
     for i, (*_, unskipped) in enumerate(kinds):
-        together.setdefault(tuple(id(f) for f in unskipped), []).append(i)
+        together.setdefault(tuple(unskipped), []).append(i)
     per_batch = max(1, BATCH_FRAMES // len(x))
-    for members in together.values():
+    for run, members in together.items():
         for first in range(0, len(members), per_batch):
             batch = [kinds[i] for i in members[first : first + per_batch]]
-            hidden = torch.from_numpy(np.stack([h for _, _, h, _ in batch]))  # (B, T, J)
+            hidden = torch.from_numpy(np.stack([h for _, _, h, _, _ in batch]))  # (B, T, J)
             holed = truth.expand(len(batch), -1, -1, -1).masked_fill(hidden[..., None], float("nan"))
             obs = torch.from_numpy(observed)[None] & ~hidden
-            filled = made(batch[0][3], holed, obs, fps, skeleton, asked=hidden)
-            for k, (part, gap, h, _) in enumerate(batch):
-                starts = np.diff(h.any(-1).astype(np.int64), prepend=0) == 1  # (T,) a cut hole's first frame
-                hole_of = torch.from_numpy(np.broadcast_to(np.cumsum(starts)[:, None], h.shape).copy())[None]
+            filled = made(list(run), holed, obs, fps, skeleton, asked=hidden)
+            for k, (part, gap, h, numbered, _) in enumerate(batch):
+                hole_of = torch.from_numpy(np.broadcast_to(numbered[:, None], h.shape).copy())[None]
                 mine = {name: fill[k : k + 1] for name, fill in filled.items()}
                 errors.add_fills(part, gap, mine, truth, hidden[k : k + 1], hole_of, key)
     return errors, cut
