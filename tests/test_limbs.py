@@ -1,17 +1,19 @@
 """Limbs held at one length (fix/limbs.py): a tracker's bones that breathe come out rigid, what
 is not a limb's bone and what is missing stay as they were, and a take whose bones were rigid
-already is left where it was."""
+already is left where it was; the torso's distances come out as the recording had them."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 from cli_utils import run_mocapfix
 from test_keypoints import BODY, in_layout
 
-from mocapfix.fix.limbs import hold_limb_lengths, limb_bones
+from mocapfix.fix.limbs import hold_limb_lengths, hold_torso_lengths, limb_bones, torso_bones
 from mocapfix.io import read_motion
-from mocapfix.io.layouts import LAYOUTS
+from mocapfix.io.layouts import LAYOUTS, layout_skeleton
+from mocapfix.models.jitter import lowpass
 from mocapfix.rig.mapping import onto_skeleton
 
 ALL = np.arange(BODY.num_joints)  # a take with every model joint: index is the identity
@@ -116,3 +118,100 @@ def test_a_bvh_take_keeps_its_own_bones(tmp_path, bandai_files, capsys):
     rc, out, err = run_mocapfix(["fix", path, "-o", tmp_path / "out.bvh", "--model", "jitter-many", "--json"], capsys)
     assert rc == 0, err
     assert "held at each take's median length" not in out  # its hierarchy's bones are rigid already
+
+
+def test_the_torso_bones_are_the_recordings_own_between_the_joints_the_model_uses():
+    lay = LAYOUTS["kinect20"]
+    skeleton, _ = layout_skeleton(lay)
+    columns = np.array(
+        [
+            lay.joint_names.index(n)
+            for n in (
+                "HipCenter",
+                "Spine",
+                "ShoulderCenter",
+                "Head",
+                "ShoulderLeft",
+                "ElbowLeft",
+                "HipLeft",
+                "KneeLeft",
+            )
+        ]
+    )
+    limbs = [(4, 5), (6, 7)]  # (ShoulderLeft, ElbowLeft), (HipLeft, KneeLeft) as columns
+    names = {
+        (lay.joint_names[columns[a]], lay.joint_names[columns[b]])
+        for a, b in torso_bones(skeleton.parents, columns, limbs)
+    }
+    # a Kinect's shoulder hangs from its shoulder centre (the model's would from a chest it lacks)
+    assert names == {
+        ("HipCenter", "Spine"),
+        ("Spine", "ShoulderCenter"),
+        ("ShoulderCenter", "Head"),
+        ("ShoulderCenter", "ShoulderLeft"),
+        ("HipCenter", "HipLeft"),
+    }
+
+
+def test_the_torso_keeps_what_the_tracker_holds_steadier(body_take):
+    """Each torso joint moved on its own by a few millimetres (what the learned correction does),
+    the recording's torso rigid but for a spine that bows slowly: its distances come back to the
+    recording's, low-passed; a distance the recording has unsteadier (a hip jittering on its
+    own) is left as the moved take has it."""
+    torso = [BODY.index(n) for n in ("Hips", "Spine", "Chest", "Neck", "Head", "UpperArm_L", "UpperLeg_L")]
+    bones = [(0, 1), (1, 2), (2, 3), (3, 4), (2, 5), (0, 6)]  # in the columns of `torso`
+    recorded = body_take[:, torso].copy()  # (T, 7, 3): rigid distances
+    t = np.arange(len(recorded)) / 30.0
+    recorded[:, 1:] += (0.01 * np.sin(2 * np.pi * 0.2 * t))[:, None, None] * np.array([0.0, 0.0, 1.0])  # a bow
+    rng = np.random.default_rng(5)
+    moved = recorded + rng.normal(0, 0.004, recorded.shape)
+    recorded[:, 6] += rng.normal(0, 0.02, (len(recorded), 3))  # the recording's hip jitters by 2 cm
+    moved[30:40, 4] = np.nan  # a missing head stays missing, its bone left alone there
+    held = hold_torso_lengths(moved, bones, recorded, 30.0, 6.0)
+    assert np.isnan(held[30:40, 4]).all() and np.isfinite(held[:30]).all()
+    want = lowpass(torch.from_numpy(lengths(recorded, bones))[None], 30.0, 6.0)[0].numpy()[:, :5]
+    before, after = lengths(moved, bones), lengths(held, bones)
+    assert np.nanstd(before[:, :5] - want, 0).min() > 2e-3  # breathing by millimetres before
+    seen = np.isfinite(after[:, :5])
+    np.testing.assert_allclose(after[:, :5][seen], want[seen], atol=2e-5)
+    assert np.array_equal(held[:, 6], moved[:, 6])  # the hip: its bone left as the moved take has it
+    # moved along the bones, by about what their lengths were off, not pulled anywhere else
+    off = np.nanmax(np.abs(before[:, :5] - want))
+    assert np.nanmax(np.linalg.norm(held - moved, axis=-1)) < 3 * off
+
+
+def test_fix_denoise_leaves_a_trackers_rigid_torso_rigid(tmp_path, body_take, capsys):
+    """A Kinect v1 take whose tracker holds the torso rigid (its keypoints jitter together, as a
+    fitted body model's do) and whose arms and legs jitter joint by joint: the torso's distances
+    come out as they went in (through the jitter remover's low-pass), where its learned correction
+    made them breathe by millimetres."""
+    rng = np.random.default_rng(6)
+    x = in_layout("kinect20", body_take)
+    names = LAYOUTS["kinect20"].joint_names
+    torso = [
+        names.index(n)
+        for n in (
+            "HipCenter",
+            "Spine",
+            "ShoulderCenter",
+            "Head",
+            "ShoulderLeft",
+            "ShoulderRight",
+            "HipLeft",
+            "HipRight",
+        )
+    ]
+    rest = [j for j in range(len(names)) if j not in torso]
+    x[:, torso] += rng.normal(0, 0.01, (len(x), 1, 3))  # the whole torso shifted at once
+    x[:, rest] += rng.normal(0, 0.01, (len(x), len(rest), 3))
+    np.save(tmp_path / "take.npy", x.astype(np.float32))
+    args = ["fix", tmp_path / "take.npy", "--layout", "kinect20", "--fps", "30", "--model", "jitter-many", "--json"]
+    rc, out, err = run_mocapfix(args, capsys)
+    assert rc == 0, err
+    back = np.load(tmp_path / "take.fixed.npy").astype(np.float64)
+    for a, b in (("ShoulderCenter", "ShoulderLeft"), ("HipCenter", "HipRight"), ("Spine", "ShoulderCenter")):
+        ia, ib = names.index(a), names.index(b)
+        before = np.linalg.norm(x[:, ib] - x[:, ia], axis=-1)  # a spine's bow in the Bandai take, slow
+        want = lowpass(torch.from_numpy(before)[None, :, None], 30.0, 6.0)[0, :, 0].numpy()  # the model's cutoff
+        after = np.linalg.norm(back[:, ib] - back[:, ia], axis=-1)
+        assert np.abs(after - want).max() < 1e-4, (a, b, np.abs(after - want).max())

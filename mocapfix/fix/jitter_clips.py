@@ -8,7 +8,8 @@ toes, extra spine and twist joints) get the same low-pass and move with the near
 above them by its correction, so a hand brings its fingers along. Holes stay holes: jitter is
 taken out of what was recorded and nothing is invented (an XMAE fills holes). A take of joint
 positions (keypoints, positions files) then has its limbs held at one length (limbs.py): no
-low-pass takes out bones that breathe as slowly as the body moves. A take shorter than
+low-pass takes out bones that breathe as slowly as the body moves, and its torso's distances that
+the tracker holds steadier than the learned correction does are kept as tracked. A take shorter than
 MIN_TAKE_S is kept as recorded: too little motion to tell jitter from it.
 """
 
@@ -21,7 +22,7 @@ import torch
 
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.fills.classical import lerp_infill
-from mocapfix.fix.limbs import hold_limb_lengths, limb_bones
+from mocapfix.fix.limbs import hold_limb_lengths, hold_torso_lengths, limb_bones, torso_bones
 from mocapfix.fix.report import NOT_JUDGED, FixReport, LimbSpread, frames_and_people, who
 from mocapfix.models.jitter import lowpass
 from mocapfix.rig.stand_ins import with_stand_ins
@@ -83,7 +84,11 @@ def denoise_clips(
         if not c.has_rotations:  # a hierarchy's bones are rigid already; a tracker's breathe
             seen = observed[0][:, index].numpy()  # the lengths and their corrections where recorded
             columns = np.where(present, np.cumsum(present) - 1, -1)  # each model joint's in denoised
-            kept, spread_mm = hold_limb_lengths(np.where(seen[..., None], denoised, np.nan), limb_bones(model, columns))
+            limbs = limb_bones(model, columns)
+            torso = torso_bones(c.skeleton.parents, index, limbs)
+            kept = np.where(seen[..., None], denoised, np.nan)
+            kept = hold_torso_lengths(kept, torso, filled[0][:, index].numpy(), c.fps, fixer.net.cutoff_hz)
+            kept, spread_mm = hold_limb_lengths(kept, limbs)
             denoised = np.where(seen[..., None], kept, denoised)
             held.append(spread_mm)
         correction = denoised - positions[:, index]  # the passengers below move with it, held limbs too
@@ -109,7 +114,7 @@ def denoise_clips(
     if any(held):
         notes.append(
             f"the limbs' long bones held at each take's median length (they varied by {np.mean(held):.1f} mm "
-            "after the low-pass)"
+            "after the low-pass), the torso's distances the tracker holds steadier kept as tracked"
         )
     notes += absent_notes
     if passengers:
