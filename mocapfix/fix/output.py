@@ -11,6 +11,7 @@ import numpy as np
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.fix.joints import map_joints
 from mocapfix.io.azure_kinect import write_azure_kinect
+from mocapfix.io.azure_kinect_csv import write_azure_kinect_csv
 from mocapfix.io.bvh import write_bvh_like
 from mocapfix.io.conventions import metres_per_unit, to_z_up
 from mocapfix.io.files import atomic_write
@@ -33,6 +34,7 @@ KEYPOINT_WRITERS = {
     "keypoints-text": write_kinect_text,
     "keypoints-mediapipe-json": write_mediapipe_json,
     "keypoints-azure-json": write_azure_kinect,
+    "keypoints-azure-csv": write_azure_kinect_csv,
 }
 
 

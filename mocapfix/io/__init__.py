@@ -87,9 +87,7 @@ def _reader(source: str):
 
         return read_bvh
     if source == "positions":
-        from mocapfix.io.positions import read_positions
-
-        return read_positions
+        return _read_positions
     if source == "keypoints":
         return _read_keypoints
     if source == "h36m":
@@ -97,6 +95,19 @@ def _reader(source: str):
     from mocapfix.io.amass import read_amass
 
     return read_amass
+
+
+def _read_positions(
+    path, unit="auto", up_axis="auto", fps=None, groups=None, min_confidence: float = 0.0
+) -> list[Clip]:
+    """A positions file (.npz, .csv: io/positions.py), or an Azure Kinect body-tracking CSV
+    (timestamp;body_idx;... : io/azure_kinect_csv.py), told apart by its header."""
+    from mocapfix.io.azure_kinect_csv import is_azure_kinect_csv, read_azure_kinect_csv
+    from mocapfix.io.positions import read_positions
+
+    if Path(path).suffix.lower() == ".csv" and is_azure_kinect_csv(path):
+        return read_azure_kinect_csv(path, min_confidence, unit, fps, groups)
+    return read_positions(path, unit, up_axis, fps, groups, min_confidence)
 
 
 def _read_keypoints(

@@ -66,30 +66,44 @@ def read_azure_kinect(path, unit: str = "auto", fps: float | None = None, groups
     path = Path(path)
     data = read_json(path, "body-tracking JSON") if data is None else data
     frames, bodies = _bodies(path, data)
-    if not bodies:
-        raise MotionFileError(path, f"{len(frames)} frames and no body in any: nothing was tracked")
-    if len(bodies) * len(frames) > MAX_BODY_FRAMES:
-        raise MotionFileError(path, f"{len(bodies)} body IDs over {len(frames)} frames: more than one take holds")
     try:
         times = np.array([float(f["timestamp_usec"]) for f in frames]) / 1e6
     except (KeyError, TypeError, ValueError):
         times = None  # no clock: each frame one step
+    clips = people_clips(path, len(frames), times, bodies, unit, fps, groups, "keypoints-azure-json")
+    for c in clips:
+        c.meta["document"] = data  # one object for the file's people: the writer edits a copy
+    return clips
+
+
+def people_clips(
+    path: Path, num_frames: int, times: np.ndarray | None, bodies: dict, unit: str, fps: float | None, groups, fmt: str
+) -> list[Clip]:
+    """The people of a body-tracking file: num_frames frames the camera delivered, at times (s,
+    or None: one step each); bodies: {body ID: [(frame, (32, 3) mm in camera axes, NaN where
+    missing)]} -> one clip per person (io/body_ids.py), each clip's meta with the frames on the
+    clock ("slots") and where each of its bodies was read ("bodies_at": (frame, body ID))."""
+    if not bodies:
+        raise MotionFileError(path, f"{num_frames} frames and no body in any: nothing was tracked")
+    if len(bodies) * num_frames > MAX_BODY_FRAMES:
+        raise MotionFileError(path, f"{len(bodies)} body IDs over {num_frames} frames: more than one take holds")
     if fps is None:
-        if times is None or len(frames) < 2:
+        if times is None or num_frames < 2:
             raise MotionFileError(path, "no timestamps to tell the frame rate: give --fps")
-        fps = _fps_from_times(path, times, np.arange(len(frames)), np.zeros(len(frames)))
+        fps = _fps_from_times(path, times, np.arange(num_frames), np.zeros(num_frames))
     fps = _check_fps(path, fps)
-    slots = frame_slots(path, times, len(frames), fps)
+    slots = frame_slots(path, times, num_frames, fps)
     repeated = np.nonzero(np.diff(slots) == 0)[0]
-    if repeated.size:  # two frames on one tick of the camera's clock: not the processor's output
+    if repeated.size:  # two frames on one tick of the camera's clock: not the tracker's output
         raise MotionFileError(path, f"timestamps that do not increase (frame {repeated[0] + 1})")
     lay = layout("azure32")
     skeleton, order = layout_skeleton_of(path, lay, groups)
     xyz = np.full((len(bodies), int(slots[-1]) + 1, len(lay.joint_names), 3), np.nan)  # (P, N, J, 3)
+    present = np.zeros(xyz.shape[:2], bool)  # (P, N) the frames each body was delivered in
     for p, appearances in enumerate(bodies.values()):
         for i, positions in appearances:
             xyz[p, slots[i]] = positions
-    present = np.isfinite(xyz).all(-1).all(-1)  # (P, N)
+            present[p, slots[i]] = True
     chains = one_person_chains(xyz[:, :, 0] / 1000.0, fps)  # by the pelvis, mm -> m
     xyz = merged(xyz, chains, present)
     ids, appearances = list(bodies), list(bodies.values())
@@ -103,10 +117,7 @@ def read_azure_kinect(path, unit: str = "auto", fps: float | None = None, groups
         }
         for chain in chains
     ]
-    clips = _clips(path, xyz[:, :, order], fps, skeleton, unit, "mm", "-y", "-y", "keypoints-azure-json", people)
-    for c in clips:
-        c.meta["document"] = data  # one object for the file's people: the writer edits a copy
-    return clips
+    return _clips(path, xyz[:, :, order], fps, skeleton, unit, "mm", "-y", "-y", fmt, people)
 
 
 def write_azure_kinect(path, clips: list[Clip], inputs: list[Clip]) -> Path:
