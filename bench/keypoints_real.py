@@ -130,6 +130,16 @@ SETS = {
         "m",
         "the dataset's 20 joints_sXX_eXX.txt, as JeslieHCI/UTKinect_3@590aede4 data/UTKinect/joints/ holds them",
     ),
+    "Azure Kinect (depth camera)": Set(
+        ("azure_kinect",),
+        "*positions*.csv",
+        "native",
+        "azure32",
+        None,
+        "auto",
+        "justamad/PyMoCapViewer@8637135 data/azure_positions.csv; "
+        "justamad/rpe-prediction@e6fa727 data/arne_flywheel/azure/01_master/positions_3d.csv (deleted later)",
+    ),
     "MSR Action3D (depth camera)": Set(
         ("msr_action3d",),
         "*_skeleton3D.txt",
