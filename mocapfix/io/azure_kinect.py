@@ -88,8 +88,10 @@ def people_clips(
     if len(bodies) * num_frames > MAX_BODY_FRAMES:
         raise MotionFileError(path, f"{len(bodies)} body IDs over {num_frames} frames: more than one take holds")
     if fps is None:
-        if times is None or num_frames < 2:
+        if times is None:
             raise MotionFileError(path, "no timestamps to tell the frame rate: give --fps")
+        if num_frames < 2:
+            raise MotionFileError(path, "one frame: no steps to tell the frame rate from; give --fps")
         fps = _fps_from_times(path, times, np.arange(num_frames), np.zeros(num_frames))
     fps = _check_fps(path, fps)
     slots = frame_slots(path, times, num_frames, fps)
