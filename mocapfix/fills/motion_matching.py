@@ -608,6 +608,7 @@ def match_fills(
     mirror = None if library is None else library.mirror
     takes = [x] + ([mirrored(x, mirror)] if mirror is not None else [])
     sources: dict[int, list[Searchable]] = {}  # per phase of the take's searched frames, made at its first hole
+    found_holes = []  # (s, e, a, cols, the neighbours' mean (b - a, J', 3)): filled together below
     for s, e in runs(~observed[:, seen].all(1)):
         if s == 0 or e == T or (fps is not None and e - s < MIN_HOLE_S * fps):
             continue
@@ -669,7 +670,7 @@ def match_fills(
         # weighted mean of the neighbours' fills is the fill of their weighted mean. It is made on
         # the take's own frames [a, b) (searched frame k is take frame phase + step_in k), where
         # the fills meet the data.
-        a, b = phase + step_in * lo, phase + step_in * (hi - 1) + 1
+        a = phase + step_in * lo  # [a, a + len(mean)): to the take frame of searched frame hi - 1
         # only the hole's joints (each fill is per joint, and each of them is observed at both ends)
         cols = np.flatnonzero(missing)  # (J',)
         # (K, width, J', 3)
@@ -682,15 +683,49 @@ def match_fills(
         seg[..., :2] = xy + query[:, :2].mean(0)  # the neighbours turned and shifted onto the query
         weight = 1.0 / (np.array([d for d, *_ in chosen]) + 1e-8)
         mean = _upsampled(np.einsum("k,ktjc->tjc", weight / weight.sum(), seg), step_in)  # (b - a, J', 3)
-        mean = torch.from_numpy(mean)[None]  # (1, b - a, J', 3)
-        window = torch.from_numpy(x[a:b, cols])[None]
-        obs = torch.from_numpy(observed[a:b, cols])[None]
-        # match: the residual to the data at observed tokens, interpolated over the hole (meets both ends)
-        match = (mean + lerp_infill(torch.where(obs[..., None], window - mean, torch.nan), obs))[0].numpy()
-        # match_delta: the Hermite fill plus the neighbours' departure from their own Hermite fill
-        own = hermite_infill(torch.where(obs[..., None], mean, torch.nan), obs)
-        delta = (mean - own)[0].numpy() + hermite[a:b, cols]
-        hole = ~observed[s:e, cols]  # (e - s, J') the hole's tokens
-        out["match"][s:e, cols] = np.where(hole[..., None], match[s - a : e - a], out["match"][s:e, cols])
-        out["match_delta"][s:e, cols] = np.where(hole[..., None], delta[s - a : e - a], out["match_delta"][s:e, cols])
+        found_holes.append((s, e, a, cols, mean))
+    if found_holes:
+        _fill_found(found_holes, x, observed, hermite, out)
     return {name: np.where(observed[..., None], positions, fill) for name, fill in out.items()}
+
+
+def _fill_found(
+    holes: list[tuple[int, int, int, np.ndarray, np.ndarray]],
+    x: np.ndarray,
+    observed: np.ndarray,
+    hermite: np.ndarray,
+    out: dict[str, np.ndarray],
+) -> None:
+    """Each hole (s, e) its two fills from its neighbours' mean motion on the take's frames [a,
+    b) at its joints cols (mean: (b - a, J', 3)), written into out's arrays (T, J, 3). Both fills
+    are per joint: every hole's joints go through one Lerp and one Hermite call, a row each,
+    padded at the end (frames there are unobserved: past the window's last observed frame, which
+    is what a window's end holds), the same numbers as one call per hole."""
+    rows = sum(len(cols) for *_, cols, _ in holes)
+    longest = max(len(mean) for *_, mean in holes)
+    mean = np.zeros((rows, longest, 1, 3))  # (R, L, 1, 3): a hole's joint a row
+    window = np.full((rows, longest, 1, 3), np.nan)
+    obs = np.zeros((rows, longest, 1), bool)
+    r = 0
+    for _, _, a, cols, m in holes:
+        k, n = len(cols), len(m)
+        mean[r : r + k, :n, 0] = m.transpose(1, 0, 2)
+        window[r : r + k, :n, 0] = x[a : a + n, cols].transpose(1, 0, 2)
+        obs[r : r + k, :n, 0] = observed[a : a + n, cols].T
+        r += k
+    mean_t, window_t, obs_t = torch.from_numpy(mean), torch.from_numpy(window), torch.from_numpy(obs)
+    # match: the residual to the data at observed tokens, interpolated over the hole (meets both ends)
+    match = (mean_t + lerp_infill(torch.where(obs_t[..., None], window_t - mean_t, torch.nan), obs_t)).numpy()
+    # match_delta: the Hermite fill plus the neighbours' departure from their own Hermite fill
+    departure = (mean_t - hermite_infill(torch.where(obs_t[..., None], mean_t, torch.nan), obs_t)).numpy()
+    r = 0
+    for s, e, a, cols, _ in holes:
+        k = len(cols)
+        hole = ~observed[s:e, cols]  # (e - s, J') the hole's tokens
+        filled = {
+            "match": match[r : r + k, s - a : e - a, 0].transpose(1, 0, 2),
+            "match_delta": departure[r : r + k, s - a : e - a, 0].transpose(1, 0, 2) + hermite[s:e, cols],
+        }
+        for name, f in filled.items():
+            out[name][s:e, cols] = np.where(hole[..., None], f, out[name][s:e, cols])
+        r += k
