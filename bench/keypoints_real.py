@@ -225,10 +225,10 @@ def set_row(name: str, s: Set, files: list[Path], fixer) -> dict:
             refused.append(f.name)
             continue
         for clip in clips:
-            if clip.num_frames < s.min_frames:
-                continue
             x = in_file_order(clip)
             seen = np.isfinite(x).all(-1)
+            if seen.any(-1).sum() < s.min_frames:  # a person seen this briefly (a body ID of a moment) says little
+                continue
             (out,), _ = fix_clips([clip], fixer, "denoise")
             outputs = {"input": x, "fix": in_file_order(out), "butterworth": butterworth(x, seen, clip.fps)}
             for key, y in outputs.items():
