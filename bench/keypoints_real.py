@@ -137,8 +137,8 @@ SETS = {
         "azure32",
         None,
         "auto",
-        "justamad/PyMoCapViewer@8637135 data/azure_positions.csv; "
-        "justamad/rpe-prediction@e6fa727 data/arne_flywheel/azure/01_master/positions_3d.csv (deleted later)",
+        "justamad/PyMoCapViewer@8637135 data/azure_positions.csv; justamad/rpe-prediction's history "
+        "(@45e94d7, @ad1bcd6: since deleted) data/*/azure/*_master/positions_3d.csv, eight people's squats",
     ),
     "MSR Action3D (depth camera)": Set(
         ("msr_action3d",),
