@@ -668,9 +668,9 @@ def match_fills(
         # Both fills of a neighbour are linear in its frames (an interpolation between the same
         # observed tokens, per joint; the hole's joints are whole in every neighbour): the
         # weighted mean of the neighbours' fills is the fill of their weighted mean. It is made on
-        # the take's own frames [a, b) (searched frame k is take frame phase + step_in k), where
-        # the fills meet the data.
-        a = phase + step_in * lo  # [a, a + len(mean)): to the take frame of searched frame hi - 1
+        # the take's own frames [a, a + len(mean)) (searched frame k is take frame phase + step_in
+        # k: from lo's to hi - 1's), where the fills meet the data (_fill_found).
+        a = phase + step_in * lo
         # only the hole's joints (each fill is per joint, and each of them is observed at both ends)
         cols = np.flatnonzero(missing)  # (J',)
         # (K, width, J', 3)
@@ -696,11 +696,12 @@ def _fill_found(
     hermite: np.ndarray,
     out: dict[str, np.ndarray],
 ) -> None:
-    """Each hole (s, e) its two fills from its neighbours' mean motion on the take's frames [a,
-    b) at its joints cols (mean: (b - a, J', 3)), written into out's arrays (T, J, 3). Both fills
-    are per joint: every hole's joints go through one Lerp and one Hermite call, a row each,
-    padded at the end (frames there are unobserved: past the window's last observed frame, which
-    is what a window's end holds), the same numbers as one call per hole."""
+    """Each hole [s, e) its two fills from its neighbours' mean motion on the take's frames [a, a
+    + n) at its joints cols (mean: (n, J', 3)), written into out's arrays (T, J, 3). Both fills are
+    per joint: every hole's joints go through one Lerp and one Hermite call, a row each, padded
+    at the end with unobserved frames. Those change no hole token's numbers (its ends are
+    observed; past a row's last observed frame each fill holds that frame's value, as at the
+    window's end): the same as one call per hole, in one call's time."""
     rows = sum(len(cols) for *_, cols, _ in holes)
     longest = max(len(mean) for *_, mean in holes)
     mean = np.zeros((rows, longest, 1, 3))  # (R, L, 1, 3): a hole's joint a row

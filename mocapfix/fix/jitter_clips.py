@@ -8,9 +8,9 @@ toes, extra spine and twist joints) get the same low-pass and move with the near
 above them by its correction, so a hand brings its fingers along. Holes stay holes: jitter is
 taken out of what was recorded and nothing is invented (an XMAE fills holes). A take of joint
 positions (keypoints, positions files) then has its limbs held at one length (limbs.py): no
-low-pass takes out bones that breathe as slowly as the body moves, and its torso's distances that
-the tracker holds steadier than the learned correction does are kept as tracked. A take shorter than
-MIN_TAKE_S is kept as recorded: too little motion to tell jitter from it.
+low-pass takes out bones that breathe as slowly as the body moves; the torso's distances that
+its tracker holds steadier than the learned correction does are kept as tracked. A take shorter
+than MIN_TAKE_S is kept as recorded: too little motion to tell jitter from it.
 """
 
 from __future__ import annotations
