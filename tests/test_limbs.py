@@ -18,6 +18,7 @@ from mocapfix.rig.mapping import onto_skeleton
 
 ALL = np.arange(BODY.num_joints)  # a take with every model joint: index is the identity
 WALK = "dataset-2_walk_elderly_002.bvh"
+KINECT_TORSO = "HipCenter Spine ShoulderCenter Head ShoulderLeft ShoulderRight HipLeft HipRight".split()
 
 
 @pytest.fixture(scope="module")
@@ -123,28 +124,12 @@ def test_a_bvh_take_keeps_its_own_bones(tmp_path, bandai_files, capsys):
 def test_the_torso_bones_are_the_recordings_own_between_the_joints_the_model_uses():
     lay = LAYOUTS["kinect20"]
     skeleton, _ = layout_skeleton(lay)
-    columns = np.array(
-        [
-            lay.joint_names.index(n)
-            for n in (
-                "HipCenter",
-                "Spine",
-                "ShoulderCenter",
-                "Head",
-                "ShoulderLeft",
-                "ElbowLeft",
-                "HipLeft",
-                "KneeLeft",
-            )
-        ]
-    )
+    names = "HipCenter Spine ShoulderCenter Head ShoulderLeft ElbowLeft HipLeft KneeLeft".split()
+    columns = np.array([lay.joint_names.index(n) for n in names])
     limbs = [(4, 5), (6, 7)]  # (ShoulderLeft, ElbowLeft), (HipLeft, KneeLeft) as columns
-    names = {
-        (lay.joint_names[columns[a]], lay.joint_names[columns[b]])
-        for a, b in torso_bones(skeleton.parents, columns, limbs)
-    }
+    found = {(names[a], names[b]) for a, b in torso_bones(skeleton.parents, columns, limbs)}
     # a Kinect's shoulder hangs from its shoulder centre (the model's would from a chest it lacks)
-    assert names == {
+    assert found == {
         ("HipCenter", "Spine"),
         ("Spine", "ShoulderCenter"),
         ("ShoulderCenter", "Head"),
@@ -188,19 +173,7 @@ def test_fix_denoise_leaves_a_trackers_rigid_torso_rigid(tmp_path, body_take, ca
     rng = np.random.default_rng(6)
     x = in_layout("kinect20", body_take)
     names = LAYOUTS["kinect20"].joint_names
-    torso = [
-        names.index(n)
-        for n in (
-            "HipCenter",
-            "Spine",
-            "ShoulderCenter",
-            "Head",
-            "ShoulderLeft",
-            "ShoulderRight",
-            "HipLeft",
-            "HipRight",
-        )
-    ]
+    torso = [names.index(n) for n in KINECT_TORSO]
     rest = [j for j in range(len(names)) if j not in torso]
     x[:, torso] += rng.normal(0, 0.01, (len(x), 1, 3))  # the whole torso shifted at once
     x[:, rest] += rng.normal(0, 0.01, (len(x), len(rest), 3))
