@@ -79,8 +79,10 @@ def hold_torso_lengths(
     if not bones:
         return x
     was, now = lengths(recorded), lengths(x)
-    seen = np.isfinite(now).any(0)  # (B,) a bone shown in some frame
-    steadier = seen & (was.std(0) < np.nanstd(np.where(seen, now, 0.0), 0))  # (B,)
+    shown = np.isfinite(now)  # (T, B): both ends seen; the two takes are compared over those frames
+    steadier = np.zeros(len(bones), bool)  # (B,)
+    on = np.flatnonzero(shown.any(0))  # the bones shown in some frame
+    steadier[on] = np.nanstd(np.where(shown[:, on], was[:, on], np.nan), 0) < np.nanstd(now[:, on], 0)
     if not steadier.any():
         return x
     target = lowpass(torch.from_numpy(was[:, steadier])[None], fps, cutoff_hz)[0].numpy()  # (T, B')
