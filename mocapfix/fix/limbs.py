@@ -72,13 +72,9 @@ def hold_torso_lengths(
     bones as x has them (a tracker's jitter, joint by joint, makes the recording's lengths the
     unsteadier ones, and longer on average: they are not kept). A bone with a missing end in a
     frame is left as it is there."""
-
-    def lengths(y: np.ndarray) -> np.ndarray:  # (T, J, 3) -> (T, B)
-        return np.stack([np.linalg.norm(y[:, b] - y[:, a], axis=-1) for a, b in bones], -1)
-
     if not bones:
         return x
-    was, now = lengths(recorded), lengths(x)
+    was, now = _lengths(recorded, bones), _lengths(x, bones)
     shown = np.isfinite(now)  # (T, B): both ends seen; the two takes are compared over those frames
     steadier = np.zeros(len(bones), bool)  # (B,)
     on = np.flatnonzero(shown.any(0))  # the bones shown in some frame
@@ -96,13 +92,18 @@ def hold_limb_lengths(x: np.ndarray, bones: list[tuple[int, int]]) -> tuple[np.n
     if not bones:
         return x, 0.0
     out = x.astype(np.float64)
-    lengths = np.stack([np.linalg.norm(out[:, b] - out[:, a], axis=-1) for a, b in bones], -1)  # (T, B)
+    lengths = _lengths(out, bones)
     if not np.isfinite(lengths).any(0).all():
         keep = np.isfinite(lengths).any(0)
         bones, lengths = [bone for bone, k in zip(bones, keep) if k], lengths[:, keep]
     spread_mm = float(np.nanmean(np.nanstd(lengths, 0)) * 1000)
     tops = {a for a, _ in bones} - {b for _, b in bones}  # the shoulder and hip: the torso's joints
     return _held(out, bones, np.nanmedian(lengths, 0), fixed=tops), spread_mm
+
+
+def _lengths(x: np.ndarray, bones: list[tuple[int, int]]) -> np.ndarray:
+    """x: (T, J, 3) -> (T, B) each bone's length, NaN where an end is missing."""
+    return np.stack([np.linalg.norm(x[:, b] - x[:, a], axis=-1) for a, b in bones], -1)
 
 
 def _held(out: np.ndarray, bones: list[tuple[int, int]], target: np.ndarray, fixed: set[int]) -> np.ndarray:

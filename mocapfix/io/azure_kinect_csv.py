@@ -24,8 +24,7 @@ import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
 from mocapfix.io.azure_kinect import people_clips
-from mocapfix.io.files import atomic_write
-from mocapfix.io.keypoints import file_tokens
+from mocapfix.io.delimited import checked_stamps, numbers, write_cells
 from mocapfix.io.layouts import layout
 from mocapfix.io.untrusted import open_regular, read_text_lines
 
@@ -67,27 +66,10 @@ def read_azure_kinect_csv(
     if not rows:
         raise MotionFileError(path, "a header and no frames")
     wanted = [0, 1, *columns.ravel()]
-    values = np.empty((len(rows), len(wanted)))  # (R, 2 + 4 J)
-    for r, k in enumerate(rows):
-        cells = lines[k].split(SEPARATOR)
-        if len(cells) < len(header):
-            raise MotionFileError(path, f"line {k + 1} has {len(cells)} cells, the header {len(header)}")
-        try:
-            values[r] = [float(cells[i]) for i in wanted]
-        except ValueError:
-            raise MotionFileError(
-                path, f"line {k + 1}: a timestamp, body index or joint cell that is not a number"
-            ) from None
-    stamps = values[:, 0]
-    if not np.isfinite(stamps).all():
-        raise MotionFileError(
-            path, f"line {rows[int(np.argmax(~np.isfinite(stamps)))] + 1}: a timestamp that is not a number"
-        )
-    back = np.flatnonzero(np.diff(stamps) < 0)
-    if back.size:
-        raise MotionFileError(path, f"line {rows[back[0] + 1] + 1}: the timestamp goes back")
-    frame_of = np.concatenate([[0], np.cumsum(np.diff(stamps) > 0)])  # (R,) the camera frame of each row
-    first = np.concatenate([[True], np.diff(stamps) > 0])
+    values = numbers(path, lines, rows, wanted, SEPARATOR, len(header), "a timestamp, body index or joint cell")
+    stamps = checked_stamps(path, values[:, 0], rows)
+    first = np.concatenate([[True], np.diff(stamps) > 0])  # (R,) a row of a new camera frame
+    frame_of = np.cumsum(first) - 1  # (R,) the camera frame of each row
     times = (stamps[first] - stamps[0]) / US_PER_S  # (F,) seconds of each frame
     joints = values[:, 2:].reshape(len(rows), -1, 4)  # (R, J, 4) confidence, x, y, z
     seen = joints[..., 0] > min_confidence
@@ -110,28 +92,12 @@ def read_azure_kinect_csv(
             file_lines=lines,
             newline=newline,
             xyz_columns=columns[:, 1:],
-            lines=[line_of[at] for at in c.meta["bodies_at"]],  # the line of each of bodies_at
+            cells_at=[(line_of[i, body], c.meta["slots"][i]) for i, body in c.meta["bodies_at"]],
         )
     return clips
 
 
 def write_azure_kinect_csv(path, clips: list[Clip], inputs: list[Clip]) -> Path:
-    """fix's positions put back into the file's lines (inputs: the clips as read): the x, y, z
-    cells of a joint whose position fix changed get the new numbers, every other character stays
-    the file's."""
-    lines = list(clips[0].meta["file_lines"])
-    for c, before in zip(clips, inputs):
-        m = c.meta
-        order, columns = np.asarray(m["joint_order"]), np.asarray(m["xyz_columns"])
-        out, changed = file_tokens(c, before, order)  # (N, J, 3), (N, J) in the file's order
-        for line, (i, _) in zip(m["lines"], m["bodies_at"]):
-            t = m["slots"][i]
-            if changed[t].any():
-                cells = lines[line].split(SEPARATOR)
-                for j in np.flatnonzero(changed[t]):
-                    for col, v in zip(columns[j], out[t, j]):
-                        cells[col] = repr(float(v))
-                lines[line] = SEPARATOR.join(cells)
-    newline = clips[0].meta["newline"]
-    atomic_write(path, lambda f: f.write((newline.join(lines) + newline).encode("utf-8")))
-    return Path(path)
+    """fix's positions put back into the file's lines (delimited.write_cells): the x, y, z cells of
+    a joint whose position fix changed get the new numbers."""
+    return write_cells(path, clips, inputs, SEPARATOR)

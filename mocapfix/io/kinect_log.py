@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from mocapfix.core.clip import Clip, MotionFileError
-from mocapfix.io.files import atomic_write
-from mocapfix.io.keypoints import file_tokens, frame_slots, layout_skeleton_of, on_clock
+from mocapfix.io.delimited import checked_stamps, numbers, write_cells
+from mocapfix.io.keypoints import frame_slots, layout_skeleton_of, on_clock
 from mocapfix.io.layouts import layout
 from mocapfix.io.positions import _check_fps, _clips, _fps_from_times
 from mocapfix.io.untrusted import read_text_lines
@@ -61,13 +61,7 @@ def _columns(path: Path, header: list[str]):
 def _seconds(path: Path, stamps: np.ndarray, rows: list[int]) -> tuple[np.ndarray, float]:
     """The timestamp column (rows: the file's 0-based line of each) -> (seconds from the first
     line, the seconds one unit of the column is: milliseconds or 100-ns ticks)."""
-    steps = np.diff(stamps)
-    if not np.isfinite(stamps).all():
-        raise MotionFileError(
-            path, f"line {rows[int(np.argmax(~np.isfinite(stamps)))] + 1}: a timestamp that is not a number"
-        )
-    if (steps < 0).any():
-        raise MotionFileError(path, f"line {rows[int(np.argmax(steps < 0)) + 1] + 1}: the timestamp goes back")
+    steps = np.diff(checked_stamps(path, stamps, rows))
     per_s = TICKS_PER_S if len(steps) and np.median(steps) > 1e4 else MS_PER_S
     return (stamps - stamps[0]) / per_s, 1.0 / per_s
 
@@ -84,17 +78,8 @@ def read_kinect_log(
     rows = [k for k in range(1, len(lines)) if lines[k].strip()]  # (T,) the line of each frame
     if not rows:
         raise MotionFileError(path, "a header and no frames")
-    cells = [lines[k].split("\t") for k in rows]
-    short = next((k for k, c in zip(rows, cells) if len(c) < len(header)), None)
-    if short is not None:
-        raise MotionFileError(path, f"line {short + 1} has fewer cells than the header's {len(header)}")
     wanted = [header.index("timestamp"), *columns.ravel()]
-    values = np.empty((len(rows), len(wanted)))  # (T, 1 + 4 J)
-    for r, (k, c) in enumerate(zip(rows, cells)):
-        try:
-            values[r] = [float(c[i]) for i in wanted]
-        except ValueError:
-            raise MotionFileError(path, f"line {k + 1}: a timestamp or joint cell that is not a number") from None
+    values = numbers(path, lines, rows, wanted, "\t", len(header), "a timestamp or joint cell")  # (T, 1 + 4 J)
     seconds, resolution = _seconds(path, values[:, 0], rows)
     joints = values[:, 1:].reshape(len(rows), -1, 4)  # (T, J, 4) x, y, z, tracked
     # each stretch between pauses is a take on its own clock
@@ -119,7 +104,7 @@ def read_kinect_log(
     for p, (clock, _, _) in enumerate(takes):
         raw[p, : len(clock)] = clock
     people = [
-        {"layout": lay.name, "joint_order": order, "person_id": str(p + 1), "lines": lines_of, "slots": slots}
+        {"layout": lay.name, "joint_order": order, "person_id": str(p + 1), "cells_at": list(zip(lines_of, slots))}
         for p, (_, lines_of, slots) in enumerate(takes)
     ]
     clips = _clips(path, raw[:, :, order], fps, skeleton, unit, "m", up_axis, "y", "keypoints-kinect-log", people)
@@ -132,21 +117,6 @@ def read_kinect_log(
 
 
 def write_kinect_log(path, clips: list[Clip], inputs: list[Clip]) -> Path:
-    """fix's positions put back into the file's lines (inputs: the clips as read): the X, Y, Z
-    cells of a joint whose position fix changed get the new numbers on every line of its frame,
-    every other character stays the file's."""
-    lines = list(clips[0].meta["file_lines"])
-    for c, before in zip(clips, inputs):
-        m = c.meta
-        order, columns = np.asarray(m["joint_order"]), np.asarray(m["xyz_columns"])
-        out, changed = file_tokens(c, before, order)  # (N, J, 3), (N, J) in the file's order
-        for line, t in zip(m["lines"], m["slots"]):
-            if changed[t].any():
-                cells = lines[line].split("\t")
-                for j in np.flatnonzero(changed[t]):
-                    for col, v in zip(columns[j], out[t, j]):
-                        cells[col] = repr(float(v))
-                lines[line] = "\t".join(cells)
-    newline = clips[0].meta["newline"]
-    atomic_write(path, lambda f: f.write((newline.join(lines) + newline).encode("utf-8")))
-    return Path(path)
+    """fix's positions put back into the file's lines (delimited.write_cells): the X, Y, Z cells of
+    a joint whose position fix changed get the new numbers on every line of its frame."""
+    return write_cells(path, clips, inputs, "\t")
