@@ -94,6 +94,26 @@ def test_lerp_at_the_missing_tokens_only_is_the_whole_take_lerp_bit_for_bit():
         assert torch.equal(sparse.nan_to_num(7.0), whole[:, :, :J].nan_to_num(7.0)), trial
 
 
+def test_the_hermite_at_the_missing_tokens_only_is_the_whole_take_cubic_bit_for_bit():
+    """On the CPU the Hermite's cubic is computed at the tokens inside a gap only
+    (_hermite_missing); a device computes it at every token and keeps those (_hermite_everywhere):
+    the same bits, NaN under "observed", gaps at the borders and joints never seen included."""
+    from mocapfix.fills.classical import _hermite_everywhere, _hermite_missing, _lerp, _observed_neighbours
+
+    rng = np.random.default_rng(4)
+    for trial in range(60):
+        B, T, J = int(rng.integers(1, 4)), int(rng.integers(2, 60)), int(rng.integers(1, 7))
+        dtype = torch.float64 if trial % 2 else torch.float32
+        x = torch.from_numpy(rng.normal(size=(B, T, J, 3)).cumsum(1)).to(dtype)
+        observed = torch.from_numpy(rng.random((B, T, J)) < rng.uniform(0.2, 0.95))
+        x[torch.from_numpy(rng.random((B, T, J)) < 0.05)] = float("nan")
+        obs = observed & ~torch.isnan(x).any(-1)
+        t, prev, nxt = _observed_neighbours(obs)
+        lerp = _lerp(x, obs, t, prev, nxt)
+        sparse, whole = _hermite_missing(x, obs, lerp, prev, nxt), _hermite_everywhere(lerp, obs, t, prev, nxt)
+        assert torch.equal(sparse.nan_to_num(7.0), whole.nan_to_num(7.0)), trial
+
+
 @pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_lerp_on_cuda():
