@@ -294,6 +294,43 @@ def test_a_costly_fill_that_cannot_win_a_kind_is_screened_out_and_one_that_can_i
     assert out == {("full", 0.5): {"match", "match_delta", "xmae"}, ("full", 0.7): {"match", "match_delta"}}
 
 
+def test_the_screen_drops_only_fills_that_choose_would_not_pick(monkeypatch):
+    """hopeless's bars are necessary conditions of choose(): on holes whose paired differences all
+    have one sign (each hole the candidates' means times one factor), with no tolerance, a fill
+    it drops is never in the candidate choose() picks from the means; and a model behind a
+    classical candidate far ahead of the limb fill is dropped though it is ahead of the limb fill."""
+    from mocapfix.fills import policy as policy_module
+    from mocapfix.fills.errors import ErrorSums
+    from mocapfix.fills.fill import components
+    from mocapfix.fills.policy import FillPolicy, hopeless
+
+    monkeypatch.setattr(policy_module, "SCREEN_TOLERANCE", 0.0)
+    rng = np.random.default_rng(0)
+    singles = ["limb", "spline", "pchip", "match", "xmae"]
+    names = singles + [a + "+" + b for i, a in enumerate(sorted(singles)) for b in sorted(singles)[i + 1 :]]
+    fills = [("spline",), ("pchip",), ("match", "match_delta"), ("xmae",)]
+    dropped = 0
+    for _ in range(400):
+        means = dict(zip(names, 0.01 * (0.8 + 0.4 * rng.random(len(names)))))
+        scale = 1 + 0.2 * rng.standard_normal(16)  # (holes,) the holes differ, the order on each does not
+        errors = ErrorSums([0.5])
+        errors.holes = {("full", 0.5, m): list(e * scale) for m, e in means.items()}
+        table = FillPolicy([0.5], {"full": {m: [e] for m, e in means.items()}}, preferred=("limb", 0.95))
+        chosen = set(components(table.choose("full", 0.5)))
+        out = hopeless(errors, fills).get(("full", 0.5), set())
+        assert not out & chosen, (out, table.choose("full", 0.5))
+        dropped += len(out)
+    assert dropped > 0
+    # the model 10 % ahead of the limb fill, motion matching 30 % ahead: choose() asks the model
+    # for 2 % below what it picks among the classical candidates (at most motion matching's)
+    limb = 0.010 + 0.004 * rng.random(16)
+    errors = ErrorSums([0.5])
+    errors.holes = {("full", 0.5, "limb"): list(limb), ("full", 0.5, "match"): list(0.7 * limb)}
+    errors.holes[("full", 0.5, "xmae")] = list(0.9 * limb)
+    errors.holes[("full", 0.5, "limb+xmae")] = list(0.95 * limb)
+    assert hopeless(errors, [("match", "match_delta"), ("xmae",)]) == {("full", 0.5): {"xmae"}}
+
+
 def test_the_takes_are_measured_in_phases_of_sixteen_more_holes_spread_over_the_folder():
     """screening_phases: every fourth take first, a phase closing where every kind has 16 more
     holes planned (or all it has); takes left with no hole to cut join the last phase."""

@@ -316,24 +316,61 @@ def hopeless(errors: ErrorSums, fills: list[tuple[str, ...]]) -> dict[tuple[str,
     fill's) that a kind of hole can stop measuring (errors.measure_on_takes' screen) -> {(part,
     gap): names}; never the preferred fill. A fill goes where every candidate with it in (blends
     too), hole by hole over the holes measured so far, cannot gain more than SCREEN_TOLERANCE of
-    the preferred fill's error over what choose() asks of it, MODEL_MARGIN (a model) or
-    PREFERRED_MARGIN (a classical candidate) times the preferred fill's error (a necessary
-    condition of being chosen: the best classical fill is never worse than the preferred one),
-    but for a SCREEN_Z-standard-error chance. Paired per hole: the holes differ far more from each
-    other than the fills on one hole do. A kind every other fill has left is settled: the preferred
-    fill is its choice, and no more holes of it are cut."""
+    the preferred fill's error over one of the bars choose() sets it (_bars: the preferred fill's
+    error times a margin, or another candidate's that it would have to beat), but for a
+    SCREEN_Z-standard-error chance. Paired per hole: the holes differ far more from each other than
+    the fills on one hole do. A kind every other fill has left is settled: the preferred fill is
+    its choice, and no more holes of it are cut."""
     out: dict[tuple[str, float], set[str]] = {}
     for part, gap in sorted({(p, g) for p, g, _ in errors.holes}):
         preferred = np.array(errors.holes.get((part, gap, PREFERRED), []))
         if len(preferred) < 3:
             continue
-        for names in fills:
-            if PREFERRED in names:
+        here = {m: e for (p, g, m), e in errors.holes.items() if (p, g) == (part, gap) and len(e) == len(preferred)}
+        names = list(here)
+        errs = np.array([here[m] for m in names])  # (C, H)
+        factor = _bars(names, errs, preferred)  # (C, C + 1)
+        bars = np.concatenate([errs, preferred[None]])  # (C + 1, H)
+        d = errs[:, None] - factor[..., None] * bars[None]  # (C, C + 1, H) positive: behind the bar
+        gain = -d.mean(-1) + SCREEN_Z * d.std(-1, ddof=1) / np.sqrt(d.shape[-1])  # (C, C + 1)
+        tol = np.where(np.arange(factor.shape[1]) == len(names), SCREEN_TOLERANCE * preferred.mean(), 0.0)
+        behind = {m for m, row in zip(names, (gain < tol) & (factor > 0)) if row.any()}
+        for fill in fills:
+            if PREFERRED in fill:
                 continue
-            candidates = [m for p, g, m in errors.holes if (p, g) == (part, gap) and set(components(m)) & set(names)]
-            if candidates and all(_behind(errors.holes[(part, gap, m)], preferred, m) for m in candidates):
-                out.setdefault((part, gap), set()).update(names)
+            candidates = [m for p, g, m in errors.holes if (p, g) == (part, gap) and set(components(m)) & set(fill)]
+            if candidates and all(m in behind for m in candidates):
+                out.setdefault((part, gap), set()).update(fill)
     return out
+
+
+def _bars(names: list[str], errors: np.ndarray, preferred: np.ndarray) -> np.ndarray:
+    """What choose() asks of each candidate before it can be chosen: names (C,) the candidates
+    measured on a kind's holes, errors (C, H) their per-hole errors, preferred (H,) the preferred
+    fill's -> (C, C + 1) factors: candidate m is never chosen where its error is at or above factor
+    [m, c] times candidate c's (column C: the preferred fill's); 0: no bar. Necessary conditions:
+    - a model (or a blend with it) below MODEL_MARGIN times the chosen classical candidate's, which
+      is at most the preferred fill's, and at most a classical single fill's that is below
+      PREFERRED_MARGIN times the preferred fill's (then no fallback to it; a blend's, 1 /
+      BLEND_MARGIN times it), such a candidate found at SCREEN_Z standard errors;
+    - a classical candidate below PREFERRED_MARGIN times the preferred fill's, and below every other
+      classical single fill's (a single) or blend's (a blend) error; a single below 1 / BLEND_MARGIN
+      times every blend's (else the blend is chosen), a blend below BLEND_MARGIN times every single's."""
+    learned = np.array([is_learned(m) for m in names])
+    blend = np.array([BLEND in m for m in names])
+    factor = np.zeros((len(names), len(names) + 1))
+    factor[:, -1] = np.where(learned, MODEL_MARGIN, PREFERRED_MARGIN)
+    same = blend[:, None] == blend[None, :]
+    classical = ~learned[:, None] & ~learned[None, :] & ~np.eye(len(names), dtype=bool)
+    factor[:, :-1] = np.where(
+        classical, np.where(same, 1.0, np.where(blend[:, None], BLEND_MARGIN, 1 / BLEND_MARGIN)), 0
+    )
+    # the classical candidates surely below the preferred fill's margin: a bound on the chosen one's error
+    ceiling = np.where(blend, 1 / BLEND_MARGIN, 1.0)  # (C,) the chosen classical candidate's error <= this x theirs
+    d = ceiling[:, None] * errors - PREFERRED_MARGIN * preferred  # (C, H)
+    sure = ~learned & (d.mean(-1) + SCREEN_Z * d.std(-1, ddof=1) / np.sqrt(d.shape[-1]) < 0)
+    factor[:, :-1] += np.where(learned[:, None] & sure[None, :], MODEL_MARGIN * ceiling[None, :], 0)
+    return factor
 
 
 def proven(errors: ErrorSums) -> set[tuple[str, float, str]]:
@@ -364,16 +401,6 @@ def _over_margin(errors: list[float], preferred: np.ndarray, method: str) -> np.
     """Per-hole errors of `method` less what choose() asks it to beat: MODEL_MARGIN (a model) or
     PREFERRED_MARGIN (a classical candidate) times the preferred fill's error on the same hole."""
     return np.array(errors) - (MODEL_MARGIN if is_learned(method) else PREFERRED_MARGIN) * preferred
-
-
-def _behind(errors: list[float], preferred: np.ndarray, method: str) -> bool:
-    """Per-hole errors of `method` whose mean gain over its margin times the preferred fill's is
-    below SCREEN_TOLERANCE of the preferred fill's mean error by SCREEN_Z standard errors of the
-    paired differences (hopeless)."""
-    d = _over_margin(errors, preferred, method)  # (holes,) positive: behind
-    if len(d) != len(preferred):
-        return False
-    return -d.mean() + SCREEN_Z * d.std(ddof=1) / np.sqrt(len(d)) < SCREEN_TOLERANCE * preferred.mean()
 
 
 def apply_fill_policy(
