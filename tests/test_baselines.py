@@ -94,6 +94,22 @@ def test_lerp_at_the_missing_tokens_only_is_the_whole_take_lerp_bit_for_bit():
         assert torch.equal(sparse.nan_to_num(7.0), whole[:, :, :J].nan_to_num(7.0)), trial
 
 
+def test_each_tokens_observed_neighbours_are_the_nearest_observed_frames_of_its_joint():
+    """_observed_neighbours: the last observed frame at or before each token (-1: none) and the
+    first at or after it (T: none), against a loop over the frames."""
+    from mocapfix.fills.classical import _observed_neighbours
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        B, T, J = int(rng.integers(1, 3)), int(rng.integers(1, 30)), int(rng.integers(1, 4))
+        obs = rng.random((B, T, J)) < rng.uniform(0.0, 1.0)
+        t, prev, nxt = _observed_neighbours(torch.from_numpy(obs))
+        for b, f, j in np.ndindex(B, T, J):
+            seen = np.flatnonzero(obs[b, :, j])
+            assert prev[b, f, j] == max(seen[seen <= f], default=-1) and t[b, f, j] == f
+            assert nxt[b, f, j] == min(seen[seen >= f], default=T)
+
+
 def test_the_hermite_at_the_missing_tokens_only_is_the_whole_take_cubic_bit_for_bit():
     """On the CPU the Hermite's cubic is computed at the tokens inside a gap only
     (_hermite_missing); a device computes it at every token and keeps those (_hermite_everywhere):

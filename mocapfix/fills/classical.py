@@ -18,9 +18,14 @@ from mocapfix.fills.holes import runs
 def _observed_neighbours(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """obs: (B, T, J) bool -> t, prev, nxt (B, T, J): each token's frame, the last observed frame
     at or before it (-1 if none) and the first at or after it (T if none): running max forward,
-    running min backward."""
+    running min backward (numpy's on the CPU: 3x torch's cummax along a middle dimension)."""
     B, T, J = obs.shape
     t = torch.arange(T, device=obs.device).view(1, T, 1).expand(B, T, J)
+    if obs.device.type == "cpu":
+        o, frames = obs.numpy(), np.arange(T).reshape(1, T, 1)
+        prev = np.maximum.accumulate(np.where(o, frames, -1), axis=1)
+        nxt = np.minimum.accumulate(np.where(o, frames, T)[:, ::-1], axis=1)[:, ::-1]
+        return t, torch.from_numpy(prev), torch.from_numpy(np.ascontiguousarray(nxt))
     prev = torch.where(obs, t, -1).cummax(dim=1).values
     nxt = torch.where(obs, t, T).flip(1).cummin(dim=1).values.flip(1)
     return t, prev, nxt
@@ -84,12 +89,23 @@ def _lerp_missing(positions: torch.Tensor, obs: torch.Tensor, prev: torch.Tensor
     call at 120 fps; on a GPU the indexing would wait for the device, so it keeps the full path.
     positions: (B, T, J, 3); obs: (B, T, J) bool; prev, nxt: _observed_neighbours(obs)'s."""
     T = positions.shape[1]
-    b, f, j = torch.nonzero(~obs, as_tuple=True)  # (M,) each: the missing tokens
-    p, n = prev[b, f, j], nxt[b, f, j]
-    p_val, n_val = positions[b, p.clamp(0, T - 1), j], positions[b, n.clamp(0, T - 1), j]  # (M, 3)
-    out = positions.clone()
-    out[b, f, j] = _between(p_val, n_val, f, p, n, T)
+    at, f, row = _tokens(~obs)  # (M,) each
+    p, n = prev.reshape(-1)[at], nxt.reshape(-1)[at]
+    J, flat = obs.shape[2], positions.reshape(-1, 3)
+    p_val, n_val = flat[row + p.clamp(0, T - 1) * J], flat[row + n.clamp(0, T - 1) * J]  # (M, 3)
+    out = positions.clone(memory_format=torch.contiguous_format)
+    out.view(-1, 3)[at] = _between(p_val, n_val, f, p, n, T)
     return out
+
+
+def _tokens(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """mask: (B, T, J) bool -> at, f, row (M,): the tokens where it is True, as indices into the
+    flattened (B T J), their frames, and their joints' indices at frame 0 of their take (+ k J:
+    the same joint at frame k). One flat index reads a token twice as fast as (b, t, j)."""
+    _, T, J = mask.shape
+    at = torch.nonzero(mask.reshape(-1)).squeeze(1)
+    f = at // J % T
+    return at, f, at - f * J
 
 
 def hermite_infill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
@@ -140,17 +156,19 @@ def _hermite_missing(
     the whole-take cubic cost ~8 ms a call on a 1,100-frame take against ~1 ms for the Lerp under
     it). Every value it reads is at an observed frame, where `lerp` is the recording.
     positions, lerp: (B, T, J, 3); obs: (B, T, J) bool; prev, nxt: _observed_neighbours(obs)'s."""
-    T = positions.shape[1]
-    b, f, j = torch.nonzero((prev >= 0) & (nxt < T) & ~obs, as_tuple=True)  # (M,) each: tokens inside a gap
-    if not len(b):
+    _, T, J, _ = positions.shape
+    at, f, row = _tokens((prev >= 0) & (nxt < T) & ~obs)  # (M,) each: the tokens inside a gap
+    if not len(at):
         return lerp
-    p, n = prev[b, f, j], nxt[b, f, j]
+    prev, nxt = prev.reshape(-1), nxt.reshape(-1)
+    p, n = prev[at], nxt[at]
     # the observed neighbour beyond each end of the gap: before p, after n
-    pp = torch.where(p > 0, prev[b, (p - 1).clamp_min(0), j], -1)
-    nn = torch.where(n < T - 1, nxt[b, (n + 1).clamp_max(T - 1), j], T)
-    values = [positions[b, k, j] for k in (p, n, pp.clamp_min(0), nn.clamp_max(T - 1))]  # (M, 3) each
-    out = lerp.clone()
-    out[b, f, j] = _cubic(f, p, n, pp, nn, *values, T)
+    pp = torch.where(p > 0, prev[row + (p - 1).clamp_min(0) * J], -1)
+    nn = torch.where(n < T - 1, nxt[row + (n + 1).clamp_max(T - 1) * J], T)
+    flat = positions.reshape(-1, 3)
+    values = [flat[row + k * J] for k in (p, n, pp.clamp_min(0), nn.clamp_max(T - 1))]  # (M, 3) each
+    out = lerp.clone(memory_format=torch.contiguous_format)
+    out.view(-1, 3)[at] = _cubic(f, p, n, pp, nn, *values, T)
     return out
 
 
