@@ -331,18 +331,30 @@ def test_the_screen_drops_only_fills_that_choose_would_not_pick(monkeypatch):
     assert hopeless(errors, [("match", "match_delta"), ("xmae",)]) == {("full", 0.5): {"xmae"}}
 
 
-def test_the_takes_are_measured_in_phases_of_sixteen_more_holes_spread_over_the_folder():
-    """screening_phases: every fourth take first, a phase closing where every kind has 16 more
-    holes planned (or all it has); takes left with no hole to cut join the last phase."""
+def test_the_takes_are_measured_in_phases_of_sixteen_more_holes_of_each_kind_spread_over_the_folder():
+    """screening_phases: every fourth take first; a kind's holes in a take go to the first phase
+    where the kind has fewer than 16 more planned (a take's other kinds wait for a later phase);
+    takes with no hole to cut are not visited."""
     from mocapfix.fills.errors import SCREEN_HOLES, screening_phases
 
     assert SCREEN_HOLES == 16
-    budgets = [{("full", 0.5): 4} for _ in range(8)] + [{("full", 0.5): 0}] * 2  # 32 holes
-    # measured in the order 0 4 8 1 5 | 9 2 6 3 7
-    assert screening_phases(budgets) == [[0, 1, 4, 5, 8], [2, 3, 6, 7, 9]]
-    spread = [{("full", 0.5): 0 if i % 4 == 3 else 4, ("arm", 0.3): int(i == 0)} for i in range(12)]  # 36 and 1
-    # 0 4 8 1 | 5 9 2 6 | 10, then 3 7 11 (nothing to cut in them) with it, not a phase each
-    assert screening_phases(spread) == [[0, 1, 4, 8], [2, 5, 6, 9], [3, 7, 10, 11]]
+    full, arm = ("full", 0.5), ("arm", 0.3)
+    budgets = [{full: 4} for _ in range(8)] + [{full: 0}] * 2  # 32 holes
+    # visited in the order 0 4 (8) 1 5 | (9) 2 6 3 7
+    assert screening_phases(budgets) == [[(i, {full: 4}) for i in (0, 1, 4, 5)], [(i, {full: 4}) for i in (2, 3, 6, 7)]]
+    spread = [{full: 0 if i % 4 == 3 else 4, arm: int(i == 0)} for i in range(12)]  # 36 and 1
+    # 0 4 8 1 | 5 9 2 6 | 10 (3 7 11: nothing to cut)
+    assert screening_phases(spread) == [
+        [(0, {full: 4, arm: 1}), (1, {full: 4}), (4, {full: 4}), (8, {full: 4})],
+        [(i, {full: 4}) for i in (2, 5, 6, 9)],
+        [(10, {full: 4})],
+    ]
+    # take 0 brings the arm's 16 at once: the arm holes of the others wait for the next phase
+    crowded = [{arm: 16, full: 4}] + [{arm: 4, full: 4}] * 3
+    assert screening_phases(crowded) == [
+        [(0, {arm: 16, full: 4}), (1, {full: 4}), (2, {full: 4}), (3, {full: 4})],
+        [(1, {arm: 4}), (2, {arm: 4}), (3, {arm: 4})],
+    ]
 
 
 def test_fills_screened_out_after_the_first_takes_are_not_run_on_the_others():

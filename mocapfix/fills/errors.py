@@ -134,11 +134,11 @@ def measure_on_takes(
     either way. The motion-matching fills search the takes (keys: one per take, as fix names them
     to its MotionLibrary; default their order), each take's own with its holes cut, and `library`
     (the user's other takes, fix --library).
-    screen(errors, fills) -> {(part, gap): fill names}: asked after each phase of takes
-    (screening_phases: SCREEN_HOLES more holes of each kind, spread over the folder) with the
-    errors so far and the names of each fill measured (a tuple per Fill: motion matching's two,
-    a model's, each classical fill's); the fills it names are not run on that kind's holes in
-    the later takes, and their candidates are dropped from its tables (policy.py: hopeless); a
+    screen(errors, fills) -> {(part, gap): fill names}: asked after each phase (screening_phases:
+    SCREEN_HOLES more holes of each kind, from takes spread over the folder) with the errors so
+    far and the names of each fill measured (a tuple per Fill: motion matching's two, a model's,
+    each classical fill's); the fills it names are not run on that kind's holes in the later
+    phases, and their candidates are dropped from its tables (policy.py: hopeless); a
     kind left with one candidate is settled: no more holes of it are cut. None: every take
     measures every fill."""
     errors = ErrorSums(gaps_s)
@@ -146,13 +146,13 @@ def measure_on_takes(
     library = library_of(takes, keys, skeleton, library)
     gaps = tuple(errors.gaps_s)
     budgets = hole_budgets(takes, skeleton, gaps, cells)
-    jobs = [(x, fps, skeleton, gaps, cells, b, library, key) for (x, fps), key, b in zip(takes, keys, budgets)]
-    phases = screening_phases(budgets) if screen is not None else [list(range(len(jobs)))]
+    phases = screening_phases(budgets) if screen is not None else [list(enumerate(budgets))]
     measured = [f.names for f in take_fills(library, None, model_fill)]
     cut: dict[tuple[str, float], int] = {}
     skip: dict[tuple[str, float], set[str]] = {}
     for k, phase in enumerate(phases):
-        work = [jobs[i] + ({cell: set(names) for cell, names in skip.items()},) for i in phase]
+        skipped = {cell: set(names) for cell, names in skip.items()}
+        work = [(*takes[i], skeleton, gaps, cells, budget, library, keys[i], skipped) for i, budget in phase]
         results = [measure_take(*job, model_fill=model_fill) for job in work] if map_takes is None else map_takes(work)
         for take_errors, take_cut in results:
             errors.add(take_errors)
@@ -166,28 +166,33 @@ def measure_on_takes(
     return errors, cut
 
 
-def screening_phases(budgets: list[dict[tuple[str, float], int]]) -> list[list[int]]:
-    """The takes in the phases measure_on_takes measures them in, the fills screened after
-    each: every fourth take, then the ones between (the first holes come from across the folder),
-    a phase ending where every kind has SCREEN_HOLES more holes planned (or all of its holes); the
-    last phase the takes left once every kind has all its holes -> lists of take indices, each
-    ascending."""
+def screening_phases(
+    budgets: list[dict[tuple[str, float], int]],
+) -> list[list[tuple[int, dict[tuple[str, float], int]]]]:
+    """The holes measure_on_takes measures in each phase, the fills screened after each: per
+    phase, (take index, the holes of each kind cut into it then) for the takes with holes in it,
+    ascending. The takes are visited every fourth one first, then the ones between (the first
+    holes come from across the folder); a kind's holes in a take go to the first phase in which
+    the kind has fewer than SCREEN_HOLES more planned than all the phases before (a take's other
+    kinds wait for a later phase: a kind is screened on its first 16 holes, not on as many as the
+    slowest kind to gather 16 brought in)."""
     order = [i for phase in range(4) for i in range(phase, len(budgets), 4)]
     total: dict[tuple[str, float], int] = {}
     for budget in budgets:
         for cell, n in budget.items():
             total[cell] = total.get(cell, 0) + n
-    phases: list[list[int]] = [[]]
+    left = [{cell: n for cell, n in budget.items() if n} for budget in budgets]
     have = dict.fromkeys(total, 0)
-    for i in order:
-        phases[-1].append(i)
-        for cell, n in budgets[i].items():
-            have[cell] += n
-        wanted = SCREEN_HOLES * len(phases)
-        complete = all(have[cell] >= n for cell, n in total.items())
-        if not complete and all(have[cell] >= min(n, wanted) for cell, n in total.items()):
-            phases.append([])
-    return [sorted(phase) for phase in phases if phase]
+    phases = []
+    while any(left):
+        wanted = SCREEN_HOLES * (len(phases) + 1)
+        phase = {}
+        for i in order:
+            for cell in [cell for cell in left[i] if have[cell] < wanted]:
+                phase.setdefault(i, {})[cell] = n = left[i].pop(cell)
+                have[cell] += n
+        phases.append(sorted(phase.items()))
+    return phases
 
 
 def hole_budgets(takes: list[tuple[np.ndarray, float]], skeleton, gaps_s, cells) -> list[dict[tuple[str, float], int]]:

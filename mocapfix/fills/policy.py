@@ -306,7 +306,14 @@ def _with_measured(base: dict, measured: dict, gaps, asked, earned, cut, ahead=f
 # does) this changed no kind's choice and ran motion matching on 12-24 % fewer holes, the model on
 # 24-25 % fewer, than one screen after 16 holes at 3 standard errors with no tolerance. (An
 # absolute tolerance, 0.5 mm, screened a correction out of Human3.6M's 0.3-s arm holes, where it
-# was 15 % ahead of the limb fill by 0.4 mm.)
+# was 15 % ahead of the limb fill by 0.4 mm.) Besides the preferred fill's margin, a candidate must
+# beat the others choose() would take over it (_bars), with no tolerance there (near-ties between
+# two candidates are choose()'s to settle: with the 1 % a 0.1-s cell of the 16 CMU copies moved
+# from hermite+pchip to pchip). Each kind is screened on its own first 16 holes (screening_phases:
+# on the 16 CMU copies the arm and leg kinds' first screen came at 13-17 holes, where every kind's
+# came at 26-31 when a phase waited for the slowest kind; the full-body kinds' still at 28-30, a
+# take's share of them coming at once); the 16 holed CMU takes and 200 Bandai takes kept every
+# choice, the copies all but a 0.1-s cell (hermite+pchip -> pchip; no hole of that kind in them).
 SCREEN_Z = 2.0
 SCREEN_TOLERANCE = 0.01
 
