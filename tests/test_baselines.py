@@ -100,8 +100,9 @@ def test_each_tokens_observed_neighbours_are_the_nearest_observed_frames_of_its_
     from mocapfix.fills.classical import _observed_neighbours
 
     rng = np.random.default_rng(5)
-    for _ in range(20):
+    for trial in range(20):
         B, T, J = int(rng.integers(1, 3)), int(rng.integers(1, 30)), int(rng.integers(1, 4))
+        B, T, J = (2, 1, 3) if trial == 0 else (B, T, J)  # one frame: reversed views of it must not reach torch
         obs = rng.random((B, T, J)) < rng.uniform(0.0, 1.0)
         t, prev, nxt = _observed_neighbours(torch.from_numpy(obs))
         for b, f, j in np.ndindex(B, T, J):

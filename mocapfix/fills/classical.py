@@ -25,7 +25,7 @@ def _observed_neighbours(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor,
         o, frames = obs.numpy(), np.arange(T).reshape(1, T, 1)
         prev = np.maximum.accumulate(np.where(o, frames, -1), axis=1)
         nxt = np.minimum.accumulate(np.where(o, frames, T)[:, ::-1], axis=1)[:, ::-1]
-        return t, torch.from_numpy(prev), torch.from_numpy(np.ascontiguousarray(nxt))
+        return t, torch.from_numpy(prev), torch.from_numpy(nxt.copy())  # copy: no negative strides
     prev = torch.where(obs, t, -1).cummax(dim=1).values
     nxt = torch.where(obs, t, T).flip(1).cummin(dim=1).values.flip(1)
     return t, prev, nxt
