@@ -355,6 +355,8 @@ def test_the_takes_are_measured_in_phases_of_sixteen_more_holes_of_each_kind_spr
         [(0, {arm: 16, full: 4}), (1, {full: 4}), (2, {full: 4}), (3, {full: 4})],
         [(1, {arm: 4}), (2, {arm: 4}), (3, {arm: 4})],
     ]
+    # one take brings 40 of a kind: no empty phase while the count catches up with it
+    assert screening_phases([{arm: 40}, {arm: 4}]) == [[(0, {arm: 40})], [(1, {arm: 4})]]
 
 
 def test_fills_screened_out_after_the_first_takes_are_not_run_on_the_others():

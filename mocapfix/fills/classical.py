@@ -49,7 +49,9 @@ def lerp_infill(positions: torch.Tensor, observed: torch.Tensor) -> torch.Tensor
     return _lerp(positions, obs, *_observed_neighbours(obs))
 
 
-def _lerp(positions: torch.Tensor, obs: torch.Tensor, t: torch.Tensor, prev: torch.Tensor, nxt: torch.Tensor):
+def _lerp(
+    positions: torch.Tensor, obs: torch.Tensor, t: torch.Tensor, prev: torch.Tensor, nxt: torch.Tensor
+) -> torch.Tensor:
     """lerp_infill given its tokens' observed-ness (obs: (B, T, J) bool, NaN tokens already out)
     and _observed_neighbours(obs) (t, prev, nxt), which the Hermite shares."""
     B, T, J, _ = positions.shape

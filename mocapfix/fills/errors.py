@@ -183,15 +183,16 @@ def screening_phases(
             total[cell] = total.get(cell, 0) + n
     left = [{cell: n for cell, n in budget.items() if n} for budget in budgets]
     have = dict.fromkeys(total, 0)
-    phases = []
+    phases, wanted = [], 0
     while any(left):
-        wanted = SCREEN_HOLES * (len(phases) + 1)
-        phase = {}
+        wanted += SCREEN_HOLES
+        phase: dict[int, dict[tuple[str, float], int]] = {}
         for i in order:
             for cell in [cell for cell in left[i] if have[cell] < wanted]:
-                phase.setdefault(i, {})[cell] = n = left[i].pop(cell)
-                have[cell] += n
-        phases.append(sorted(phase.items()))
+                phase.setdefault(i, {})[cell] = left[i].pop(cell)
+                have[cell] += phase[i][cell]
+        if phase:  # none where the kinds left had more than `wanted` already (a take's share at once)
+            phases.append(sorted(phase.items()))
     return phases
 
 
