@@ -333,19 +333,20 @@ def hopeless(errors: ErrorSums, fills: list[tuple[str, ...]]) -> dict[tuple[str,
         preferred = np.array(errors.holes.get((part, gap, PREFERRED), []))
         if len(preferred) < 3:
             continue
-        here = {m: e for (p, g, m), e in errors.holes.items() if (p, g) == (part, gap) and len(e) == len(preferred)}
+        kind = {m: e for (p, g, m), e in errors.holes.items() if (p, g) == (part, gap)}
+        here = {m: e for m, e in kind.items() if len(e) == len(preferred)}  # measured on every hole
         names = list(here)
         errs = np.array([here[m] for m in names])  # (C, H)
         factor = _bars(names, errs, preferred)  # (C, C + 1)
         bars = np.concatenate([errs, preferred[None]])  # (C + 1, H)
         d = errs[:, None] - factor[..., None] * bars[None]  # (C, C + 1, H) positive: behind the bar
-        gain = -d.mean(-1) + SCREEN_Z * d.std(-1, ddof=1) / np.sqrt(d.shape[-1])  # (C, C + 1)
+        gain = _upper(-d)  # (C, C + 1)
         tol = np.where(np.arange(factor.shape[1]) == len(names), SCREEN_TOLERANCE * preferred.mean(), 0.0)
         behind = {m for m, row in zip(names, (gain < tol) & (factor > 0)) if row.any()}
         for fill in fills:
             if PREFERRED in fill:
                 continue
-            candidates = [m for p, g, m in errors.holes if (p, g) == (part, gap) and set(components(m)) & set(fill)]
+            candidates = [m for m in kind if set(components(m)) & set(fill)]
             if candidates and all(m in behind for m in candidates):
                 out.setdefault((part, gap), set()).update(fill)
     return out
@@ -375,9 +376,15 @@ def _bars(names: list[str], errors: np.ndarray, preferred: np.ndarray) -> np.nda
     # the classical candidates surely below the preferred fill's margin: a bound on the chosen one's error
     ceiling = np.where(blend, 1 / BLEND_MARGIN, 1.0)  # (C,) the chosen classical candidate's error <= this x theirs
     d = ceiling[:, None] * errors - PREFERRED_MARGIN * preferred  # (C, H)
-    sure = ~learned & (d.mean(-1) + SCREEN_Z * d.std(-1, ddof=1) / np.sqrt(d.shape[-1]) < 0)
+    sure = ~learned & (_upper(d) < 0)
     factor[:, :-1] += np.where(learned[:, None] & sure[None, :], MODEL_MARGIN * ceiling[None, :], 0)
     return factor
+
+
+def _upper(d: np.ndarray) -> np.ndarray:
+    """(..., H) paired per-hole differences -> (...) their mean's bound SCREEN_Z standard errors
+    above it."""
+    return d.mean(-1) + SCREEN_Z * d.std(-1, ddof=1) / np.sqrt(d.shape[-1])
 
 
 def proven(errors: ErrorSums) -> set[tuple[str, float, str]]:
