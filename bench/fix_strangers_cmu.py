@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     if args.max_takes and len(takes) > args.max_takes:
         takes = [takes[i] for i in np.linspace(0, len(takes) - 1, args.max_takes).round().astype(int)]
     extra = (
-        [[onto_skeleton(read_motion(f)[0], body)] for f in list_motion_files(args.library, "bvh")]
+        [[onto_skeleton(read_motion(f, args.source)[0], body)] for f in list_motion_files(args.library, args.source)]
         if args.library
         else []
     )

@@ -287,10 +287,11 @@ def list_motion_files(path, source: str = "auto", on_error=None, max_entries: in
     A subfolder that cannot be read is a MotionFileError, or on_error(that error) and the walk
     goes on (fix and inspect report it and run the other files).
 
-    The walk is bounded: links to folders are not followed (a link cycle cannot trap it), only
-    regular files are listed (a FIFO or a link to a device is not a take), a file system root is
-    refused at once, and a folder with more than max_entries files and folders below it is a
-    MotionFileError as soon as the walk has counted them."""
+    The walk is bounded: links to folders are not followed (a link cycle cannot trap it; a
+    `warning:` line counts them and names the first, so a folder of linked folders is not taken
+    for one without takes), only regular files are listed (a FIFO or a link to a device is not a
+    take), a file system root is refused at once, and a folder with more than max_entries files
+    and folders below it is a MotionFileError as soon as the walk has counted them."""
     path = Path(path)
     if source not in SOURCES:
         raise MotionFileError(path, f"unknown source type {source!r}; known: {', '.join(SOURCES)}")
@@ -309,7 +310,7 @@ def list_motion_files(path, source: str = "auto", on_error=None, max_entries: in
             raise error
         on_error(error)
 
-    found, seen = [], 0
+    found, seen, linked = [], 0, []
     for root, folders, names in os.walk(path, onerror=unreadable):  # followlinks=False: no cycles
         seen += len(folders) + len(names)
         if seen > max_entries:
@@ -319,6 +320,18 @@ def list_motion_files(path, source: str = "auto", on_error=None, max_entries: in
                 "name the folder that holds them",
             )
         found.extend(Path(root) / name for name in names)
+        linked.extend(Path(root) / name for name in folders if os.path.islink(os.path.join(root, name)))
+    if linked:
+        log.warning(
+            "warning: %s: %d link%s to a folder not followed (%s%s): give the folder%s itself to read %s takes",
+            shown(path),
+            len(linked),
+            "s" if len(linked) > 1 else "",
+            shown(min(linked)),
+            ", ..." if len(linked) > 1 else "",
+            "s" if len(linked) > 1 else "",
+            "their" if len(linked) > 1 else "its",
+        )
     return sorted(
         p
         for p in found
