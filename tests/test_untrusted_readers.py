@@ -183,8 +183,8 @@ def test_a_folder_walk_is_bounded_and_follows_no_folder_links(tmp_path, bandai, 
     # the link left is said, once, by name: a folder of linked folders is not "no takes" in silence
     said = [r.getMessage() for r in caplog.records]
     assert said == [
-        f"warning: {data}: 1 link to a folder not followed ({data / 'a' / 'b' / 'loop'}): "
-        "give the folder itself to read its takes"
+        f"warning: {data}: links to folders are not followed, 1 here ({data / 'a' / 'b' / 'loop'}): "
+        "give a linked folder itself to read its takes"
     ], said
 
     wide = tmp_path / "wide"

@@ -323,14 +323,12 @@ def list_motion_files(path, source: str = "auto", on_error=None, max_entries: in
         linked.extend(Path(root) / name for name in folders if os.path.islink(os.path.join(root, name)))
     if linked:
         log.warning(
-            "warning: %s: %d link%s to a folder not followed (%s%s): give the folder%s itself to read %s takes",
+            "warning: %s: links to folders are not followed, %d here (%s%s): "
+            "give a linked folder itself to read its takes",
             shown(path),
             len(linked),
-            "s" if len(linked) > 1 else "",
             shown(min(linked)),
             ", ..." if len(linked) > 1 else "",
-            "s" if len(linked) > 1 else "",
-            "their" if len(linked) > 1 else "its",
         )
     return sorted(
         p
