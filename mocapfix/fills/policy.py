@@ -367,7 +367,7 @@ def _bars(names: list[str], errors: np.ndarray, preferred: np.ndarray) -> np.nda
     learned = np.array([is_learned(m) for m in names])
     blend = np.array([BLEND in m for m in names])
     factor = np.zeros((len(names), len(names) + 1))
-    factor[:, -1] = np.where(learned, MODEL_MARGIN, PREFERRED_MARGIN)
+    factor[:, -1] = [_margin(m) for m in names]
     same = blend[:, None] == blend[None, :]
     classical = ~learned[:, None] & ~learned[None, :] & ~np.eye(len(names), dtype=bool)
     factor[:, :-1] = np.where(
@@ -412,9 +412,15 @@ def proven(errors: ErrorSums) -> set[tuple[str, float, str]]:
 
 
 def _over_margin(errors: list[float], preferred: np.ndarray, method: str) -> np.ndarray:
-    """Per-hole errors of `method` less what choose() asks it to beat: MODEL_MARGIN (a model) or
-    PREFERRED_MARGIN (a classical candidate) times the preferred fill's error on the same hole."""
-    return np.array(errors) - (MODEL_MARGIN if is_learned(method) else PREFERRED_MARGIN) * preferred
+    """Per-hole errors of `method` less what choose() asks it to beat: its _margin times the
+    preferred fill's error on the same hole."""
+    return np.array(errors) - _margin(method) * preferred
+
+
+def _margin(method: str) -> float:
+    """The share of the preferred fill's error choose() asks a candidate to be below: MODEL_MARGIN
+    (a model, or a blend with one), PREFERRED_MARGIN (a classical candidate)."""
+    return MODEL_MARGIN if is_learned(method) else PREFERRED_MARGIN
 
 
 def apply_fill_policy(

@@ -320,7 +320,7 @@ def list_motion_files(path, source: str = "auto", on_error=None, max_entries: in
                 "name the folder that holds them",
             )
         found.extend(Path(root) / name for name in names)
-        linked.extend(Path(root) / name for name in folders if os.path.islink(os.path.join(root, name)))
+        linked.extend(p for p in (Path(root) / name for name in folders) if p.is_symlink())
     if linked:
         log.warning(
             "warning: %s: links to folders are not followed, %d here (%s%s): "
