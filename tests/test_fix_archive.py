@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mocapfix.apps import fix_run
 from mocapfix.apps.fix_run import parse_shard, shard_of
 from mocapfix.apps.main import main
 from mocapfix.evaluation.recording import random_holes, with_holes
@@ -74,6 +75,46 @@ def test_workers_shards_and_resume_write_what_one_process_writes(takes, tmp_path
     # without --resume an existing output is still an error, never overwritten
     assert _fix(takes, resumed, "--jobs", "1") == 1
     assert "exists (use --force" in capsys.readouterr().err and _outputs(resumed) == reference
+
+
+def test_the_run_objects_reach_each_worker_once(tmp_path, monkeypatch):
+    """The motion library and the measured policy are written once for a run, whatever the number
+    of files and measured takes, and a worker reads each once and keeps it (its search's caches
+    with it): handed in every task, each file rebuilt them."""
+    shelf = fix_run._Shelf(tmp_path)
+    library, policy = {"takes": np.arange(6.0)}, ("policy", "note")
+    jobs = shelf.jobs([(k, 30.0, "skeleton", (0.5,), None, {}, library, k, {}) for k in range(5)])
+    assert len(list(tmp_path.iterdir())) == 1
+    assert all(job[fix_run.LIBRARY_IN_JOB] == jobs[0][fix_run.LIBRARY_IN_JOB] for job in jobs)
+    assert [job[:6] + job[7:] for job in jobs] == [(k, 30.0, "skeleton", (0.5,), None, {}, k, {}) for k in range(5)]
+    settings = fix_run.RunSettings(*[None] * 13, policy, library)
+    shelved = shelf.settings(settings)
+    assert shelved.library == jobs[0][fix_run.LIBRARY_IN_JOB] and len(list(tmp_path.iterdir())) == 2
+    monkeypatch.setattr(fix_run, "_WORKER", {})  # a fresh worker
+    read = fix_run._shelved(shelved.library)
+    assert read["takes"].tolist() == library["takes"].tolist() and read is not library
+    assert fix_run._shelved(shelved.library) is read  # the same object the second time: read once
+    assert fix_run._shelved(shelved.measured) == policy and fix_run._shelved(None) is None
+
+
+def test_a_fix_run_keeps_numpys_blas_on_one_thread(takes, tmp_path, monkeypatch):
+    from threadpoolctl import threadpool_info
+
+    seen = []
+
+    def fix_one(*args, **kwargs):
+        seen.extend(lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas")
+        return real(*args, **kwargs)
+
+    def blas_threads():
+        return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+    real = fix_run.fix_one
+    monkeypatch.setattr(fix_run, "fix_one", fix_one)
+    before = blas_threads()
+    assert _fix(takes, tmp_path / "out", "--jobs", "1") == 0
+    assert seen and set(seen) == {1}
+    assert blas_threads() == before  # as they were: the run leaves nothing set behind it
 
 
 def test_a_long_take_is_fixed_in_pieces_with_context(bandai_files, monkeypatch):

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import pickle
 import sys
+import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
@@ -26,6 +28,7 @@ from mocapfix.fix.fixers import load_fixer
 from mocapfix.fix.library_file import library_signature, load_library, save_library
 from mocapfix.fix.measure import model_fill
 from mocapfix.fix.output import FIXED
+from mocapfix.fix.threads import on_one_blas_thread, one_blas_thread
 from mocapfix.io import list_motion_files, read_motion
 from mocapfix.io.joint_map import check_joint_map
 
@@ -74,6 +77,7 @@ def _inputs(
     return files, failed
 
 
+@on_one_blas_thread  # the whole run, its reading and library too (fix/threads.py)
 def fix_files(
     paths: list[str],
     ckpt: str,
@@ -131,16 +135,20 @@ def fix_files(
         init = (ckpt, device, precision, threads, overlap, batch_size, os.getpid(), plan)
         pool = ProcessPoolExecutor(jobs, get_context("spawn"), _start_worker, init)
     try:
-        map_takes = (lambda work: list(pool.map(_measure_take, work))) if pool else None
-        measured, library = _run_policy(
-            files, fixer, mode, source, overlap, batch_size, joint_map, read_options, map_takes, extra
-        )
-        measured = _announce(measured, len(files), as_json, out_stream)
-        settings = RunSettings(
-            out, out_dir, mode, batch_size, overlap, force, resume, source, progress, as_json, joint_map,
-            render_gif, read_options, measured, library,
-        )  # fmt: skip
-        counts, failures = _run(mine, fixer, settings, plan, pool, out_stream, err)
+        with tempfile.TemporaryDirectory(prefix="mocapfix-run-") as shared:
+            shelf = _Shelf(Path(shared))
+            map_takes = (lambda work: list(pool.map(_measure_take, shelf.jobs(work)))) if pool else None
+            measured, library = _run_policy(
+                files, fixer, mode, source, overlap, batch_size, joint_map, read_options, map_takes, extra
+            )
+            measured = _announce(measured, len(files), as_json, out_stream)
+            settings = RunSettings(
+                out, out_dir, mode, batch_size, overlap, force, resume, source, progress, as_json, joint_map,
+                render_gif, read_options, measured, library,
+            )  # fmt: skip
+            if pool is not None:
+                settings = shelf.settings(settings)
+            counts, failures = _run(mine, fixer, settings, plan, pool, out_stream, err)
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)
@@ -247,6 +255,7 @@ def _start_worker(
     die_with_parent(parent)  # first: a run killed while this worker starts must not leave it
     # each worker its share of the cores: N workers x all cores each would fight over them
     torch.set_num_threads(threads)
+    one_blas_thread()  # for the worker's life, as in the run's own process (fix/threads.py)
     _WORKER["plan"] = plan
     _WORKER["fixer"] = fixer = load_fixer(ckpt, device, precision)
     _WORKER["model_fill"] = model_fill(fixer, overlap, batch_size)
@@ -254,11 +263,63 @@ def _start_worker(
 
 def _work(item: tuple[Path, Path | None, RunSettings]) -> FileOutcome:
     path, rel, settings = item
+    measured, library = (_shelved(settings.measured), _shelved(settings.library))
+    settings = dataclasses.replace(settings, measured=measured, library=library)
     return fix_one(path, rel, _WORKER["fixer"], settings, sys.stderr, _WORKER["plan"])
 
 
 def _measure_take(job: tuple):
+    job = tuple(_shelved(v) for v in job)
     return measure_take(*job, model_fill=_WORKER["model_fill"])
+
+
+LIBRARY_IN_JOB = 6  # measure_take's argument that is the run's motion library
+
+
+@dataclasses.dataclass(frozen=True)
+class _Shelved:
+    """A run-wide object (the measured policy, the motion library) a worker reads from `path`."""
+
+    path: str
+
+
+class _Shelf:
+    """The run's objects that every file and every measured take is handed, written once into the
+    run's private temporary folder, each worker reading each once (_shelved) and keeping it: handed
+    in every task, the motion library (12 MB on 16 CMU copies) was pickled for each file and each
+    worker built its search's caches again for each (0.5 s a file: 16 copies with 2 workers took
+    4 times the CPU of --jobs 1)."""
+
+    def __init__(self, folder: Path):
+        self.folder, self.written = folder, {}
+
+    def put(self, value):
+        if value is None:
+            return None
+        if id(value) not in self.written:  # the same object (one library, every take's job): once
+            path = self.folder / f"{len(self.written)}.pickle"
+            with open(path, "wb") as f:
+                pickle.dump(value, f, protocol=pickle.HIGHEST_PROTOCOL)
+            self.written[id(value)] = (_Shelved(str(path)), value)  # value kept: its id stays its own
+        return self.written[id(value)][0]
+
+    def jobs(self, work: list[tuple]) -> list[tuple]:
+        return [(*job[:LIBRARY_IN_JOB], self.put(job[LIBRARY_IN_JOB]), *job[LIBRARY_IN_JOB + 1 :]) for job in work]
+
+    def settings(self, settings: RunSettings) -> RunSettings:
+        return dataclasses.replace(settings, measured=self.put(settings.measured), library=self.put(settings.library))
+
+
+def _shelved(value):
+    """value, or what a _Shelved names (read once by this worker; this run's own file in its own
+    temporary folder, written by the process that started the worker: not input from anywhere else)."""
+    if not isinstance(value, _Shelved):
+        return value
+    kept = _WORKER.setdefault("shelf", {})
+    if value.path not in kept:
+        with open(value.path, "rb") as f:
+            kept[value.path] = pickle.load(f)
+    return kept[value.path]
 
 
 def run_in_workers(pool: ProcessPoolExecutor, files, settings: RunSettings, err):

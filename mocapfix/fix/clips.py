@@ -23,8 +23,10 @@ from mocapfix.fix.exchanges import put_back_exchanges
 from mocapfix.fix.fixer import Fixer, FixOptions
 from mocapfix.fix.flips import flips_as_holes
 from mocapfix.fix.report import FixReport
+from mocapfix.fix.threads import on_one_blas_thread
 
 
+@on_one_blas_thread  # fix/threads.py
 def fix_clips(
     clips: list[Clip],
     fixer: Fixer,

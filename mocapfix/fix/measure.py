@@ -17,6 +17,7 @@ from mocapfix.fix.joints import ModelView, model_view
 from mocapfix.fix.merge import merge
 from mocapfix.fix.position_windows import needed_frames
 from mocapfix.fix.positions import take_keys
+from mocapfix.fix.threads import on_one_blas_thread
 
 
 class TakeFill(Fill):
@@ -64,6 +65,7 @@ def model_fill(fixer: Fixer, overlap: float, batch_size: int) -> TakeFill:
     return TakeFill(fixer, overlap, batch_size)
 
 
+@on_one_blas_thread  # fix/threads.py
 def measure_recordings(
     recordings: list[list[Clip]],
     fixer: Fixer,
