@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +82,7 @@ def test_the_run_objects_reach_each_worker_once(tmp_path, monkeypatch):
     """The motion library and the measured policy are written once for a run, whatever the number
     of files and measured takes, and a worker reads each once and keeps it (its search's caches
     with it): handed in every task, each file rebuilt them."""
+    assert list(inspect.signature(fix_run.measure_take).parameters)[fix_run.LIBRARY_IN_JOB] == "library"
     shelf = fix_run._Shelf(tmp_path)
     library, policy = {"takes": np.arange(6.0)}, ("policy", "note")
     jobs = shelf.jobs([(k, 30.0, "skeleton", (0.5,), None, {}, library, k, {}) for k in range(5)])
@@ -100,14 +102,14 @@ def test_the_run_objects_reach_each_worker_once(tmp_path, monkeypatch):
 def test_a_fix_run_keeps_numpys_blas_on_one_thread(takes, tmp_path, monkeypatch):
     from threadpoolctl import threadpool_info
 
+    def blas_threads():
+        return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
     seen = []
 
     def fix_one(*args, **kwargs):
-        seen.extend(lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas")
+        seen.extend(blas_threads())
         return real(*args, **kwargs)
-
-    def blas_threads():
-        return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
 
     real = fix_run.fix_one
     monkeypatch.setattr(fix_run, "fix_one", fix_one)

@@ -2,9 +2,9 @@
 
 fix's products (motion matching's search, the fill policy's measurement over cut holes) are many
 small ones, for which BLAS's own thread per core costs more in waking and waiting than it
-computes: `fix` on 16 copies of the CMU takes (47.5 min of motion, --jobs 1, 2 cores) took 130
-CPU-seconds and 70 s with them, 57 and 42 on one (docs/performance.md); with --jobs 2 each worker's
-BLAS threads fought the other worker's. The outputs are the same bytes. Spreading a run over cores
+computes: `fix` on 16 copies of the CMU takes (47.5 min of motion, --jobs 1, 2 cores) took 135
+CPU-seconds and 72 s with them, 63 and 45 on one (docs/performance.md, 3c); with workers each
+one's BLAS threads fought the others'. The outputs are the same bytes. Spreading a run over cores
 is --jobs' work. torch's threads are left as they are (the model's windows use them).
 """
 
