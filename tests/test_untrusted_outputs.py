@@ -252,13 +252,21 @@ def test_resume_removes_a_killed_runs_temporary_files(tmp_path, ckpt, capsys, ou
 
 
 def _children(pid: int) -> set[int]:
+    """Every process under pid: its children, theirs (the fork server's workers), ..."""
     found = set()
     for task in Path(f"/proc/{pid}/task").glob("*"):
         try:
             found |= {int(c) for c in (task / "children").read_text().split()}
         except OSError:
             pass
-    return found
+    return found.union(*(_children(c) for c in found))
+
+
+def _command(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().decode()
+    except OSError:
+        return ""
 
 
 def still_alive_after_kill(proc: subprocess.Popen, workers: set[int]) -> set[int]:
@@ -282,11 +290,10 @@ def _alive(pid: int) -> bool:
 POOL = """
 import os, time
 from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
-from mocapfix.apps.processes import die_with_parent
+from mocapfix.apps.processes import die_with_parent, worker_context
 
 if __name__ == "__main__":
-    pool = ProcessPoolExecutor(2, get_context("spawn"), die_with_parent, (os.getpid(),))
+    pool = ProcessPoolExecutor(2, worker_context([]), die_with_parent, (os.getpid(),))
     futures = [pool.submit(time.sleep, 0.2) for _ in range(4)]  # both workers up and working
     for f in futures:
         f.result()
@@ -304,9 +311,8 @@ def test_pool_workers_die_with_their_parent(tmp_path):
     workers: set[int] = set()
     try:
         assert proc.stdout.readline() == b"up\n"  # both workers have started and worked
-        workers = _children(proc.pid) - {proc.pid}
-        workers = {w for w in workers if "resource_tracker" not in Path(f"/proc/{w}/cmdline").read_bytes().decode()}
-        assert len(workers) == 2
+        workers = {w for w in _children(proc.pid) if "resource_tracker" not in _command(w)}
+        assert len(workers) == 3  # the fork server and the two workers it forked
         assert not still_alive_after_kill(proc, workers)
         assert proc.stdout.read() == b""  # and the caller's pipe is closed: nothing holds it open
     finally:
@@ -316,6 +322,23 @@ def test_pool_workers_die_with_their_parent(tmp_path):
         proc.kill()
         proc.wait()
         proc.stdout.close()
+
+
+WORKER = "import sys; from mocapfix.apps.processes import die_with_parent; die_with_parent(int(sys.argv[1])); print('alive')"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc is Linux's")
+def test_a_worker_belongs_to_the_run_or_to_a_process_the_run_started():
+    """A worker's parent is the run (spawned) or the run's fork server; one whose parent is neither
+    (its run gone before it armed the signal, it was reparented) ends at once."""
+    stranger = subprocess.Popen(["sleep", "30"])
+    try:
+        for run, lives in [(os.getpid(), True), (os.getppid(), True), (stranger.pid, False)]:
+            done = subprocess.run([sys.executable, "-c", WORKER, str(run)], capture_output=True, text=True, timeout=60)
+            assert (done.returncode, done.stdout) == ((0, "alive\n") if lives else (1, "")), (run, done)
+    finally:
+        stranger.kill()
+        stranger.wait()
 
 
 @pytest.mark.slow  # three processes that load torch: half a minute on 2 busy cores
@@ -334,8 +357,8 @@ def test_workers_die_with_their_parent(tmp_path, ckpt):
     workers: set[int] = set()
     try:
         assert b"->" in proc.stdout.readline()  # a worker has fixed a file: both are up
-        workers = _children(proc.pid)
-        assert len(workers) >= 2
+        workers = {w for w in _children(proc.pid) if "resource_tracker" not in _command(w)}
+        assert len(workers) == 3  # the fork server and the two workers it forked
         assert not still_alive_after_kill(proc, workers)
     finally:  # whatever happened, nothing of this run is left running
         for w in workers | (_children(proc.pid) if proc.poll() is None else set()):

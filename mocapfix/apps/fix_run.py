@@ -10,7 +10,6 @@ import pickle
 import sys
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,7 @@ import torch
 
 from mocapfix.apps.fix_one import FileOutcome, Progress, RunSettings, _one_line, fix_one
 from mocapfix.apps.fix_plan import RunPlan, plan_run
-from mocapfix.apps.processes import die_with_parent
+from mocapfix.apps.processes import die_with_parent, worker_context
 from mocapfix.core.clip import Clip, MotionFileError, shown
 from mocapfix.fills.errors import measure_take
 from mocapfix.fills.motion_matching import LIBRARY_S, MotionLibrary
@@ -133,7 +132,7 @@ def fix_files(
     if jobs > 1:  # each worker loads the model once and serves both the measuring and the files
         threads = max(1, torch.get_num_threads() // jobs)
         init = (ckpt, device, precision, threads, overlap, batch_size, os.getpid(), plan)
-        pool = ProcessPoolExecutor(jobs, get_context("spawn"), _start_worker, init)
+        pool = ProcessPoolExecutor(jobs, worker_context([__name__]), _start_worker, init)
     try:
         with tempfile.TemporaryDirectory(prefix="mocapfix-run-") as shared:
             shelf = _Shelf(Path(shared))
@@ -323,8 +322,8 @@ def _shelved(value):
 
 
 def run_in_workers(pool: ProcessPoolExecutor, files, settings: RunSettings, err):
-    """Outcomes of fix_one over `files` in the pool's workers (started fresh, spawn, as torch
-    wants), in the files' order, with one progress line over files."""
+    """Outcomes of fix_one over `files` in the pool's workers (processes.worker_context), in the
+    files' order, with one progress line over files."""
     show = settings.progress == "always" or (settings.progress == "auto" and getattr(err, "isatty", lambda: False)())
     bar = Progress("fix", show, err, unit="files")
     settings = dataclasses.replace(settings, progress="never")  # the run's bar, not one per file
