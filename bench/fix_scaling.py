@@ -2,9 +2,10 @@
 (the CMU sample's takes of 8 s or more, performers the shipped model never saw, mapped onto its
 21 joints; holes of the full body, an arm or a leg of 0.3-0.9 s, 16 per take), each run a
 separate `mocapfix fix` process with --jobs 1, as a user starts it. Per run: CPU seconds (user +
-system, of the process and every process it started), CPU seconds per minute of motion, the marginal CPU seconds per minute
-between two sizes (the slope: what one more minute costs once the run's fixed costs are paid),
-wall seconds and peak resident memory. The policy is measured on every run (fix FOLDER does).
+system, of the process and every process it started), CPU seconds per minute of motion, the
+marginal CPU seconds per minute between two sizes (the slope: what one more minute costs once
+the run's fixed costs are paid), wall seconds and peak resident memory. The policy is measured
+on every run (fix FOLDER does).
 
     python bench/fix_scaling.py                     # 4, 16, 64 copies (~15 min on 2 cores)
     python bench/fix_scaling.py --copies 1,4 --library /other/takes   # with fix --library

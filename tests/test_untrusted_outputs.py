@@ -324,7 +324,7 @@ def test_pool_workers_die_with_their_parent(tmp_path):
         proc.stdout.close()
 
 
-WORKER = "import sys; from mocapfix.apps.processes import die_with_parent; die_with_parent(int(sys.argv[1])); print('alive')"
+WORKER = "import sys; from mocapfix.apps.processes import die_with_parent as d; d(int(sys.argv[1])); print('alive')"
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc is Linux's")
