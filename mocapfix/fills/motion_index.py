@@ -146,7 +146,11 @@ class MotionIndex:
         mean, basis, coords, norms = self._built()[side]
         q = edge_features(take[at[:1]], [take[[f]] for f in at[1:]], self.pairs)[0].astype(np.float64)
         q = ((q - mean) @ basis).astype(np.float32)
-        return norms - 2 * (coords @ q) + q @ q
+        d = coords @ q  # (N,) and in place from here: norms - 2 c.q + q.q, one array of N, not three
+        d *= -2
+        d += norms
+        d += q @ q
+        return d
 
     def distances_inside(self, pose: np.ndarray) -> np.ndarray | None:
         """pose: (J, 3) a frame inside a limb's hole, NaN at its missing joints -> (N,) about the

@@ -136,12 +136,13 @@ class _Coordinates(NamedTuple):
 
 def _coordinates(frames: np.ndarray) -> _Coordinates:
     """frames: (N, J, 3) metres, NaN where missing."""
-    missing = ~np.isfinite(frames).all(-1)
-    c = np.where(missing[..., None], 0.0, frames).astype(np.float64)
+    frames = np.asarray(frames, dtype=np.float64)
+    missing = ~np.isfinite(frames).all(-1)  # (N, J)
+    c = np.where(missing[..., None], 0.0, frames)  # (N, J, 3)
     middle = c[..., :2].sum((0, 1)) / max(1, (~missing).sum())
-    c[..., :2] -= middle
-    c[missing] = 0.0
-    x, y, z = (np.ascontiguousarray(c[..., i].T, dtype=np.float32) for i in range(3))
+    seen = ~missing.T  # (J, N)
+    x, y = (np.ascontiguousarray(np.where(seen, c[..., i].T - middle[i], 0.0), dtype=np.float32) for i in range(2))
+    z = np.ascontiguousarray(c[..., 2].T, dtype=np.float32)
     missing = np.ascontiguousarray(missing.T, dtype=np.float32)
     named = {"x": x, "y": y, "z": z, "squared": x**2 + y**2 + z**2, "missing": missing}
     by_frame = np.stack([named[name].T for name, _, _ in _SUMS])  # _SUMS's order
