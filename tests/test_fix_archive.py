@@ -119,6 +119,23 @@ def test_a_fix_run_keeps_numpys_blas_on_one_thread(takes, tmp_path, monkeypatch)
     assert blas_threads() == before  # as they were: the run leaves nothing set behind it
 
 
+def test_the_measurement_and_the_files_search_one_library(takes, tmp_path, monkeypatch):
+    """A run's takes make one motion library, which the policy's measurement and every file
+    search: the measurement's own copy of it was its search's frames built twice in every worker."""
+    from mocapfix.fills.motion_matching import MotionLibrary
+
+    made = []
+    real = MotionLibrary.__init__
+
+    def init(self, *args, **kwargs):
+        made.append(self)
+        real(self, *args, **kwargs)
+
+    monkeypatch.setattr(MotionLibrary, "__init__", init)
+    assert _fix(takes, tmp_path / "out", "--jobs", "1") == 0
+    assert len(made) == 1 and len(made[0].keys) == 4
+
+
 def test_a_long_take_is_fixed_in_pieces_with_context(bandai_files, monkeypatch):
     """A take longer than a piece and its margins goes through fix piece by piece (memory bounded
     by a piece): every hole filled, every observed token kept, the counts those of the take."""

@@ -27,6 +27,7 @@ from mocapfix.fix.fixers import load_fixer
 from mocapfix.fix.library_file import library_signature, load_library, save_library
 from mocapfix.fix.measure import model_fill
 from mocapfix.fix.output import FIXED
+from mocapfix.fix.positions import take_keys
 from mocapfix.fix.threads import on_one_blas_thread, one_blas_thread
 from mocapfix.io import list_motion_files, read_motion
 from mocapfix.io.joint_map import check_joint_map
@@ -438,5 +439,13 @@ def _run_policy(
             recordings.append(clips)
     if not recordings:
         return None, extra_library
-    measured = measure_recordings(recordings, fixer, mode, overlap, batch_size, joint_map, map_takes, extra_library)
-    return measured, motion_library(recordings, fixer, joint_map, extra_library) or extra_library
+    library = motion_library(recordings, fixer, joint_map, extra_library) or extra_library
+    # The measurement makes the same library of the same takes for itself; handed this one, which
+    # holds them all, it searches it as it is (library_of), and each worker builds the search's
+    # frames once, not twice. One that left a take out (over LIBRARY_S) would be made again with
+    # that take first: the measurement then makes its own, as it did.
+    keys = [key for clips in recordings for key in take_keys(clips)]
+    holds_all = library is not None and all(key in library.keys for key in keys)
+    searched = library if holds_all else extra_library
+    measured = measure_recordings(recordings, fixer, mode, overlap, batch_size, joint_map, map_takes, searched)
+    return measured, library
