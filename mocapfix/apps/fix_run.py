@@ -249,10 +249,10 @@ def _start_worker(
     threads: int,
     overlap: float,
     batch_size: int,
-    parent: int,
+    run: int,
     plan: RunPlan,
 ) -> None:
-    die_with_parent(parent)  # first: a run killed while this worker starts must not leave it
+    die_with_parent(run)  # first: a run killed while this worker starts must not leave it
     # each worker its share of the cores: N workers x all cores each would fight over them
     torch.set_num_threads(threads)
     one_blas_thread()  # for the worker's life, as in the run's own process (fix/threads.py)
