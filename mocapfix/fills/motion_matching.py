@@ -140,12 +140,18 @@ def _coordinates(frames: np.ndarray) -> _Coordinates:
     missing = ~np.isfinite(frames).all(-1)  # (N, J)
     c = np.where(missing[..., None], 0.0, frames)  # (N, J, 3)
     middle = c[..., :2].sum((0, 1)) / max(1, (~missing).sum())
-    seen = ~missing.T  # (J, N)
-    x, y = (np.ascontiguousarray(np.where(seen, c[..., i].T - middle[i], 0.0), dtype=np.float32) for i in range(2))
-    z = np.ascontiguousarray(c[..., 2].T, dtype=np.float32)
-    missing = np.ascontiguousarray(missing.T, dtype=np.float32)
-    named = {"x": x, "y": y, "z": z, "squared": x**2 + y**2 + z**2, "missing": missing}
-    by_frame = np.stack([named[name].T for name, _, _ in _SUMS])  # _SUMS's order
+    # Made frame by frame, (N, J) each, as by_frame holds them (stacked from the joints-first
+    # arrays' transposes, np.stack kept their joints-first layout: each frame's row of by_frame
+    # was J values N apart, and every gather of a row read J cache lines), then transposed.
+    frame_major = {
+        "x": np.where(missing, 0.0, c[..., 0] - middle[0]).astype(np.float32),
+        "y": np.where(missing, 0.0, c[..., 1] - middle[1]).astype(np.float32),
+        "z": c[..., 2].astype(np.float32),
+        "missing": missing.astype(np.float32),
+    }
+    frame_major["squared"] = frame_major["x"] ** 2 + frame_major["y"] ** 2 + frame_major["z"] ** 2
+    by_frame = np.stack([frame_major[name] for name, _, _ in _SUMS])  # _SUMS's order
+    named = {name: np.ascontiguousarray(v.T) for name, v in frame_major.items()}  # (J, N) each
     return _Coordinates(**named, middle=middle, by_frame=by_frame, whole={})
 
 
