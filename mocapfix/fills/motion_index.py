@@ -146,7 +146,7 @@ class MotionIndex:
         mean, basis, coords, norms = self._built()[side]
         q = edge_features(take[at[:1]], [take[[f]] for f in at[1:]], self.pairs)[0].astype(np.float64)
         q = ((q - mean) @ basis).astype(np.float32)
-        d = coords @ q  # (N,) and in place from here: norms - 2 c.q + q.q, one array of N, not three
+        d = coords @ q  # (N,), in place from here: norms - 2 c.q + q.q, one array of N, not three
         d *= -2
         d += norms
         d += q @ q
@@ -170,4 +170,8 @@ class MotionIndex:
             metric = (part.T @ part).astype(np.float32)  # (D, D)
             squared = ((coords @ metric) * coords) @ np.ones(coords.shape[1], np.float32)  # (N,)
             self._inside[key] = np.where(np.isfinite(norms), squared, np.inf)
-        return self._inside[key] - 2 * (coords @ (part.T @ q).astype(np.float32)) + q @ q
+        d = coords @ (part.T @ q).astype(np.float32)  # in place from here, as in distances
+        d *= -2
+        d += self._inside[key]
+        d += q @ q
+        return d

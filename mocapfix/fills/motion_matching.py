@@ -384,10 +384,12 @@ def _sums_at(source: _Coordinates, w: _Weights, starts: np.ndarray) -> np.ndarra
     # each sum's weights offset-major, as the gathered frames are: (U J, outputs)
     weights = {name: getattr(w, name).transpose(1, 0, 2).reshape(U * J, -1) for _, name, _ in _SUMS}
     for a in range(0, len(starts), chunk):
-        rows = starts[a : a + chunk, None] + w.offsets  # (M, U) frames
+        rows = (starts[a : a + chunk, None] + w.offsets).reshape(-1)  # (M U,) frames, start-major
+        M = len(rows) // U
         for k, (_, name, cols) in enumerate(_SUMS):
-            values = source.by_frame[k][rows].astype(np.float64)  # (M, U, J)
-            sums[a : a + len(rows), cols] += values.reshape(len(rows), U * J) @ weights[name]
+            # np.take of whole rows: a quarter faster than indexing with the (M, U) frames
+            values = np.take(source.by_frame[k], rows, axis=0).astype(np.float64)  # (M U, J)
+            sums[a : a + M, cols] += values.reshape(M, U * J) @ weights[name]
     return sums
 
 
@@ -507,11 +509,13 @@ def _index_places(
     before, after = source.index.distances(filled, hs - 1, -1), source.index.distances(filled, he, 1)
     if before is None or after is None:
         return None
-    d = before[hs - 1 - lo : hs - 1 - lo + N] + after[he - lo : he - lo + N]  # (N,) by the stretch's start
+    d = before[hs - 1 - lo : hs - 1 - lo + N]  # (N,) by the stretch's start; the arrays are this call's own
+    d += after[he - lo : he - lo + N]
     mid = (hs + he) // 2
     inside = source.index.distances_inside(take[mid]) if np.isfinite(take[mid]).any() else None
     if inside is not None:  # a limb's hole: the body it leaves at its middle frame
-        d += INSIDE_WEIGHT * inside[mid - lo : mid - lo + N]
+        inside *= INSIDE_WEIGHT
+        d += inside[mid - lo : mid - lo + N]
     first, end = source.hidden
     d[max(0, first - width + 1) : end] = np.inf
     # the lowest within `apart` of themselves, then the INDEX_PLACES lowest of those (picked one at
