@@ -237,6 +237,27 @@ def test_the_search_scores_every_start_as_a_brute_force_alignment_does():
         assert all(abs(p - q) > 6 for i, p in enumerate(starts) for q in starts[:i])  # apart
 
 
+def test_a_source_is_kept_joints_first_and_frame_by_frame_each_laid_out_as_read():
+    """The search's products read a source joints first, (J, N) per coordinate; its gathers of a
+    start's frames read it frame by frame, (5, N, J): each row of J values side by side in memory
+    (stacked from the joints-first arrays' transposes, np.stack kept their layout, and a gathered
+    row read J values N apart). The same numbers either way, the missing ones at zero."""
+    rng = np.random.default_rng(3)
+    frames = rng.normal(0, 1.0, (50, 6, 3)) + [100.0, -40.0, 1.0]
+    frames[rng.random((50, 6)) < 0.2] = np.nan
+    c = searchable(frames[::2]).coordinates  # a strided view, as a take's searched frames are
+    assert c.by_frame.flags.c_contiguous and c.by_frame.shape == (5, 25, 6)
+    for k, name in enumerate(("x", "y", "z", "squared", "missing")):
+        values = getattr(c, name)
+        assert values.flags.c_contiguous and values.shape == (6, 25)
+        np.testing.assert_array_equal(c.by_frame[k], values.T)
+    missing = np.isnan(frames[::2]).any(-1).T  # (J, N)
+    assert np.array_equal(c.missing > 0, missing) and not c.x[missing].any() and not c.squared[missing].any()
+    seen = frames[::2][~np.isnan(frames[::2]).any(-1)]
+    np.testing.assert_allclose(c.middle, seen[:, :2].mean(0))
+    np.testing.assert_allclose(c.x.T[~missing.T] + c.middle[0], seen[:, 0], atol=1e-4)
+
+
 def test_the_recording_policy_never_searches_the_truth_of_its_cut_holes():
     """A take that never repeats (every joint on its own random path): the motion-matching fills
     of the holes cut into it cannot be exact, as they would be if the take's uncut copy in the
