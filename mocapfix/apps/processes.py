@@ -30,9 +30,11 @@ PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 def worker_context(preload: list[str]) -> multiprocessing.context.BaseContext:
     """Where a run's workers start: forked from a fork server that imported the modules `preload`
-    names once (the server is the run's for its life, started with its first worker); spawned
-    fresh where there is no fork server (Windows). The server is a process of its own started by
-    exec, single-threaded: it never runs torch, so forking it is safe, as forking the run is not."""
+    names once; spawned fresh where there is no fork server (Windows). The server is a process of
+    its own started by exec with the first worker, single-threaded: it never runs torch, so forking
+    it is safe, as forking the run is not. It stays, idle, for the life of the process that
+    started it (`mocapfix fix`: the run; a program calling fix_files: about 270 MB with torch
+    imported, serving its later runs)."""
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     context = multiprocessing.get_context("forkserver")
