@@ -290,10 +290,10 @@ def _alive(pid: int) -> bool:
 POOL = """
 import os, time
 from concurrent.futures import ProcessPoolExecutor
-from mocapfix.apps.processes import die_with_parent, worker_context
+from mocapfix.apps.processes import die_with_run, worker_context
 
 if __name__ == "__main__":
-    pool = ProcessPoolExecutor(2, worker_context([]), die_with_parent, (os.getpid(),))
+    pool = ProcessPoolExecutor(2, worker_context([]), die_with_run, (os.getpid(),))
     futures = [pool.submit(time.sleep, 0.2) for _ in range(4)]  # both workers up and working
     for f in futures:
         f.result()
@@ -324,7 +324,7 @@ def test_pool_workers_die_with_their_parent(tmp_path):
         proc.stdout.close()
 
 
-WORKER = "import sys; from mocapfix.apps.processes import die_with_parent as d; d(int(sys.argv[1])); print('alive')"
+WORKER = "import sys; from mocapfix.apps.processes import die_with_run as d; d(int(sys.argv[1])); print('alive')"
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc is Linux's")

@@ -17,7 +17,7 @@ import torch
 
 from mocapfix.apps.fix_one import FileOutcome, Progress, RunSettings, _one_line, fix_one
 from mocapfix.apps.fix_plan import RunPlan, plan_run
-from mocapfix.apps.processes import die_with_parent, worker_context
+from mocapfix.apps.processes import die_with_run, worker_context
 from mocapfix.core.clip import Clip, MotionFileError, shown
 from mocapfix.fills.errors import measure_take
 from mocapfix.fills.motion_matching import LIBRARY_S, MotionLibrary
@@ -252,7 +252,7 @@ def _start_worker(
     run: int,
     plan: RunPlan,
 ) -> None:
-    die_with_parent(run)  # first: a run killed while this worker starts must not leave it
+    die_with_run(run)  # first: a run killed while this worker starts must not leave it
     # each worker its share of the cores: N workers x all cores each would fight over them
     torch.set_num_threads(threads)
     one_blas_thread()  # for the worker's life, as in the run's own process (fix/threads.py)

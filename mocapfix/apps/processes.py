@@ -9,7 +9,7 @@ used in.
 
 After a `kill -9` of a run's main process its workers would live on: they hold the caller's
 pipes open (a shell or a CI step waiting for the output waits for them) and go on writing outputs
-nobody asked for any more. die_with_parent, called first in each worker, ends the worker when the
+nobody asked for any more. die_with_run, called first in each worker, ends the worker when the
 run ends, however it ends. Light on purpose (no torch): a worker calls it before anything else.
 """
 
@@ -42,7 +42,7 @@ def worker_context(preload: list[str]) -> multiprocessing.context.BaseContext:
     return context
 
 
-def die_with_parent(run: int) -> None:
+def die_with_run(run: int) -> None:
     """End this worker when the run `run` (its main process) ends, however it ends.
     A worker the run spawned: the kernel sends it SIGKILL when its parent ends (Linux's prctl
     PR_SET_PDEATHSIG; the worker's temporary files are then removed by the next run that claims
