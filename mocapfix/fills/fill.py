@@ -14,6 +14,12 @@ import torch
 from mocapfix.core.skeleton import Skeleton
 
 BLEND = "+"  # "a+b": the mean of fills a and b
+# "a*b": the Hermite fill plus a's and b's steps away from it, each weighted as the recording's
+# cut holes say (least squares; errors.py measures it, policy.py keeps the weights per kind of
+# hole): a model's correction and motion matching's both start from the Hermite fill and err in
+# different ways, so part of each step adds to the other.
+STACK = "*"
+STACK_ORIGIN = "hermite"
 
 
 class Shared:
@@ -108,8 +114,17 @@ def made_for_choice(
 
 
 def components(method: str) -> list[str]:
-    """The single fills a candidate averages: "limb+spline" -> ["limb", "spline"]."""
+    """The single fills a candidate is made of: "limb+spline" -> ["limb", "spline"],
+    "correction*match_delta" -> ["hermite", "correction", "match_delta"]."""
+    if STACK in method:
+        return [STACK_ORIGIN, *method.split(STACK)]
     return method.split(BLEND)
+
+
+def stacked(origin: torch.Tensor, steps: list[torch.Tensor], weights: torch.Tensor) -> torch.Tensor:
+    """A stack's fill: origin (..., 3) plus each step's (steps: (..., 3) fills) difference from it
+    times its weight (weights: (..., K), one per step, for every token)."""
+    return origin + sum(weights[..., k, None] * (step - origin) for k, step in enumerate(steps))
 
 
 def blends(fills: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -139,5 +154,9 @@ def pick(
 
 
 def _candidate(fills: dict[str, torch.Tensor], method: str) -> torch.Tensor:
+    if method in fills:
+        return fills[method]
+    if STACK in method:  # its weights are the policy's: FillPolicy.transform makes it
+        raise ValueError(f"the stack {method!r} was not made")
     parts = components(method)
-    return fills[method] if method in fills else sum(fills[m] for m in parts) / len(parts)
+    return sum(fills[m] for m in parts) / len(parts)

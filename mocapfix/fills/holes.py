@@ -39,15 +39,19 @@ def token_parts(observed: torch.Tensor, skeleton: Skeleton) -> torch.Tensor:
     return torch.where(body_wide, 0, limb.view(1, 1, J).expand(B, T, J))
 
 
-def token_choice(observed: torch.Tensor, fps: float, skeleton: Skeleton, gaps_s, table: torch.Tensor) -> torch.Tensor:
-    """observed: (B, T, J) -> (B, T, J): table[part, gap] for each token, its hole's part and the
-    measured gap (gaps_s, ascending) nearest its hole's length. The choice depends only on the
-    (part, gap) cell: a lookup table, not a per-token loop."""
+def token_cells(observed: torch.Tensor, fps: float, skeleton: Skeleton, gaps_s) -> tuple[torch.Tensor, torch.Tensor]:
+    """observed: (B, T, J) -> ((B, T, J) index into PARTS of each token's hole's part, (B, T, J)
+    index into gaps_s (ascending) of the measured gap nearest its hole's length)."""
     seconds = hole_frames(observed).float() / fps
     parts = token_parts(observed, skeleton)
     edges = torch.tensor([(a + b) / 2 for a, b in zip(gaps_s, gaps_s[1:])], device=observed.device)
-    gap_index = torch.bucketize(seconds.contiguous(), edges)  # (B, T, J) into gaps_s
-    return table.to(observed.device)[parts, gap_index]
+    return parts, torch.bucketize(seconds.contiguous(), edges)
+
+
+def token_choice(observed: torch.Tensor, fps: float, skeleton: Skeleton, gaps_s, table: torch.Tensor) -> torch.Tensor:
+    """observed: (B, T, J) -> (B, T, J): table[part, gap] for each token, its cell (token_cells).
+    The choice depends only on the (part, gap) cell: a lookup table, not a per-token loop."""
+    return table.to(observed.device)[token_cells(observed, fps, skeleton, gaps_s)]
 
 
 def hole_kinds(tracks: list[np.ndarray], skeleton, fps: float, gaps_s) -> set[tuple[str, float]]:

@@ -29,8 +29,8 @@ from scipy.special import stdtrit
 
 from mocapfix.core.skeleton import Skeleton
 from mocapfix.fills.errors import ErrorSums, measure_on_takes
-from mocapfix.fills.fill import BLEND, Fill, components, made_for_choice, pick
-from mocapfix.fills.holes import PARTS, hole_kinds, token_choice
+from mocapfix.fills.fill import BLEND, STACK, Fill, components, made_for_choice, pick, stacked
+from mocapfix.fills.holes import PARTS, hole_kinds, token_cells, token_choice
 
 LEARNED = ("xmae", "correction")  # the candidates that are models; every other is a classical fill
 CLEAN_QUANTILE = 0.995  # of the model's disagreement with clean observed tokens: above it, a token is suspect
@@ -79,8 +79,8 @@ TRUST_CONFIDENCE = 0.975
 
 @cache  # asked of the same few dozen names for every cell of every file's policy
 def is_learned(method: str) -> bool:
-    """A candidate with a model in it (a model alone, or a model averaged with a classical fill)."""
-    return any(m in LEARNED for m in method.split(BLEND))
+    """A candidate with a model in it (a model alone, or a model averaged or stacked with other fills)."""
+    return any(m in LEARNED for m in components(method))
 
 
 @dataclass
@@ -93,6 +93,8 @@ class FillPolicy:
     # (method, margin): this classical fill unless another classical candidate's error is below
     # margin x its error (near-ties rank differently on other holes); None: the lowest error
     preferred: tuple[str, float] | None = None
+    # part -> stack (fill.py STACK) -> per gap its weights, one per step (None: not measured there)
+    stacks: dict[str, dict[str, list[list[float] | None]]] = field(default_factory=dict)
 
     @classmethod
     def preferred_only(cls, gaps_s) -> FillPolicy:
@@ -153,8 +155,13 @@ class FillPolicy:
         from; only those it chooses are run."""
         names = self.chosen()
         table = self.table(names)
-        choice = token_choice(observed, fps, skeleton, self.gaps_s, table)
+        cells = token_cells(observed, fps, skeleton, self.gaps_s)  # ((B, T, J) part, (B, T, J) gap)
+        choice = table.to(observed.device)[cells]
         candidates = made_for_choice(fills, positions, observed, fps, skeleton, names, choice)
+        for name in [m for m in names if STACK in m]:
+            origin, *steps = components(name)
+            weights = self._stack_weights(name).to(positions.device)[cells]  # (B, T, J, K)
+            candidates[name] = stacked(candidates[origin], [candidates[m] for m in steps], weights)
         out, chosen = pick(candidates, names, choice, positions, observed)
         chosen = chosen if counted is None else chosen[..., counted]
         counts = torch.bincount(chosen[chosen >= 0], minlength=len(names)).tolist()
@@ -197,6 +204,9 @@ class FillPolicy:
         ahead = proven(errors)
         base = self if earned or ahead else self._classical_only()
         tables = _with_measured(base.error_mm, measured or {}, gaps, asked, earned, cut, ahead)
+        stacks: dict[str, dict[str, list[list[float] | None]]] = {}
+        for (part, gap, name), weights in errors.stack_weights.items():
+            stacks.setdefault(part, {}).setdefault(name, [None] * len(gaps))[gaps.index(gap)] = weights
         out = FillPolicy(
             gaps,
             tables,
@@ -204,6 +214,7 @@ class FillPolicy:
             self.windows,
             ["measured on the recording"],
             (PREFERRED, PREFERRED_MARGIN),
+            stacks,
         )
         chosen = ", ".join(f"{p} {g:g}s {out.choose(p, g)}" for p, g in asked if (p, g) in cut)
         evidence = f"{sum(cut.values())} holes cut into it" + (
@@ -217,6 +228,17 @@ class FillPolicy:
         if settled:
             evidence += f"; {len(settled)} kinds settled early (every other fill behind the {PREFERRED} fill)"
         return out, f"fill policy measured on this recording ({evidence}): {chosen or 'nothing could be cut'}"
+
+    def _stack_weights(self, name: str) -> torch.Tensor:
+        """(parts, gaps, K) float64: a stack's weights per cell (zero where it was not measured: its
+        origin, which it is chosen nowhere there)."""
+        steps = len(components(name)) - 1
+        out = torch.zeros(len(PARTS), len(self.gaps_s), steps, dtype=torch.float64)
+        for p, part in enumerate(PARTS):
+            for i, w in enumerate(self.stacks.get(part, {}).get(name, [None] * len(self.gaps_s))):
+                if w is not None:
+                    out[p, i] = torch.tensor(w, dtype=torch.float64)
+        return out
 
     def _classical_only(self) -> FillPolicy:
         """This policy with the model's candidates taken out: the classical fills as it ranks them."""
@@ -250,6 +272,7 @@ class FillPolicy:
             "windows": self.windows,
             "notes": list(self.notes),
             "preferred": list(self.preferred) if self.preferred else None,
+            "stacks": self.stacks,
         }
 
     @classmethod
@@ -261,6 +284,7 @@ class FillPolicy:
             int(d.get("windows", 0)),
             list(d.get("notes", [])),
             (str(d["preferred"][0]), float(d["preferred"][1])) if d.get("preferred") else None,
+            d.get("stacks") or {},
         )
 
 
