@@ -4,7 +4,8 @@ on the val split's windows (evaluation/policy_fit.py) or on the recording being 
 Holes of a kind (body part, length) are cut into a take where the part is observed, with
 CONTEXT_S of data on both sides, and every candidate fills them as it fills the take's own: the
 classical fills and motion matching with the take's whole context, the model as the Fill it is
-handed (fix/: its windows blended over the take and anchored on the data).
+handed (fix/: its windows blended over the take and anchored on the data). A stack of a model's
+fill and motion matching's (STACKS) is measured with its weights fitted on the other takes' holes.
 """
 
 from __future__ import annotations
@@ -47,7 +48,8 @@ class ErrorSums:
     tables of a fill policy (tables: part -> method -> mean error in mm per gap); where the holes
     are told apart (add_fills' hole_of), each hole's mean error too, in the order measured, and
     the take it was cut into: the paired evidence policy.py screens candidates out on
-    (hopeless) and lets a candidate take a kind on fewer holes by (proven)."""
+    (hopeless) and lets a candidate take a kind on fewer holes by (proven). A stack's numbers
+    come from the steps kept for it (stack_data) when settle_stacks is asked."""
 
     def __init__(self, gaps_s):
         self.gaps_s = sorted(float(g) for g in gaps_s)

@@ -1,5 +1,5 @@
 """What a fill is: the one interface every way of filling a hole has, and the candidates a fill
-policy chooses among (a fill, or the mean of two).
+policy chooses among (a fill, the mean of two, or a stack: STACK).
 
 A Fill gives one or more named candidates for the same holes: the classical fills one each
 (classical.py), motion matching two from one search (motion_matching.py), a model one (model.py;

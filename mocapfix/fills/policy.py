@@ -16,6 +16,9 @@ does with clean data (replace_threshold_m).
 A candidate is a single method ("spline") or the mean of two ("limb+spline"): two fills that err
 in different directions average to a smaller error than either (a spline overshoots where the
 limb fill bends), and which pair that is differs by hole length and part, so it is measured too.
+A stack ("correction*match_delta", fill.py STACK) goes further where both fills step from the
+same Hermite fill: each step weighted by least squares on the recording's cut holes (errors.py,
+held out by take), the weights kept per kind of hole (`stacks`).
 """
 
 from __future__ import annotations
