@@ -33,13 +33,14 @@ CONTEXT_S = 0.1
 BATCH_FRAMES = 8192
 # The stacks measured (fill.py STACK): a model's fill (policy.py LEARNED) with motion matching's
 # match_delta, both steps from the Hermite fill. On Human3.6M's held-out subjects (every S9/S11
-# take, the shipped correction, 4 holes a take) the stack, its weights fitted on the other takes'
-# holes, was 3 / 3 / 2 % of the best classical fill below the better of the mean of the two and
-# the correction alone for full-body holes of 0.5-0.9 s, 3-5 % for leg holes, and 1 % above the
-# correction alone for arm holes; with the limb fill as the origin instead it gained half that.
+# take, the correction_h36m of docs/results.md, 4 holes a take) the stack, each take's holes
+# scored with the weights the other takes' gave, was 2 / 2 / 2 % of the best classical fill below
+# the better of the mean of the two and the correction alone for full-body holes of 0.5 / 0.7 /
+# 0.9 s, 3 / 3 / 5 % for leg holes, and within 0.5 % of the correction alone for arm holes; with
+# the limb fill as the origin it gained a quarter of that or less.
 STACKS = (("xmae", "match_delta"), ("correction", "match_delta"))
-# A stack's weights: least squares with this much ridge (a share of the steps' mean square), which
-# keeps them defined where a step is zero (match_delta where nothing matched is the Hermite fill).
+# A stack's weights: least squares with a ridge of this share of the steps' mean sum of squares,
+# which keeps them defined where a step is zero (match_delta where nothing matched is the Hermite).
 STACK_RIDGE = 1e-6
 
 

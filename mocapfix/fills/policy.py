@@ -163,7 +163,7 @@ class FillPolicy:
         candidates = made_for_choice(fills, positions, observed, fps, skeleton, names, choice)
         for name in [m for m in names if STACK in m]:
             origin, *steps = components(name)
-            weights = self._stack_weights(name).to(positions.device)[cells]  # (B, T, J, K)
+            weights = self._stack_weights(name).to(positions.device, candidates[origin].dtype)[cells]  # (B, T, J, K)
             candidates[name] = stacked(candidates[origin], [candidates[m] for m in steps], weights)
         out, chosen = pick(candidates, names, choice, positions, observed)
         chosen = chosen if counted is None else chosen[..., counted]
