@@ -143,8 +143,8 @@ class ErrorSums:
             hole = np.concatenate([at + o for (at, _, _), o in zip(records, offsets)])  # (M,)
             steps = np.concatenate([r[1] for r in records]).astype(np.float64)  # (M, K, 3)
             target = np.concatenate([r[2] for r in records]).astype(np.float64)  # (M, 3)
-            names = np.unique(np.array([str(t) for t in takes]), return_inverse=True)[1]  # (holes,)
-            group = names[hole] if names.max() > 0 else hole  # (M,) one take: each hole its own
+            numbers = take_numbers(takes)  # (holes,)
+            group = numbers[hole] if numbers.max() > 0 else hole  # (M,) one take: each hole its own
             errors, weights = _stack_errors(steps, target, group)
             per_hole = np.bincount(hole, weights=errors, minlength=len(takes)) / np.bincount(hole, minlength=len(takes))
             self.sums[key] = [float(errors.sum()), int(errors.size)]
@@ -168,6 +168,12 @@ class ErrorSums:
             if rows:
                 error[part] = rows
         return error
+
+
+def take_numbers(takes: list) -> np.ndarray:
+    """The take of each hole (ErrorSums.hole_takes' list for a kind) -> (holes,) int, the takes
+    numbered from 0: holes of one take are one group of evidence."""
+    return np.unique(np.array([str(t) for t in takes]), return_inverse=True)[1]
 
 
 def _stack_errors(steps: np.ndarray, target: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

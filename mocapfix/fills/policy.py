@@ -31,7 +31,7 @@ import torch
 from scipy.special import stdtrit
 
 from mocapfix.core.skeleton import Skeleton
-from mocapfix.fills.errors import ErrorSums, measure_on_takes
+from mocapfix.fills.errors import ErrorSums, measure_on_takes, take_numbers
 from mocapfix.fills.fill import BLEND, STACK, Fill, components, made_for_choice, pick, stacked
 from mocapfix.fills.holes import PARTS, hole_kinds, token_cells, token_choice
 
@@ -424,7 +424,7 @@ def proven(errors: ErrorSums) -> set[tuple[str, float, str]]:
         preferred = np.array(errors.holes.get((part, gap, PREFERRED), []))
         if len(preferred) != len(takes):
             continue
-        keys = np.unique(np.array([str(t) for t in takes]), return_inverse=True)[1]  # (holes,) the take's number
+        keys = take_numbers(takes)  # (holes,) the take's number
         n = int(keys.max()) + 1 if len(keys) else 0
         if n < TRUST_TAKES:
             continue
